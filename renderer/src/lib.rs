@@ -1,0 +1,1 @@
+//! twill-renderer (in progress)
