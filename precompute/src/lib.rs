@@ -11,6 +11,7 @@
 //! the scattering point (omega_i toward the light, omega_o toward the viewer); radiance is linear
 //! RGB. This crate knows nothing of the GPU.
 
+pub mod atomic_file;
 pub mod bcsdf;
 pub mod fabric;
 pub mod fibonacci;
