@@ -1,1 +1,152 @@
-fn main() {}
+//! The `twill` program: command line front end.
+//!
+//! Each subcommand loads a scene (a TOML file, or the built-in default scene when none is
+//! given), builds what it needs and reports errors through anyhow with the file and place that
+//! caused them. Long work shows a progress bar on stderr.
+
+mod commands;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand, ValueEnum};
+
+#[derive(Debug, Parser)]
+#[command(name = "twill", version, about = "Fiber-level woven fabric rendering (Khungurn et al. 2017)")]
+#[command(arg_required_else_help = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Inspect, list and export fabrics.
+    Fabric {
+        #[command(subcommand)]
+        command: FabricCommand,
+    },
+    /// Path-trace a fiber-level reference image of a scene.
+    Reference(ReferenceArgs),
+}
+
+#[derive(Debug, Subcommand)]
+enum FabricCommand {
+    /// List the built-in fabric presets.
+    Presets,
+    /// Print fiber and segment counts, bounds, volume fraction and the mean free path.
+    Info {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Rays cast to measure the mean free path.
+        #[arg(long, default_value_t = 20_000)]
+        mfp_samples: usize,
+    },
+    /// Write the scene's fabric exemplar as a fiber file.
+    Export {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        #[arg(long, value_enum)]
+        format: FiberFormat,
+        /// Output file.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum FiberFormat {
+    /// Mitsuba's curve text format (`x y z radius` per line, blank line between fibers).
+    Mitsuba,
+    /// The cyHair `.hair` binary format.
+    Hair,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum Only {
+    /// Light scattered exactly once by a fiber.
+    Single,
+    /// Light scattered two or more times.
+    Multiple,
+}
+
+#[derive(Debug, clap::Args)]
+struct ReferenceArgs {
+    /// Scene file (default: the built-in default scene).
+    scene: Option<PathBuf>,
+    /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(usize, usize)>,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Maximum number of scattering events per path (default: the scene's).
+    #[arg(long)]
+    max_depth: Option<u32>,
+    /// Render only one scattering component.
+    #[arg(long, value_enum)]
+    only: Option<Only>,
+    /// Exposure in stops for PNG output (default: the scene's).
+    #[arg(long, allow_hyphen_values = true)]
+    exposure: Option<f64>,
+    /// Random seed (default: the scene's).
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let err = || format!("{text:?} is not a size: expected WIDTHxHEIGHT, e.g. 256x256, each 1..=16384");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(err)?;
+    let w: usize = w.trim().parse().map_err(|_| err())?;
+    let h: usize = h.trim().parse().map_err(|_| err())?;
+    if (1..=16384).contains(&w) && (1..=16384).contains(&h) { Ok((w, h)) } else { Err(err()) }
+}
+
+fn main() -> Result<()> {
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Fabric { command } => match command {
+            FabricCommand::Presets => commands::fabric_presets(),
+            FabricCommand::Info { scene, mfp_samples } => commands::fabric_info(scene.as_deref(), mfp_samples),
+            FabricCommand::Export { scene, format, output } => {
+                commands::fabric_export(scene.as_deref(), matches!(format, FiberFormat::Hair), &output)
+            }
+        },
+        Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
+            scene: args.scene,
+            output: args.output,
+            size: args.size,
+            spp: args.spp,
+            max_depth: args.max_depth,
+            only: args.only.map(|o| match o {
+                Only::Single => twill_precompute::pathtrace::Component::Single,
+                Only::Multiple => twill_precompute::pathtrace::Component::Multiple,
+            }),
+            exposure: args.exposure,
+            seed: args.seed,
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_and_bad_sizes_name_the_valid_form() {
+        assert_eq!(parse_size("256x128"), Ok((256, 128)));
+        assert!(parse_size("0x5").unwrap_err().contains("WIDTHxHEIGHT"));
+        assert!(parse_size("abc").is_err());
+        assert!(parse_size("20000x2").is_err());
+    }
+
+    #[test]
+    fn the_command_line_is_well_formed() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

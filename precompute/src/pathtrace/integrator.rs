@@ -1,0 +1,224 @@
+//! The path-tracing integrator.
+//!
+//! A path starts at the camera. At each fiber hit (a scattering event, counted from 1) it adds
+//! next-event estimation toward every light, then samples the material for the next direction.
+//! The fiber model is not reciprocal, so every evaluation passes the light-side direction as
+//! ωi and the camera-side direction as ωo (`Material::eval_cos(t, n, ωi, ωo)`). A continuation
+//! ray that escapes the fabric picks up SG-light radiance, weighted against next-event
+//! estimation by the power heuristic; directional lights are reached by next-event estimation
+//! only. Primary rays that miss see a black background; an optional black ground plane under
+//! the fabric absorbs whatever reaches it and shadows lights from below.
+//!
+//! [`Component`] selects which scattering orders count: all, single scattering only (exactly
+//! one fiber interaction) or multiple scattering only (two or more). Each pixel gets its own
+//! random stream derived from the seed and the pixel index, so images do not depend on thread
+//! scheduling.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+use super::camera::Camera;
+use super::light::Light;
+use crate::Rgb;
+use crate::bcsdf::Material;
+use crate::image::{Film, PixelRow};
+use crate::params::{ParamError, check_count};
+use crate::raycast::{FiberScene, Hit};
+
+/// Which scattering orders an image shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Component {
+    #[default]
+    All,
+    /// Light that scattered exactly once on a fiber before reaching the camera.
+    Single,
+    /// Light that scattered two or more times.
+    Multiple,
+}
+
+impl Component {
+    fn counts(self, event: u32) -> bool {
+        match self {
+            Self::All => true,
+            Self::Single => event == 1,
+            Self::Multiple => event >= 2,
+        }
+    }
+}
+
+/// Sampling settings of a render.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderSettings {
+    pub spp: u32,
+    /// Maximum number of scattering events on a path.
+    pub max_depth: u32,
+    pub component: Component,
+    pub seed: u64,
+}
+
+impl RenderSettings {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check_count("spp", self.spp as usize, 1, 1 << 20)?;
+        check_count("max_depth", self.max_depth as usize, 1, 10_000)?;
+        Ok(())
+    }
+}
+
+/// Everything a path needs: fibers, their materials, lights and an optional ground.
+pub struct PathScene {
+    pub fibers: FiberScene,
+    /// Material of each yarn of the fabric (indexed by `Hit::yarn`).
+    pub yarn_materials: Vec<Material>,
+    pub lights: Vec<Light>,
+    /// Height of a black, absorbing ground plane under the fabric, if any.
+    pub ground_z: Option<f64>,
+}
+
+/// Renders `settings.spp` samples per pixel; `progress` is called with the number of rows done.
+pub fn render(
+    scene: &PathScene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Film {
+    let (width, height) = (camera.width(), camera.height());
+    let rows_done = AtomicUsize::new(0);
+    let rows: Vec<PixelRow> = (0..height)
+        .into_par_iter()
+        .map(|y| {
+            let mut row = PixelRow::new(width);
+            for x in 0..width {
+                let mut rng = pixel_rng(settings.seed, (y * width + x) as u64);
+                for _ in 0..settings.spp {
+                    let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+                    let (origin, dir) = camera.ray(px, py);
+                    row.add(x, radiance(scene, origin, dir, settings, &mut rng));
+                }
+            }
+            progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1);
+            row
+        })
+        .collect();
+    let mut film = Film::new(width, height);
+    for (y, row) in rows.iter().enumerate() {
+        film.set_row(y, row);
+    }
+    film
+}
+
+/// A random stream for one pixel, independent of every other pixel's.
+pub fn pixel_rng(seed: u64, pixel: u64) -> Pcg64Mcg {
+    // SplitMix64 finalizer decorrelates neighbouring pixel indices.
+    let mut z = seed ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    Pcg64Mcg::seed_from_u64(z ^ (z >> 31))
+}
+
+/// One path's estimate of the radiance arriving at `origin` from direction `-dir`.
+pub fn radiance(scene: &PathScene, origin: DVec3, dir: DVec3, settings: &RenderSettings, rng: &mut Pcg64Mcg) -> Rgb {
+    let Some(mut hit) = trace(scene, origin, dir, None) else {
+        return Rgb::ZERO; // black background
+    };
+    let mut dir = dir;
+    let mut throughput = Rgb::ONE;
+    let mut total = Rgb::ZERO;
+    for event in 1..=settings.max_depth {
+        let wo = -dir;
+        let position = hit.position.as_dvec3();
+        let t = hit.tangent.as_dvec3();
+        let n = hit.normal.as_dvec3();
+        let material = &scene.yarn_materials[hit.yarn as usize];
+        let counts_here = settings.component.counts(event);
+
+        if counts_here {
+            for light in &scene.lights {
+                let sample = light.sample([rng.random(), rng.random()]);
+                let wi = sample.to_light;
+                let f = material.eval_cos(t, n, wi, wo);
+                if f == Rgb::ZERO || occluded(scene, position, wi, hit.fiber) {
+                    continue;
+                }
+                let mis = sample.pdf.map_or(1.0, |light_pdf| power_heuristic(light_pdf, material.pdf(t, n, wo, wi)));
+                total += throughput * f * sample.weight * mis;
+            }
+        }
+        // Nothing further can count once single scattering is done.
+        if settings.component == Component::Single && event >= 1 && !has_sg_light(scene) {
+            break;
+        }
+
+        let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+            break;
+        };
+        if pdf <= 0.0 || !pdf.is_finite() {
+            break;
+        }
+        let f = material.eval_cos(t, n, wi, wo);
+        if f == Rgb::ZERO {
+            break;
+        }
+        throughput *= f / pdf;
+        dir = wi;
+
+        match trace(scene, position, wi, Some(hit.fiber)) {
+            Some(next) => hit = next,
+            None => {
+                if counts_here && !below_ground(scene, position, wi) {
+                    for light in &scene.lights {
+                        let light_pdf = light.pdf(wi);
+                        if light_pdf > 0.0 {
+                            total += throughput * light.radiance(wi) * power_heuristic(pdf, light_pdf);
+                        }
+                    }
+                }
+                break;
+            }
+        }
+        if settings.component == Component::Single {
+            break;
+        }
+        // Russian roulette from the fourth event on, by throughput.
+        if event >= 3 {
+            let survive = throughput.max_element().clamp(0.05, 1.0);
+            if rng.random::<f64>() >= survive {
+                break;
+            }
+            throughput /= survive;
+        }
+    }
+    total
+}
+
+fn has_sg_light(scene: &PathScene) -> bool {
+    scene.lights.iter().any(|l| matches!(l, Light::Sg { .. }))
+}
+
+fn power_heuristic(a: f64, b: f64) -> f64 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 == 0.0 { 0.0 } else { a2 / (a2 + b2) }
+}
+
+/// Closest fiber hit that lies above the ground (fibers below it are hidden by it).
+fn trace(scene: &PathScene, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>) -> Option<Hit> {
+    let t_max = ground_distance(scene, origin, dir).unwrap_or(f64::INFINITY);
+    scene.fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, ignore_fiber)
+}
+
+fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
+    below_ground(scene, origin, dir) || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
+}
+
+fn below_ground(scene: &PathScene, origin: DVec3, dir: DVec3) -> bool {
+    ground_distance(scene, origin, dir).is_some()
+}
+
+/// Distance along the ray to the ground plane, if the ray reaches it.
+fn ground_distance(scene: &PathScene, origin: DVec3, dir: DVec3) -> Option<f64> {
+    let z = scene.ground_z?;
+    (dir.z < 0.0 && origin.z > z).then(|| (origin.z - z) / -dir.z)
+}
