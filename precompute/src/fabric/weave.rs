@@ -75,6 +75,7 @@ impl WeavePreset {
     ];
 
     /// The serde / scene-file name.
+    #[must_use]
     pub fn name(self) -> &'static str {
         match self {
             WeavePreset::Plain => "plain",
@@ -88,6 +89,7 @@ impl WeavePreset {
     }
 
     /// The draft of this weave.
+    #[must_use]
     pub fn draft(self) -> WeaveDraft {
         let rows: &[&str] = match self {
             WeavePreset::Plain => &["X.", ".X"],
@@ -176,16 +178,19 @@ impl WeaveDraft {
     }
 
     /// Number of weft picks (rows).
+    #[must_use]
     pub fn rows(&self) -> usize {
         self.rows
     }
 
     /// Number of warp ends (columns).
+    #[must_use]
     pub fn cols(&self) -> usize {
         self.cols
     }
 
     /// Whether warp `col` passes over weft `row`; indices wrap around (the draft is periodic).
+    #[must_use]
     pub fn warp_over(&self, row: usize, col: usize) -> bool {
         self.cells[(row % self.rows) * self.cols + col % self.cols]
     }
@@ -206,6 +211,7 @@ impl WeaveDraft {
     }
 
     /// The rows in text form (`X` = warp over, `.` = weft over).
+    #[must_use]
     pub fn to_rows(&self) -> Vec<String> {
         (0..self.rows)
             .map(|r| (0..self.cols).map(|c| if self.warp_over(r, c) { 'X' } else { '.' }).collect())
@@ -214,16 +220,19 @@ impl WeaveDraft {
 
     /// Longest run of consecutive picks a warp end floats over, counted cyclically (the draft
     /// repeats) over all columns.
+    #[must_use]
     pub fn longest_warp_float(&self) -> usize {
         (0..self.cols).map(|c| longest_cyclic_run(self.rows, |r| self.warp_over(r, c))).max().unwrap_or(0)
     }
 
     /// Longest run of consecutive ends a weft pick floats over, counted cyclically over all rows.
+    #[must_use]
     pub fn longest_weft_float(&self) -> usize {
         (0..self.rows).map(|r| longest_cyclic_run(self.cols, |c| !self.warp_over(r, c))).max().unwrap_or(0)
     }
 
     /// Fraction of crossings where the warp is on top (1/2 for balanced weaves).
+    #[must_use]
     pub fn warp_cover(&self) -> f64 {
         self.cells.iter().filter(|&&c| c).count() as f64 / self.cells.len() as f64
     }
@@ -310,15 +319,15 @@ mod tests {
 
     #[test]
     fn parse_display_round_trip_and_serde_names() {
+        #[derive(serde::Deserialize)]
+        struct W {
+            w: WeavePreset,
+        }
         for p in WeavePreset::ALL {
             let d = p.draft();
             let text = d.to_string();
             assert_eq!(text.parse::<WeaveDraft>().unwrap(), d);
             let toml_text = format!("w = \"{}\"", p.name());
-            #[derive(serde::Deserialize)]
-            struct W {
-                w: WeavePreset,
-            }
             assert_eq!(toml::from_str::<W>(&toml_text).unwrap().w, p);
         }
         assert_eq!(WeaveDraft::from_rows(&["x-", "01"]).unwrap(), WeavePreset::Plain.draft());
