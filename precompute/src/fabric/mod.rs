@@ -60,15 +60,18 @@ pub struct Segment {
 }
 
 impl Segment {
+    #[must_use]
     pub fn midpoint(&self) -> Vec3 {
         0.5 * (self.a + self.b)
     }
 
     /// Unit direction from `a` to `b` (the fiber tangent, x axis of the fiber frame).
+    #[must_use]
     pub fn tangent(&self) -> Vec3 {
         (self.b - self.a).normalize_or_zero()
     }
 
+    #[must_use]
     pub fn length(&self) -> f32 {
         (self.b - self.a).length()
     }
@@ -104,21 +107,30 @@ pub struct Exemplar {
 
 impl Exemplar {
     /// All segments of all fibers, in fiber order (segment ids index this list).
+    #[must_use]
     pub fn segments(&self) -> Vec<Segment> {
         let mut out = Vec::with_capacity(self.segment_count());
         for (f, fiber) in self.fibers.iter().enumerate() {
             for pair in fiber.points.windows(2) {
-                out.push(Segment { a: pair[0], b: pair[1], radius: fiber.radius, fiber: f as u32, yarn: fiber.yarn });
+                out.push(Segment {
+                    a: pair[0],
+                    b: pair[1],
+                    radius: fiber.radius,
+                    fiber: f as u32,
+                    yarn: fiber.yarn,
+                });
             }
         }
         out
     }
 
+    #[must_use]
     pub fn segment_count(&self) -> usize {
         self.fibers.iter().map(|f| f.points.len().saturating_sub(1)).sum()
     }
 
     /// Axis-aligned bounds of the fibers including their radius; `None` if there are none.
+    #[must_use]
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         let mut lo = Vec3::splat(f32::INFINITY);
         let mut hi = Vec3::splat(f32::NEG_INFINITY);
@@ -132,6 +144,7 @@ impl Exemplar {
     }
 
     /// Material index of a yarn.
+    #[must_use]
     pub fn material_of_yarn(&self, yarn: u32) -> u32 {
         self.yarns[yarn as usize].material
     }
