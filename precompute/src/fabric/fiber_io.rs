@@ -378,30 +378,10 @@ pub fn encode_hair(fibers: &[Fiber]) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// Writes `bytes` to a temporary file next to `path`, syncs it and renames it over `path`.
+/// Writes `bytes` to `path` atomically (see [`crate::atomic_file`]).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), FiberIoError> {
-    let io = |source| FiberIoError::Io { file: path.to_owned(), source };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| FiberIoError::Invalid { file: path.to_owned(), message: "not a file name".into() })?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".{}.tmp", std::process::id()));
-    let tmp = dir.join(tmp_name);
-    let result = (|| {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io)
+    crate::atomic_file::write_atomically(path, |w| w.write_all(bytes))
+        .map_err(|source| FiberIoError::Io { file: path.to_owned(), source })
 }
 
 #[cfg(test)]
