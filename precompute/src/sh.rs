@@ -1,1 +1,507 @@
-//! (in progress)
+//! Real spherical harmonics: evaluation, projection by quadrature, rotation.
+//!
+//! How it works:
+//! - Basis: orthonormal real SH **without** the Condon–Shortley phase, indexed `j = l(l+1) + m`
+//!   (so band 1 is `sqrt(3/4pi) (y, z, x)` for `m = -1, 0, 1`):
+//!   `Y_l0 = N_l0 P_l^0(z)`, `Y_lm = sqrt(2) N_lm P_l^m(z) cos(m phi)` and
+//!   `Y_l,-m = sqrt(2) N_lm P_l^m(z) sin(m phi)` for `m > 0`, with `P_l^m >= 0` near the poles.
+//!   An order-`L` expansion holds bands `0..=L`, [`sh_count`]`(L) = (L+1)^2` coefficients.
+//! - [`sh_eval`] runs the standard recurrences for the *normalized* associated Legendre
+//!   functions (no factorials, so no overflow at any order), with the `sin^m theta` factor
+//!   folded into `Re/Im (x + i y)^m`, which needs no `atan2` and is smooth at the poles.
+//! - [`sh_project`] integrates with Gauss–Legendre nodes in `cos theta` (computed here by
+//!   Newton iteration on `P_n`) times a uniform rule in `phi`; it is exact for band-limited
+//!   integrands up to the degree stated on the function.
+//! - [`ShRotation`] builds each band's `(2l+1) x (2l+1)` matrix from the 3x3 rotation with the
+//!   Ivanic–Ruedenberg recurrences (J. Phys. Chem. 1996, with the 1998 errata; the `V` term for
+//!   `m < 0` as corrected there). Convention: applying the rotation built from `R` to the
+//!   coefficients of `f` gives the coefficients of `g(w) = f(R^T w)`, i.e. the function is
+//!   carried along by `R` (a lobe around `a` moves to `R a`).
+
+use glam::{DMat3, DVec3};
+use std::f64::consts::PI;
+
+/// Number of coefficients of an order-`order` expansion: `(order + 1)^2`.
+#[must_use]
+pub const fn sh_count(order: usize) -> usize {
+    (order + 1) * (order + 1)
+}
+
+/// Index of coefficient `(l, m)`, `-l <= m <= l`: `l (l + 1) + m`.
+#[must_use]
+pub const fn sh_index(l: usize, m: isize) -> usize {
+    ((l * (l + 1)) as isize + m) as usize
+}
+
+/// Evaluates all real SH of bands `0..=order` at the unit vector `dir` into
+/// `out[..sh_count(order)]`.
+///
+/// # Panics
+/// If `out` is shorter than `sh_count(order)`.
+pub fn sh_eval(order: usize, dir: DVec3, out: &mut [f64]) {
+    assert!(out.len() >= sh_count(order), "sh_eval: need {} outputs, got {}", sh_count(order), out.len());
+    debug_assert!((dir.length_squared() - 1.0).abs() < 1e-6, "sh_eval: dir {dir} is not unit length");
+    let (x, y, z) = (dir.x, dir.y, dir.z);
+    // q_mm = N_mm P_m^m / sin^m theta, starting from Y_00 = 1/sqrt(4 pi).
+    let mut q_mm = 0.5 / PI.sqrt();
+    // (cos_m, sin_m) = Re, Im of (x + i y)^m = sin^m theta (cos m phi, sin m phi).
+    let (mut cos_m, mut sin_m) = (1.0, 0.0);
+    for m in 0..=order {
+        if m > 0 {
+            let mf = m as f64;
+            q_mm *= ((2.0 * mf + 1.0) / (2.0 * mf)).sqrt();
+            (cos_m, sin_m) = (x * cos_m - y * sin_m, x * sin_m + y * cos_m);
+        }
+        let mut store = |l: usize, q: f64| {
+            let center = l * (l + 1);
+            if m == 0 {
+                out[center] = q;
+            } else {
+                out[center + m] = std::f64::consts::SQRT_2 * q * cos_m;
+                out[center - m] = std::f64::consts::SQRT_2 * q * sin_m;
+            }
+        };
+        store(m, q_mm);
+        if m == order {
+            break;
+        }
+        let mut q_prev = q_mm;
+        let mut q = (2.0 * m as f64 + 3.0).sqrt() * z * q_mm;
+        store(m + 1, q);
+        let mf2 = (m * m) as f64;
+        for l in m + 2..=order {
+            let lf = l as f64;
+            let a = ((4.0 * lf * lf - 1.0) / (lf * lf - mf2)).sqrt();
+            let b = (((lf - 1.0) * (lf - 1.0) - mf2) / (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0)).sqrt();
+            let q_next = a * (z * q - b * q_prev);
+            q_prev = q;
+            q = q_next;
+            store(l, q);
+        }
+    }
+}
+
+/// `sum_j coeffs[j] Y_j(dir)` over the `sh_count(order)` leading coefficients.
+///
+/// # Panics
+/// If `coeffs` is shorter than `sh_count(order)`.
+#[must_use]
+pub fn sh_eval_sum(order: usize, coeffs: &[f64], dir: DVec3) -> f64 {
+    let n = sh_count(order);
+    assert!(coeffs.len() >= n, "sh_eval_sum: need {n} coefficients, got {}", coeffs.len());
+    let mut basis = vec![0.0; n];
+    sh_eval(order, dir, &mut basis);
+    basis.iter().zip(coeffs).map(|(y, c)| y * c).sum()
+}
+
+/// Gauss–Legendre nodes and weights on `[-1, 1]` (`n >= 1` nodes, exact for polynomials of
+/// degree `<= 2n - 1`), by Newton iteration on `P_n` from Tricomi-style initial guesses.
+/// Nodes are in decreasing order.
+#[must_use]
+pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
+    assert!(n >= 1, "gauss_legendre: need at least one node");
+    let nf = n as f64;
+    let mut nodes = vec![0.0; n];
+    let mut weights = vec![0.0; n];
+    for i in 0..n.div_ceil(2) {
+        let mut x = (PI * (i as f64 + 0.75) / (nf + 0.5)).cos();
+        let mut dp = 1.0;
+        for iteration in 0..100 {
+            // P_n(x) and P_{n-1}(x) by the three-term recurrence.
+            let (mut p_prev, mut p) = (1.0, x);
+            for k in 2..=n {
+                let kf = k as f64;
+                (p_prev, p) = (p, ((2.0 * kf - 1.0) * x * p - (kf - 1.0) * p_prev) / kf);
+            }
+            if n == 1 {
+                p_prev = 1.0;
+            }
+            dp = nf * (x * p - p_prev) / (x * x - 1.0);
+            let dx = p / dp;
+            x -= dx;
+            if dx.abs() < 1e-16 || iteration == 99 {
+                break;
+            }
+        }
+        nodes[i] = x;
+        nodes[n - 1 - i] = -x;
+        let w = 2.0 / ((1.0 - x * x) * dp * dp);
+        weights[i] = w;
+        weights[n - 1 - i] = w;
+    }
+    (nodes, weights)
+}
+
+/// Projects `f` onto the real SH of bands `0..=order` with a product rule: `quadrature_n`
+/// Gauss–Legendre nodes in `cos theta` times `2 quadrature_n` uniform nodes in `phi`.
+/// Exact when `f` is band-limited to band `B` and `B + order <= 2 quadrature_n - 1`; for smooth
+/// `f` the error falls off with the decay of `f`'s spectrum above that band.
+///
+/// # Panics
+/// If `quadrature_n` is 0.
+#[must_use]
+pub fn sh_project(order: usize, quadrature_n: usize, f: impl Fn(DVec3) -> f64) -> Vec<f64> {
+    let n = sh_count(order);
+    let (nodes, weights) = gauss_legendre(quadrature_n);
+    let n_phi = 2 * quadrature_n;
+    let phi_weight = 2.0 * PI / n_phi as f64;
+    let mut coeffs = vec![0.0; n];
+    let mut basis = vec![0.0; n];
+    for (&z, &w) in nodes.iter().zip(&weights) {
+        let s = (1.0 - z * z).max(0.0).sqrt();
+        for j in 0..n_phi {
+            let phi = 2.0 * PI * (j as f64 + 0.5) / n_phi as f64;
+            let dir = DVec3::new(s * phi.cos(), s * phi.sin(), z);
+            sh_eval(order, dir, &mut basis);
+            let weighted = f(dir) * w * phi_weight;
+            for (c, y) in coeffs.iter_mut().zip(&basis) {
+                *c += weighted * y;
+            }
+        }
+    }
+    coeffs
+}
+
+/// Rotation of real SH coefficients, one `(2l+1) x (2l+1)` matrix per band.
+///
+/// Built from a rotation matrix `R`; [`ShRotation::apply`] maps the coefficients of `f` to
+/// those of `g(w) = f(R^T w)`. Rotations compose like matrices: the rotation of `R1 R2` is the
+/// product of the band matrices of `R1` and `R2`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShRotation {
+    order: usize,
+    /// `bands[l]` is row-major, entry `(m, n)` at `(m + l) (2l + 1) + (n + l)`.
+    bands: Vec<Vec<f64>>,
+}
+
+impl ShRotation {
+    /// Builds the band matrices `0..=order` for the rotation `rotation` (must be orthonormal
+    /// with determinant +1).
+    ///
+    /// # Panics
+    /// If `rotation` is not a rotation (to 1e-6).
+    #[must_use]
+    pub fn new(order: usize, rotation: &DMat3) -> Self {
+        let should_be_identity = *rotation * rotation.transpose();
+        assert!(
+            should_be_identity.abs_diff_eq(DMat3::IDENTITY, 1e-6)
+                && (rotation.determinant() - 1.0).abs() < 1e-6,
+            "ShRotation::new: {rotation} is not a rotation matrix"
+        );
+        let mut bands = vec![vec![1.0]];
+        if order >= 1 {
+            // Band 1 acts on (y, z, x): the rotation matrix itself, rows and columns permuted.
+            let axis_of = |m: isize| [1_usize, 2, 0][(m + 1) as usize];
+            let mut band1 = vec![0.0; 9];
+            for m in -1..=1_isize {
+                for n in -1..=1_isize {
+                    band1[((m + 1) * 3 + n + 1) as usize] = rotation.col(axis_of(n))[axis_of(m)];
+                }
+            }
+            bands.push(band1);
+        }
+        for l in 2..=order {
+            let band = ivanic_band(l, &bands[1], &bands[l - 1]);
+            bands.push(band);
+        }
+        Self { order, bands }
+    }
+
+    /// The highest band held.
+    #[must_use]
+    pub fn order(&self) -> usize {
+        self.order
+    }
+
+    /// Band `l`'s matrix, row-major, `(2l+1)^2` entries; entry `(m, n)` (each in `-l..=l`) at
+    /// `(m + l)(2l + 1) + (n + l)`.
+    #[must_use]
+    pub fn band(&self, l: usize) -> &[f64] {
+        &self.bands[l]
+    }
+
+    /// Entry `(m, n)` of band `l`'s matrix.
+    #[must_use]
+    pub fn entry(&self, l: usize, m: isize, n: isize) -> f64 {
+        centered(&self.bands[l], l, m, n)
+    }
+
+    /// `coeffs_out = rotation(coeffs_in)` over the `sh_count(order)` leading coefficients.
+    ///
+    /// # Panics
+    /// If either slice is shorter than `sh_count(self.order())`.
+    pub fn apply(&self, coeffs_in: &[f64], coeffs_out: &mut [f64]) {
+        let n = sh_count(self.order);
+        assert!(coeffs_in.len() >= n && coeffs_out.len() >= n, "ShRotation::apply: need {n} coefficients");
+        for (l, band) in self.bands.iter().enumerate() {
+            let width = 2 * l + 1;
+            let start = l * l;
+            let input = &coeffs_in[start..start + width];
+            for (row, out) in band.chunks_exact(width).zip(&mut coeffs_out[start..start + width]) {
+                *out = row.iter().zip(input).map(|(r, c)| r * c).sum();
+            }
+        }
+    }
+}
+
+/// Entry `(m, n)` of a band-`l` matrix stored row-major.
+fn centered(band: &[f64], l: usize, m: isize, n: isize) -> f64 {
+    let li = l as isize;
+    band[((m + li) * (2 * li + 1) + n + li) as usize]
+}
+
+/// Band `l >= 2` from band 1 and band `l - 1` (Ivanic–Ruedenberg, Table 1 and 2 with errata).
+fn ivanic_band(l: usize, band1: &[f64], prev: &[f64]) -> Vec<f64> {
+    let li = l as isize;
+    let lf = l as f64;
+    // Ivanic's P function: P^l_{i,a,b} for i in {-1, 0, 1}, a in -(l-1)..=(l-1).
+    let p = |i: isize, a: isize, b: isize| -> f64 {
+        let r1 = |m: isize, n: isize| centered(band1, 1, m, n);
+        let rp = |m: isize, n: isize| centered(prev, l - 1, m, n);
+        if b == li {
+            r1(i, 1) * rp(a, li - 1) - r1(i, -1) * rp(a, -li + 1)
+        } else if b == -li {
+            r1(i, 1) * rp(a, -li + 1) + r1(i, -1) * rp(a, li - 1)
+        } else {
+            r1(i, 0) * rp(a, b)
+        }
+    };
+    let width = 2 * l + 1;
+    let mut band = vec![0.0; width * width];
+    for m in -li..=li {
+        let mf = m as f64;
+        let am = m.unsigned_abs() as f64;
+        let d = if m == 0 { 1.0 } else { 0.0 };
+        for n in -li..=li {
+            let nf = n as f64;
+            let denom = if n.abs() == li { 2.0 * lf * (2.0 * lf - 1.0) } else { (lf + nf) * (lf - nf) };
+            let u = ((lf + mf) * (lf - mf) / denom).sqrt();
+            let v = 0.5 * ((1.0 + d) * (lf + am - 1.0) * (lf + am) / denom).sqrt() * (1.0 - 2.0 * d);
+            let w = -0.5 * ((lf - am - 1.0) * (lf - am) / denom).sqrt() * (1.0 - d);
+            let mut value = 0.0;
+            if u != 0.0 {
+                value += u * p(0, m, n);
+            }
+            if v != 0.0 {
+                let big_v = match m.signum() {
+                    0 => p(1, 1, n) + p(-1, -1, n),
+                    1 if m == 1 => p(1, 0, n) * std::f64::consts::SQRT_2,
+                    1 => p(1, m - 1, n) - p(-1, -m + 1, n),
+                    _ if m == -1 => p(-1, 0, n) * std::f64::consts::SQRT_2,
+                    _ => p(1, m + 1, n) + p(-1, -m - 1, n),
+                };
+                value += v * big_v;
+            }
+            if w != 0.0 {
+                let big_w =
+                    if m > 0 { p(1, m + 1, n) + p(-1, -m - 1, n) } else { p(1, m - 1, n) - p(-1, -m + 1, n) };
+                value += w * big_w;
+            }
+            band[((m + li) * (2 * li + 1) + n + li) as usize] = value;
+        }
+    }
+    band
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DQuat;
+    use rand::{Rng, SeedableRng};
+    use rand_pcg::Pcg64;
+
+    fn random_unit(rng: &mut Pcg64) -> DVec3 {
+        loop {
+            let v = DVec3::new(rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>()) * 2.0 - 1.0;
+            let len2 = v.length_squared();
+            if len2 > 1e-4 && len2 <= 1.0 {
+                return v / len2.sqrt();
+            }
+        }
+    }
+
+    fn random_rotation(rng: &mut Pcg64) -> DMat3 {
+        let axis = random_unit(rng);
+        DMat3::from_quat(DQuat::from_axis_angle(axis, rng.random::<f64>() * 2.0 * PI))
+    }
+
+    /// Rotations that have broken SH rotation code before: identity, poles, half turns.
+    fn hard_rotations(rng: &mut Pcg64) -> Vec<(String, DMat3)> {
+        let arbitrary = DVec3::new(0.3, -0.5, 0.81).normalize();
+        let mut rotations = vec![
+            ("identity".to_owned(), DMat3::IDENTITY),
+            ("z by 0.7".to_owned(), DMat3::from_rotation_z(0.7)),
+            ("z by -2.9".to_owned(), DMat3::from_rotation_z(-2.9)),
+            ("x by pi".to_owned(), DMat3::from_rotation_x(PI)),
+            ("y by pi".to_owned(), DMat3::from_rotation_y(PI)),
+            ("z by pi".to_owned(), DMat3::from_rotation_z(PI)),
+            ("arbitrary axis by pi".to_owned(), DMat3::from_axis_angle(arbitrary, PI)),
+            ("x by pi/2".to_owned(), DMat3::from_rotation_x(0.5 * PI)),
+            ("tiny about y".to_owned(), DMat3::from_rotation_y(1e-9)),
+            ("pole to pole".to_owned(), DMat3::from_axis_angle(DVec3::X, PI - 1e-12)),
+        ];
+        for i in 0..6 {
+            rotations.push((format!("random {i}"), random_rotation(rng)));
+        }
+        rotations
+    }
+
+    fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn gauss_legendre_integrates_polynomials_exactly() {
+        for n in [1_usize, 2, 5, 16, 40] {
+            let (nodes, weights) = gauss_legendre(n);
+            for degree in 0..2 * n {
+                let got: f64 = nodes.iter().zip(&weights).map(|(x, w)| w * x.powi(degree as i32)).sum();
+                let exact = if degree % 2 == 1 { 0.0 } else { 2.0 / (degree as f64 + 1.0) };
+                assert!((got - exact).abs() < 1e-14, "n = {n}, degree {degree}: {got} vs {exact}");
+            }
+        }
+    }
+
+    #[test]
+    fn low_bands_match_closed_forms_without_condon_shortley_phase() {
+        let mut rng = Pcg64::seed_from_u64(11);
+        let mut y = vec![0.0; sh_count(2)];
+        for _ in 0..50 {
+            let d = random_unit(&mut rng);
+            sh_eval(2, d, &mut y);
+            let c1 = (3.0 / (4.0 * PI)).sqrt();
+            let c2 = 0.5 * (15.0 / PI).sqrt();
+            let expected = [
+                0.5 / PI.sqrt(),
+                c1 * d.y,
+                c1 * d.z,
+                c1 * d.x,
+                c2 * d.x * d.y,
+                c2 * d.y * d.z,
+                0.25 * (5.0 / PI).sqrt() * (3.0 * d.z * d.z - 1.0),
+                c2 * d.x * d.z,
+                0.5 * c2 * (d.x * d.x - d.y * d.y),
+            ];
+            assert!(max_abs_diff(&y, &expected) < 1e-15, "{y:?} vs {expected:?}");
+        }
+    }
+
+    #[test]
+    fn basis_is_orthonormal_by_quadrature_up_to_order_15() {
+        for order in [8_usize, 15] {
+            let n = sh_count(order);
+            let (nodes, weights) = gauss_legendre(order + 1);
+            let n_phi = 2 * (order + 1);
+            let mut gram = vec![0.0; n * n];
+            let mut y = vec![0.0; n];
+            for (&z, &w) in nodes.iter().zip(&weights) {
+                let s = (1.0 - z * z).sqrt();
+                for j in 0..n_phi {
+                    let phi = 2.0 * PI * j as f64 / n_phi as f64;
+                    sh_eval(order, DVec3::new(s * phi.cos(), s * phi.sin(), z), &mut y);
+                    let wq = w * 2.0 * PI / n_phi as f64;
+                    for a in 0..n {
+                        for b in 0..n {
+                            gram[a * n + b] += wq * y[a] * y[b];
+                        }
+                    }
+                }
+            }
+            for a in 0..n {
+                for b in 0..n {
+                    let expected = if a == b { 1.0 } else { 0.0 };
+                    assert!(
+                        (gram[a * n + b] - expected).abs() < 1e-12,
+                        "order {order}: <{a}, {b}> = {}",
+                        gram[a * n + b]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn poles_are_finite_and_only_zonal_terms_survive() {
+        let order = 15;
+        let mut y = vec![0.0; sh_count(order)];
+        for (pole, sign) in [(DVec3::Z, 1.0), (DVec3::NEG_Z, -1.0_f64)] {
+            sh_eval(order, pole, &mut y);
+            for l in 0..=order {
+                for m in -(l as isize)..=l as isize {
+                    let v = y[sh_index(l, m)];
+                    let expected = if m == 0 {
+                        sign.powi(l as i32) * ((2 * l + 1) as f64 / (4.0 * PI)).sqrt()
+                    } else {
+                        0.0
+                    };
+                    assert!((v - expected).abs() < 1e-13, "l {l} m {m}: {v}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn band_matrices_are_orthogonal_and_compose() {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let order = 15;
+        let r2 = random_rotation(&mut rng);
+        let rot2 = ShRotation::new(order, &r2);
+        let mut worst_all: f64 = 0.0;
+        for (name, r) in hard_rotations(&mut rng) {
+            let rot = ShRotation::new(order, &r);
+            let composed = ShRotation::new(order, &(r * r2));
+            for l in 0..=order {
+                let w = 2 * l + 1;
+                let b = rot.band(l);
+                let mut worst: f64 = 0.0;
+                let mut worst_compose: f64 = 0.0;
+                for i in 0..w {
+                    for j in 0..w {
+                        let dot: f64 = (0..w).map(|k| b[i * w + k] * b[j * w + k]).sum();
+                        worst = worst.max((dot - if i == j { 1.0 } else { 0.0 }).abs());
+                        let product: f64 = (0..w).map(|k| b[i * w + k] * rot2.band(l)[k * w + j]).sum();
+                        worst_compose = worst_compose.max((product - composed.band(l)[i * w + j]).abs());
+                    }
+                }
+                assert!(worst < 1e-12, "{name}, band {l}: orthogonality error {worst:e}");
+                assert!(worst_compose < 1e-12, "{name}, band {l}: composition error {worst_compose:e}");
+                worst_all = worst_all.max(worst).max(worst_compose);
+            }
+        }
+        eprintln!("band orthogonality / composition worst error up to band {order}: {worst_all:e}");
+    }
+
+    #[test]
+    fn rotate_then_project_equals_project_then_rotate() {
+        let mut rng = Pcg64::seed_from_u64(3);
+        let order = 8;
+        let n = sh_count(order);
+        // A band-limited random function (exact under quadrature) and a smooth non-band-limited
+        // one (spectrum decays like 1/l!, negligible beyond the quadrature's reach).
+        let random_coeffs: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
+        let lobe = DVec3::new(0.2, 0.9, -0.4).normalize();
+        let smooth = move |w: DVec3| (1.5 * w.dot(lobe)).exp() + w.x * w.y * w.z;
+        let band_limited = |w: DVec3| sh_eval_sum(order, &random_coeffs, w);
+        let quadrature_n = 30;
+        let mut worst: f64 = 0.0;
+        let f_band_limited = sh_project(order, quadrature_n, band_limited);
+        assert!(max_abs_diff(&f_band_limited, &random_coeffs) < 1e-13);
+        let f_smooth = sh_project(order, quadrature_n, smooth);
+        for (name, r) in hard_rotations(&mut rng) {
+            let rot = ShRotation::new(order, &r);
+            let rt = r.transpose();
+            for (which, f, coeffs) in [
+                ("band-limited", &band_limited as &dyn Fn(DVec3) -> f64, &f_band_limited),
+                ("smooth", &smooth as &dyn Fn(DVec3) -> f64, &f_smooth),
+            ] {
+                let projected = sh_project(order, quadrature_n, |w| f(rt * w));
+                let mut rotated = vec![0.0; n];
+                rot.apply(coeffs, &mut rotated);
+                let err = max_abs_diff(&rotated, &projected);
+                worst = worst.max(err);
+                assert!(err < 1e-12, "{name}, {which}: max coefficient error {err:e}");
+            }
+        }
+        eprintln!("rotate vs project: worst coefficient error {worst:e}");
+    }
+}
