@@ -27,7 +27,7 @@ use glam::DVec3;
 
 use super::FiberParams;
 use super::gn_table::GnTable;
-use super::sampling::{TruncGauss, VonMises, von_mises_pdf};
+use super::sampling::{TruncGauss, VonMises};
 use crate::Rgb;
 use crate::params::{ParamError, check_range, check_rgb};
 
@@ -90,7 +90,6 @@ pub struct FiberScattering {
     beta_tt: f64,
     lam_r: f64,
     lam_tt: f64,
-    kappa: f64,
     von_mises: VonMises,
     gn_r: GnTable,
     gn_tt: GnTable,
@@ -114,7 +113,6 @@ impl FiberScattering {
             beta_tt,
             lam_r: 0.5 / (beta_r * beta_r),
             lam_tt: 0.5 / (beta_tt * beta_tt),
-            kappa,
             von_mises: VonMises::new(kappa),
             gn_r: GnTable::new(beta_r),
             gn_tt: GnTable::new(beta_tt),
@@ -150,7 +148,7 @@ impl FiberScattering {
         let sum = theta_i + theta_o;
         let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
         let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
-        let n_tt = von_mises_pdf(phi_o - phi_i - PI, self.kappa);
+        let n_tt = self.von_mises.pdf(phi_o - phi_i - PI);
         f * (m_r / (2.0 * PI)) + (Rgb::ONE - f) * self.c_tt * (m_tt * n_tt)
     }
 
@@ -209,7 +207,7 @@ impl FiberScattering {
         };
         let pdf_r = TruncGauss::new(-theta_f, self.beta_r).pdf(theta) / (2.0 * PI);
         let pdf_tt =
-            TruncGauss::new(-theta_f, self.beta_tt).pdf(theta) * von_mises_pdf(phi - phi_f - PI, self.kappa);
+            TruncGauss::new(-theta_f, self.beta_tt).pdf(theta) * self.von_mises.pdf(phi - phi_f - PI);
         (p_r * pdf_r + (1.0 - p_r) * pdf_tt) / cos_theta
     }
 }

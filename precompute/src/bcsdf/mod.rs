@@ -16,6 +16,10 @@ mod gn_table;
 mod lambert;
 mod quad;
 mod sampling;
+#[cfg(test)]
+mod stats;
+#[cfg(test)]
+mod tests;
 
 pub use fiber::{BETA_RANGE_DEG, FiberFrame, FiberScattering, GAMMA_RANGE_DEG};
 pub use lambert::Lambertian;

@@ -114,15 +114,12 @@ impl TruncGauss {
     }
 }
 
-/// von Mises density `exp(κ (cos x - 1)) / (2π i0e(κ))` (never overflows).
-pub(crate) fn von_mises_pdf(x: f64, kappa: f64) -> f64 {
-    (kappa * (x.cos() - 1.0)).exp() / (2.0 * PI * crate::special::i0e(kappa))
-}
-
 /// Precomputed constants of Best & Fisher's sampler for one κ.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct VonMises {
     kappa: f64,
+    /// 1 / (2π i0e(κ)), the density's normalization.
+    norm: f64,
     /// r - 1, where r = (1 + ρ²) / (2ρ) is the wrapped-Cauchy envelope's parameter.
     r_minus_1: f64,
 }
@@ -135,10 +132,19 @@ impl VonMises {
         // 1 - ρ with ρ = (τ - sqrt(2τ)) / (2κ), without cancellation.
         let one_minus_rho = ((2.0 * tau).sqrt() - 1.0 - 1.0 / (s + 2.0 * kappa)) / (2.0 * kappa);
         let rho = 1.0 - one_minus_rho;
-        Self { kappa, r_minus_1: one_minus_rho * one_minus_rho / (2.0 * rho) }
+        Self {
+            kappa,
+            norm: 1.0 / (2.0 * PI * crate::special::i0e(kappa)),
+            r_minus_1: one_minus_rho * one_minus_rho / (2.0 * rho),
+        }
     }
 
-    /// Draws an angle in [-π, π] with density [`von_mises_pdf`] from two uniforms.
+    /// Density `exp(κ (cos x - 1)) / (2π i0e(κ))` of the angle x (never overflows).
+    pub(crate) fn pdf(&self, x: f64) -> f64 {
+        (self.kappa * (x.cos() - 1.0)).exp() * self.norm
+    }
+
+    /// Draws an angle in [-π, π] with density [`Self::pdf`] from two uniforms.
     pub(crate) fn sample(&self, u1: f64, u2: f64) -> f64 {
         let (mut u1, mut u2) = (u1, u2);
         let mut rng = SplitMix64(u1.to_bits() ^ u2.to_bits().rotate_left(29) ^ 0x5851_f42d_4c95_7f2d);
