@@ -225,10 +225,10 @@ fn sampling_weights_match_the_integral_both_ways() {
 }
 
 /// Total number of chi-square tests in this module, for the Šidák correction.
-const CHI2_TESTS: usize = 5 * 5 + 3;
+const CHI2_TESTS: usize = 5 * 5 + 3 + 5;
 const CHI2_ALPHA: f64 = 0.01;
 
-fn chi2_threshold() -> f64 {
+pub(crate) fn chi2_threshold() -> f64 {
     1.0 - (1.0 - CHI2_ALPHA).powf(1.0 / CHI2_TESTS as f64)
 }
 
@@ -346,4 +346,171 @@ fn pdf_integrates_to_one_fleece_narrow() {
 #[test]
 fn pdf_integrates_to_one_narrow_tt_wide_cotton() {
     pdf_integrates_to_one(2..5);
+}
+
+/// Every combination of extreme parameters, directions at and next to the poles (ωi = ±t
+/// included), lobes centred at the poles: all values finite and non-negative, samples unit
+/// vectors with positive finite pdf and finite weight.
+#[test]
+fn extreme_parameters_and_directions_stay_finite() {
+    let t = tangent();
+    let frame = TestFrame::new(t);
+    let n = frame.e1;
+    let thetas = [-FRAC_PI_2, -FRAC_PI_2 + 1e-12, -1.0, 0.0, 0.3, FRAC_PI_2 - 1e-9, FRAC_PI_2];
+    let mut dirs: Vec<DVec3> =
+        thetas.iter().flat_map(|&th| [frame.dir(th, 0.0), frame.dir(th, 2.0)]).collect();
+    dirs.extend([t, -t]);
+    let us = [
+        [0.0, 0.0, 0.0],
+        [0.5, 0.5, 0.5],
+        [1.0 - 1e-16, 1.0 - 1e-16, 1.0 - 1e-16],
+        [0.3, 1e-300, 0.999],
+        [0.99, 0.7, 0.0],
+    ];
+    let mut sampled = 0;
+    for bits in 0..32u32 {
+        let pick = |bit: u32, a: f64, b: f64| if bits >> bit & 1 == 0 { a } else { b };
+        let p = FiberParams {
+            c_r: Rgb::splat(pick(0, 0.0, 1.0)),
+            beta_r_deg: pick(1, 0.5, 60.0),
+            c_tt: Rgb::splat(pick(2, 0.0, 1.0)),
+            beta_tt_deg: pick(3, 0.5, 60.0),
+            gamma_tt_deg: pick(4, 0.5, 180.0),
+        };
+        let m = Material::from_desc(&MaterialDesc::Fiber(p)).unwrap();
+        let Material::Fiber(s) = &m else { unreachable!() };
+        for &wi in &dirs {
+            for &wo in &dirs {
+                let v = s.eval(t, wi, wo);
+                assert!(v.is_finite() && v.min_element() >= 0.0, "{p:?} {wi} {wo}: {v}");
+                let c = m.eval_cos(t, n, wi, wo);
+                assert!(c.is_finite() && c.min_element() >= 0.0, "{p:?}: {c}");
+                let pdf = m.pdf(t, n, wo, wi);
+                assert!(pdf.is_finite() && pdf >= 0.0, "{p:?} {wi} {wo}: pdf {pdf}");
+            }
+            for u in us {
+                if let Some((d, pdf)) = m.sample(t, n, wi, u) {
+                    sampled += 1;
+                    assert!(d.is_finite() && (d.length() - 1.0).abs() < 1e-12, "{p:?} {wi} {u:?}: {d}");
+                    assert!(pdf.is_finite() && pdf > 0.0);
+                    let w = m.eval_cos(t, n, d, wi) / pdf;
+                    assert!(w.is_finite() && w.min_element() >= 0.0, "{p:?} {wi} {u:?}: weight {w}");
+                }
+            }
+        }
+    }
+    assert!(sampled > 1000, "{sampled}");
+}
+
+#[test]
+fn parameter_validation_names_the_parameter_and_its_range() {
+    let (_, good) = param_sets()[0];
+    assert!(FiberScattering::new(&good).is_ok());
+    let bad: [(&str, FiberParams); 10] = [
+        ("c_r", FiberParams { c_r: Rgb::new(0.1, f64::NAN, 0.1), ..good }),
+        ("c_r", FiberParams { c_r: Rgb::splat(-0.1), ..good }),
+        ("c_tt", FiberParams { c_tt: Rgb::new(0.2, 0.2, 1.5), ..good }),
+        ("beta_r_deg", FiberParams { beta_r_deg: f64::NAN, ..good }),
+        ("beta_r_deg", FiberParams { beta_r_deg: 0.4, ..good }),
+        ("beta_tt_deg", FiberParams { beta_tt_deg: -3.0, ..good }),
+        ("beta_tt_deg", FiberParams { beta_tt_deg: 61.0, ..good }),
+        ("gamma_tt_deg", FiberParams { gamma_tt_deg: 0.0, ..good }),
+        ("gamma_tt_deg", FiberParams { gamma_tt_deg: f64::INFINITY, ..good }),
+        ("gamma_tt_deg", FiberParams { gamma_tt_deg: 181.0, ..good }),
+    ];
+    for (name, p) in bad {
+        let err = Material::from_desc(&MaterialDesc::Fiber(p)).unwrap_err();
+        let msg = err.to_string();
+        assert_eq!(err.name, name, "{msg}");
+        let range_ok = match name {
+            "c_r" | "c_tt" => msg.contains("[0, 1]"),
+            "gamma_tt_deg" => msg.contains("0.5 <= gamma_tt_deg <= 180"),
+            _ => msg.contains(&format!("0.5 <= {name} <= 60")),
+        };
+        assert!(range_ok, "{msg}");
+    }
+    for albedo in [Rgb::new(0.5, 1.01, 0.5), Rgb::new(f64::NAN, 0.0, 0.0), Rgb::splat(-1e-9)] {
+        let err = Material::from_desc(&MaterialDesc::Lambert { albedo }).unwrap_err();
+        assert!(err.name == "albedo" && err.to_string().contains("[0, 1]"), "{err}");
+    }
+}
+
+#[test]
+fn material_interface() {
+    let (_, p) = param_sets()[0];
+    let fib = Material::from_desc(&MaterialDesc::Fiber(p)).unwrap();
+    let lam = Material::from_desc(&MaterialDesc::Lambert { albedo: Rgb::new(0.8, 0.5, 0.1) }).unwrap();
+    assert!(fib.is_transmissive() && !lam.is_transmissive());
+    assert!(max_rel(fib.albedo_hint(), furnace_value(&p, 0.0)) < 1e-15);
+    assert_eq!(lam.albedo_hint(), Rgb::new(0.8, 0.5, 0.1));
+    let t = tangent();
+    let frame = TestFrame::new(t);
+    let n = frame.e2;
+    let (wi, wo) = (frame.dir(0.4, 1.0), frame.dir(-0.3, 3.0));
+    let Material::Fiber(s) = &fib else { unreachable!() };
+    // The fiber's cosine is cos θi = |ωi × t|.
+    assert!(max_rel(fib.eval_cos(t, n, wi, wo), s.eval(t, wi, wo) * wi.cross(t).length()) < 1e-14);
+    // Lambert: albedo/π cos, zero with either direction below n; its sampling weight is the albedo.
+    let up = (0.6 * n + 0.8 * frame.e1).normalize();
+    let down = (-0.6 * n + 0.8 * frame.e1).normalize();
+    assert!(max_rel(lam.eval_cos(t, n, up, n), Rgb::new(0.8, 0.5, 0.1) * 0.6 / PI) < 1e-14);
+    assert_eq!(lam.eval_cos(t, n, down, n), Rgb::ZERO);
+    assert_eq!(lam.eval_cos(t, n, up, down), Rgb::ZERO);
+    assert!(lam.sample(t, n, down, [0.5; 3]).is_none());
+    assert!(lam.pdf(t, n, down, up) == 0.0 && lam.pdf(t, n, up, down) == 0.0);
+    let mut rng: Pcg64 = rand::SeedableRng::seed_from_u64(3);
+    for _ in 0..1000 {
+        let (d, pdf) = lam.sample(t, n, up, [rng.random(), rng.random(), rng.random()]).unwrap();
+        assert!(max_rel(lam.eval_cos(t, n, d, up) / pdf, Rgb::new(0.8, 0.5, 0.1)) < 1e-12);
+    }
+    // The fiber's `sample` returns the pdf `pdf` gives.
+    for _ in 0..1000 {
+        if let Some((d, pdf)) = fib.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) {
+            assert!((pdf / fib.pdf(t, n, wo, d) - 1.0).abs() < 1e-14);
+        }
+    }
+}
+
+/// The von Mises sampler alone, over the κ range it claims (0.1 .. 1e6): 1D chi-square.
+#[test]
+fn chi2_von_mises_sampler_from_flat_to_extremely_sharp() {
+    let rule = gauss_legendre(8);
+    let mut rng: Pcg64 = rand::SeedableRng::seed_from_u64(11);
+    for kappa in [0.1, 1.0, 30.0, 1e3, 1e6] {
+        let vm = super::sampling::VonMises::new(kappa);
+        let half = (8.0 / kappa.sqrt()).min(PI);
+        let nb = 64;
+        let edges: Vec<f64> = (0..=nb).map(|k| -half + 2.0 * half * f64::from(k) / f64::from(nb)).collect();
+        let count = 100_000;
+        let mut obs = vec![0.0; nb as usize + 1];
+        for _ in 0..count {
+            let x = vm.sample(rng.random(), rng.random());
+            assert!(x.is_finite() && x.abs() <= PI);
+            let i = edges.partition_point(|&e| e <= x);
+            obs[if i == 0 || i > nb as usize { nb as usize } else { i - 1 }] += 1.0;
+        }
+        let mut exp: Vec<f64> = edges
+            .windows(2)
+            .map(|w| super::quad::integrate_panels(&rule, &[w[0], w[1]], |x| vm.pdf(x)) * f64::from(count))
+            .collect();
+        let inside: f64 = exp.iter().sum();
+        exp.push(f64::from(count) - inside);
+        let (mut stat, mut dof, mut po, mut pe) = (0.0, 0usize, 0.0, 0.0);
+        for (o, e) in obs.iter().zip(&exp) {
+            if *e < 5.0 {
+                po += o;
+                pe += e;
+            } else {
+                stat += (o - e) * (o - e) / e;
+                dof += 1;
+            }
+        }
+        if po > 0.0 || pe > 0.0 {
+            stat += (po - pe) * (po - pe) / f64::max(pe, 1e-300);
+            dof += 1;
+        }
+        let p = super::stats::gamma_q(0.5 * (dof - 1) as f64, 0.5 * stat);
+        println!("chi2 von Mises κ = {kappa:e}: p = {p:.4} (X² = {stat:.1}, dof {})", dof - 1);
+        assert!(p > chi2_threshold(), "κ = {kappa}: p = {p}");
+    }
 }
