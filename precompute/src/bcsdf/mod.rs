@@ -1,6 +1,33 @@
-//! Fiber scattering (in progress: the model itself lands with the BCSDF work).
+//! Fiber scattering: the R + TT fiber model (BCSDF), a Lambertian fiber surface, and the
+//! [`Material`] interface the path tracer uses at a fiber hit.
+//!
+//! How it works: [`FiberScattering`] (in `fiber`) evaluates, samples and gives the pdf of the
+//! two-lobe model of Khungurn et al. 2015 (see `docs/MATH.md` / the design math notes), using a
+//! tabulated longitudinal normalizer (`gn_table`) and exact truncated-Gaussian and von Mises
+//! samplers (`sampling`). [`Lambertian`] is the check material. [`Material`] wraps both behind
+//! one interface taking the fiber tangent t and the surface normal n at the hit.
+//!
+//! Conventions: all directions are unit vectors pointing away from the scattering point, ωi
+//! toward the light and ωo toward the viewer. The fiber model is not reciprocal, so a camera
+//! path tracer must pass the light-side direction as ωi even though it samples ωi from ωo.
+
+mod fiber;
+mod gn_table;
+mod lambert;
+mod quad;
+mod sampling;
+#[cfg(test)]
+mod stats;
+#[cfg(test)]
+mod tests;
+
+pub use fiber::{BETA_RANGE_DEG, FiberFrame, FiberScattering, GAMMA_RANGE_DEG};
+pub use lambert::Lambertian;
+
+use glam::DVec3;
 
 use crate::Rgb;
+use crate::params::ParamError;
 
 /// Parameters of the two-lobe R + TT fiber scattering model (Khungurn et al. 2015, as
 /// reconstructed in `docs/MATH.md`), as a user writes them: angles in degrees.
@@ -28,4 +55,72 @@ pub enum MaterialDesc {
     /// A Lambertian fiber surface shaded with the exact cylinder hit normal (for checking light
     /// transport against independent renderers).
     Lambert { albedo: Rgb },
+}
+
+/// A fiber material ready for rendering.
+#[derive(Debug, Clone)]
+pub enum Material {
+    Fiber(FiberScattering),
+    Lambert(Lambertian),
+}
+
+impl Material {
+    /// Validates a scene-file description and precomputes what it needs.
+    pub fn from_desc(desc: &MaterialDesc) -> Result<Self, ParamError> {
+        Ok(match desc {
+            MaterialDesc::Fiber(p) => Self::Fiber(FiberScattering::new(p)?),
+            MaterialDesc::Lambert { albedo } => Self::Lambert(Lambertian::new(*albedo)?),
+        })
+    }
+
+    /// Scattering function times the cosine factor of ωi: `S(ωi, ωo) cos θi` with
+    /// `cos θi = |ωi × t|` for the fiber, `albedo/π · max(0, ωi·n)` for Lambert (zero if ωo is
+    /// below n). `t` is the unit fiber tangent, `n` the unit surface normal at the hit. ωi must be
+    /// the light-side direction (the fiber model is not reciprocal).
+    #[must_use]
+    pub fn eval_cos(&self, t: DVec3, n: DVec3, wi: DVec3, wo: DVec3) -> Rgb {
+        match self {
+            Self::Fiber(f) => {
+                let s = wi.dot(t).clamp(-1.0, 1.0);
+                f.eval(t, wi, wo) * (1.0 - s * s).sqrt()
+            }
+            Self::Lambert(l) => l.eval_cos(n, wi, wo),
+        }
+    }
+
+    /// Samples ωi given ωo; returns it with its solid-angle pdf (> 0).
+    #[must_use]
+    pub fn sample(&self, t: DVec3, n: DVec3, wo: DVec3, u: [f64; 3]) -> Option<(DVec3, f64)> {
+        let wi = match self {
+            Self::Fiber(f) => f.sample(t, wo, u)?,
+            Self::Lambert(l) => l.sample(n, wo, [u[1], u[2]])?,
+        };
+        let pdf = self.pdf(t, n, wo, wi);
+        (pdf > 0.0 && pdf.is_finite()).then_some((wi, pdf))
+    }
+
+    /// Solid-angle density with which [`Self::sample`] returns ωi given ωo.
+    #[must_use]
+    pub fn pdf(&self, t: DVec3, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
+        match self {
+            Self::Fiber(f) => f.pdf(t, wo, wi),
+            Self::Lambert(l) => l.pdf(n, wo, wi),
+        }
+    }
+
+    /// Whether light can pass through the surface (fiber: yes; Lambert: no).
+    #[must_use]
+    pub fn is_transmissive(&self) -> bool {
+        matches!(self, Self::Fiber(_))
+    }
+
+    /// A typical albedo, for Russian roulette: the fiber's furnace value at normal incidence
+    /// `C_R + (1 - C_R) C_TT` (it rises toward 1 at grazing angles), Lambert's albedo.
+    #[must_use]
+    pub fn albedo_hint(&self) -> Rgb {
+        match self {
+            Self::Fiber(f) => f.albedo_hint(),
+            Self::Lambert(l) => l.albedo,
+        }
+    }
 }

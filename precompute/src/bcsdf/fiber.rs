@@ -1,0 +1,213 @@
+//! The two-lobe R + TT fiber scattering function (BCSDF) of Khungurn et al. 2015.
+//!
+//! How it works: directions are expressed in the fiber frame (x = tangent t): θ ∈ [-π/2, π/2]
+//! is the angle from the normal plane (sin θ = ω·t) and φ the azimuth around t, measured from an
+//! arbitrary but fixed perpendicular axis (only φ differences enter the model). Directions are
+//! unit vectors pointing away from the scattering point: ωi toward the light, ωo toward the
+//! viewer. With λ_X = 1/(2β_X²) and `M_X(θi, θo) = sqrt(λ_X/π) exp(-λ_X (θo + θi)²) / Gn(-θi; λ_X)`,
+//!
+//! ```text
+//! S(ωi, ωo) = F_R(θi) M_R / (2π)  +  (1 - F_R(θi)) C_TT M_TT N_TT(φo - φi)
+//! F_R(θ) = C_R + (1 - C_R)(1 - cos θ)^5,   N_TT(φ) = exp(κ(cos(φ - π) - 1)) / (2π i0e(κ)), κ = γ_TT⁻²
+//! ```
+//!
+//! so `∫ S cos θo dωo = F_R(θi) + (1 - F_R(θi)) C_TT` for every ωi. S is not reciprocal (F_R
+//! and Gn use θi only): a path tracer walking from the camera must still pass the light-side
+//! direction as ωi. Gn comes from a table ([`super::gn_table`]).
+//!
+//! Sampling works from either side, because both lobes depend only on θi + θo and φo - φi:
+//! given the fixed direction (θf, φf), pick R or TT by the luminance of F_R(θf) against
+//! (1 - F_R(θf)) C_TT, draw θ from N(-θf, β²) truncated to [-π/2, π/2] and φ uniformly (R) or
+//! from a von Mises around φf + π (TT). The solid-angle pdf is the lobe mixture of
+//! p(θ) p(φ) / cos θ; directions within 1e-9 of the tangent have pdf 0 and are not returned.
+
+use std::f64::consts::{FRAC_PI_2, PI};
+
+use glam::DVec3;
+
+use super::FiberParams;
+use super::gn_table::GnTable;
+use super::sampling::{TruncGauss, VonMises};
+use crate::Rgb;
+use crate::params::{ParamError, check_range, check_rgb};
+
+/// Valid range of the longitudinal widths β_R, β_TT in degrees. Below 0.5° the lobe is narrower
+/// than the Gn table resolves (10 nodes per β); above 60° the "Gaussian" is flat over the
+/// whole [-90°, 90°] and wider values add nothing.
+pub const BETA_RANGE_DEG: (f64, f64) = (0.5, 60.0);
+/// Valid range of the azimuthal width γ_TT in degrees (κ = γ⁻² from 13131 down to 0.101; at
+/// 180° the TT lobe is already within 10% of uniform in φ).
+pub const GAMMA_RANGE_DEG: (f64, f64) = (0.5, 180.0);
+
+/// Directions with cos θ below this (within ~1e-9 rad of ±t) get pdf 0 and are never sampled.
+const MIN_COS_THETA: f64 = 1e-9;
+
+/// Rec. 709 luminance, used to choose a lobe.
+fn luminance(c: Rgb) -> f64 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// An orthonormal frame (t, u, v) around the unit fiber tangent t (Duff et al. 2017).
+#[derive(Debug, Clone, Copy)]
+pub struct FiberFrame {
+    pub t: DVec3,
+    pub u: DVec3,
+    pub v: DVec3,
+}
+
+impl FiberFrame {
+    #[must_use]
+    pub fn new(t: DVec3) -> Self {
+        let sign = 1.0f64.copysign(t.z);
+        let a = -1.0 / (sign + t.z);
+        let b = t.x * t.y * a;
+        let u = DVec3::new(1.0 + sign * t.x * t.x * a, sign * b, -sign * t.x);
+        let v = DVec3::new(b, sign + t.y * t.y * a, -t.y);
+        Self { t, u, v }
+    }
+
+    /// (θ, φ) of a unit direction: θ = atan2(ω·t, |ω⊥|) (accurate near the poles), φ = atan2.
+    #[must_use]
+    pub fn angles(&self, w: DVec3) -> (f64, f64) {
+        let (x, y) = (w.dot(self.u), w.dot(self.v));
+        (w.dot(self.t).atan2(x.hypot(y)), y.atan2(x))
+    }
+
+    #[must_use]
+    pub fn direction(&self, theta: f64, phi: f64) -> DVec3 {
+        let (st, ct) = theta.sin_cos();
+        let (sp, cp) = phi.sin_cos();
+        (st * self.t + ct * (cp * self.u + sp * self.v)).normalize()
+    }
+}
+
+/// The R + TT fiber scattering model with its Gn tables, ready to evaluate and sample.
+#[derive(Debug, Clone)]
+pub struct FiberScattering {
+    c_r: Rgb,
+    c_tt: Rgb,
+    beta_r: f64,
+    beta_tt: f64,
+    lam_r: f64,
+    lam_tt: f64,
+    von_mises: VonMises,
+    gn_r: GnTable,
+    gn_tt: GnTable,
+}
+
+impl FiberScattering {
+    /// Validates the parameters and tabulates Gn for both lobes (a few ms).
+    pub fn new(p: &FiberParams) -> Result<Self, ParamError> {
+        let c_r = check_rgb("c_r", p.c_r, 0.0, 1.0)?;
+        let c_tt = check_rgb("c_tt", p.c_tt, 0.0, 1.0)?;
+        let (blo, bhi) = BETA_RANGE_DEG;
+        let beta_r = check_range("beta_r_deg", p.beta_r_deg, blo, bhi)?.to_radians();
+        let beta_tt = check_range("beta_tt_deg", p.beta_tt_deg, blo, bhi)?.to_radians();
+        let (glo, ghi) = GAMMA_RANGE_DEG;
+        let gamma = check_range("gamma_tt_deg", p.gamma_tt_deg, glo, ghi)?.to_radians();
+        let kappa = 1.0 / (gamma * gamma);
+        Ok(Self {
+            c_r,
+            c_tt,
+            beta_r,
+            beta_tt,
+            lam_r: 0.5 / (beta_r * beta_r),
+            lam_tt: 0.5 / (beta_tt * beta_tt),
+            von_mises: VonMises::new(kappa),
+            gn_r: GnTable::new(beta_r),
+            gn_tt: GnTable::new(beta_tt),
+        })
+    }
+
+    /// Schlick-form reflectance `F_R(θ) = C_R + (1 - C_R)(1 - cos θ)^5`.
+    #[must_use]
+    pub fn fresnel(&self, cos_theta: f64) -> Rgb {
+        let m = (1.0 - cos_theta.clamp(0.0, 1.0)).powi(5);
+        self.c_r + (Rgb::ONE - self.c_r) * m
+    }
+
+    /// The exact furnace value `∫ S(ωi, ωo) cos θo dωo = F_R(θi) + (1 - F_R(θi)) C_TT`.
+    #[must_use]
+    pub fn albedo(&self, theta_i: f64) -> Rgb {
+        let f = self.fresnel(theta_i.cos());
+        f + (Rgb::ONE - f) * self.c_tt
+    }
+
+    /// Albedo at normal incidence, `C_R + (1 - C_R) C_TT` (a hint for Russian roulette).
+    #[must_use]
+    pub fn albedo_hint(&self) -> Rgb {
+        self.albedo(0.0)
+    }
+
+    /// S in fiber angles (θ from the normal plane, φ around the tangent), no cosine factor.
+    #[must_use]
+    pub fn eval_angles(&self, theta_i: f64, phi_i: f64, theta_o: f64, phi_o: f64) -> Rgb {
+        let theta_i = theta_i.clamp(-FRAC_PI_2, FRAC_PI_2);
+        let theta_o = theta_o.clamp(-FRAC_PI_2, FRAC_PI_2);
+        let f = self.fresnel(theta_i.cos());
+        let sum = theta_i + theta_o;
+        let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
+        let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+        let n_tt = self.von_mises.pdf(phi_o - phi_i - PI);
+        f * (m_r / (2.0 * PI)) + (Rgb::ONE - f) * self.c_tt * (m_tt * n_tt)
+    }
+
+    /// S(ωi, ωo) for unit world-space directions and unit fiber tangent (no cosine factor).
+    /// ωi points toward the light, ωo toward the viewer.
+    #[must_use]
+    pub fn eval(&self, tangent: DVec3, wi: DVec3, wo: DVec3) -> Rgb {
+        let frame = FiberFrame::new(tangent);
+        let (ti, pi) = frame.angles(wi);
+        let (to, po) = frame.angles(wo);
+        self.eval_angles(ti, pi, to, po)
+    }
+
+    /// Probability of choosing the R lobe when `fixed` has cos θ = `cos_fixed`; `None` when
+    /// both lobes are black.
+    fn lobe_probability_r(&self, cos_fixed: f64) -> Option<f64> {
+        let f = self.fresnel(cos_fixed);
+        let w_r = luminance(f);
+        let w_tt = luminance((Rgb::ONE - f) * self.c_tt);
+        let total = w_r + w_tt;
+        (total > 0.0).then(|| w_r / total)
+    }
+
+    /// Samples the direction on the other side of S from `fixed` (either ωi or ωo: the
+    /// density is the same), from three uniforms in [0, 1). Its density is [`Self::pdf`].
+    #[must_use]
+    pub fn sample(&self, tangent: DVec3, fixed: DVec3, u: [f64; 3]) -> Option<DVec3> {
+        let frame = FiberFrame::new(tangent);
+        let (theta_f, phi_f) = frame.angles(fixed);
+        let p_r = self.lobe_probability_r(theta_f.cos())?;
+        let (theta, phi) = if u[0] < p_r {
+            let theta = TruncGauss::new(-theta_f, self.beta_r).sample(u[1]);
+            (theta, phi_f + 2.0 * PI * u[2])
+        } else {
+            let reuse = ((u[0] - p_r) / (1.0 - p_r)).clamp(0.0, 1.0);
+            let theta = TruncGauss::new(-theta_f, self.beta_tt).sample(u[1]);
+            (theta, phi_f + PI + self.von_mises.sample(u[2], reuse))
+        };
+        let dir = frame.direction(theta, phi);
+        // Same cut-off as `pdf`, measured the same way.
+        (frame.angles(dir).0.cos() > MIN_COS_THETA && dir.is_finite()).then_some(dir)
+    }
+
+    /// Solid-angle density with which [`Self::sample`] returns `dir` given `fixed`.
+    #[must_use]
+    pub fn pdf(&self, tangent: DVec3, fixed: DVec3, dir: DVec3) -> f64 {
+        let frame = FiberFrame::new(tangent);
+        let (theta_f, phi_f) = frame.angles(fixed);
+        let (theta, phi) = frame.angles(dir);
+        let cos_theta = theta.cos();
+        if cos_theta <= MIN_COS_THETA {
+            return 0.0;
+        }
+        let Some(p_r) = self.lobe_probability_r(theta_f.cos()) else {
+            return 0.0;
+        };
+        let pdf_r = TruncGauss::new(-theta_f, self.beta_r).pdf(theta) / (2.0 * PI);
+        let pdf_tt =
+            TruncGauss::new(-theta_f, self.beta_tt).pdf(theta) * self.von_mises.pdf(phi - phi_f - PI);
+        (p_r * pdf_r + (1.0 - p_r) * pdf_tt) / cos_theta
+    }
+}
