@@ -38,8 +38,7 @@ pub fn fabric_info(scene_path: Option<&Path>, mfp_samples: usize) -> Result<()> 
         twill_precompute::fabric::Tiling::AsIs => println!("tiling           as-is (no tiling)"),
     }
     println!("volume fraction  {:.4}", volume_fraction(exemplar));
-    let fibers = scene.fiber_scene();
-    let mfp = mean_free_path(&fibers, mfp_samples, 1);
+    let mfp = mean_free_path(&scene.path_scene.fibers, mfp_samples, 1);
     println!(
         "mean free path   {:.5} cm +- {:.5} (std. error; {} rays, {:.1}% escaped the fabric)",
         mfp.mean_cm,
@@ -52,11 +51,8 @@ pub fn fabric_info(scene_path: Option<&Path>, mfp_samples: usize) -> Result<()> 
 
 pub fn fabric_export(scene_path: Option<&Path>, hair: bool, output: &Path) -> Result<()> {
     let scene = SceneFile::load_or_default(scene_path)?.build()?;
-    if hair {
-        fiber_io::write_hair(output, &scene.exemplar.fibers)?;
-    } else {
-        fiber_io::write_mitsuba(output, &scene.exemplar.fibers)?;
-    }
+    let format = if hair { fiber_io::FiberFormat::Hair } else { fiber_io::FiberFormat::Mitsuba };
+    fiber_io::write_fibers(output, &scene.exemplar.fibers, Some(format))?;
     eprintln!("wrote {} fibers to {}", scene.exemplar.fibers.len(), output.display());
     Ok(())
 }
@@ -88,17 +84,15 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let settings = file.render_settings(options.only);
 
     let started = Instant::now();
-    let path_scene = scene.path_scene();
-    let setup_s = started.elapsed().as_secs_f64();
 
     let bar = ProgressBar::new(camera.height() as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, eta {eta}")
             .expect("the progress template is valid"),
     );
     bar.set_message(format!("path tracing {}x{} at {} spp", camera.width(), camera.height(), settings.spp));
-    let film = pathtrace::render(&path_scene, &camera, &settings, &|rows| bar.set_position(rows as u64));
+    let film = pathtrace::render(&scene.path_scene, &camera, &settings, &|rows| bar.set_position(rows as u64));
     bar.finish_and_clear();
-    let render_s = started.elapsed().as_secs_f64() - setup_s;
+    let render_s = started.elapsed().as_secs_f64();
 
     let image = film.mean();
     let variance = film.variance_of_mean();
@@ -108,7 +102,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let noise = (variance.pixels.iter().map(|v| v.element_sum() / 3.0).sum::<f64>() / variance.pixels.len() as f64).sqrt();
     eprintln!(
         "wrote {} ({}x{}, {} spp, {:?}): mean radiance [{:.4}, {:.4}, {:.4}], per-pixel noise (std. error) {:.4}; \
-         setup {:.2} s, path tracing {:.2} s",
+         path tracing {:.2} s",
         options.output.display(),
         camera.width(),
         camera.height(),
@@ -118,7 +112,6 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
         mean.y,
         mean.z,
         noise,
-        setup_s,
         render_s
     );
     Ok(())

@@ -8,15 +8,16 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::DVec3;
+use glam::{DVec3, Vec2};
 use serde::{Deserialize, Deserializer};
 
 use crate::Rgb;
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::Exemplar;
+use crate::fabric::{Exemplar, Tiling};
+use crate::raycast::{Extent, FiberScene};
 use crate::fabric::presets::{FabricSpec, fabric_preset, fabric_presets};
 use crate::params::{ParamError, check_count, check_positive, check_range};
-use crate::pathtrace::{Camera, Component, Light, Projection, RenderSettings};
+use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
 
 /// The built-in default scene (its text).
 pub const DEFAULT_SCENE_TOML: &str = include_str!("../../assets/scenes/default.toml");
@@ -173,18 +174,21 @@ fn sg_sharpness<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     check_range("sharpness", v, lo, hi).map_err(serde::de::Error::custom)
 }
 
-/// A scene ready to render: fabric geometry, per-yarn materials, lights, camera, settings.
-#[derive(Debug, Clone)]
+/// A scene ready to render: the fabric exemplar, the ray-traceable swatch with its materials
+/// and lights, the camera and the settings.
 pub struct Scene {
     pub exemplar: Exemplar,
-    /// Material of each yarn of the exemplar (indexed like `Exemplar::yarns`).
-    pub yarn_materials: Vec<Material>,
+    /// Warp and weft material as described (slot 0 warp, slot 1 weft).
     pub material_descs: Vec<MaterialDesc>,
+    /// The swatch as the path tracer sees it.
+    pub path_scene: PathScene,
     pub swatch: SwatchSection,
     pub camera: CameraSection,
-    pub lights: Vec<Light>,
     pub render: RenderSection,
 }
+
+/// Gap between the lowest fiber and the black ground plane, in cm.
+pub const GROUND_GAP_CM: f64 = 1e-4;
 
 impl SceneFile {
     /// Parses scene text; `path` is used in messages and to resolve relative paths.
@@ -269,13 +273,22 @@ impl SceneFile {
         self.render_settings(None).validate().map_err(param)?;
         check_range("render.exposure", r.exposure, -30.0, 30.0).map_err(param)?;
         self.camera(r.width, r.height).map_err(param)?;
+        let extent = match exemplar.tiling {
+            Tiling::Periodic { .. } => {
+                let half = Vec2::new(self.swatch.size_cm[0] as f32, self.swatch.size_cm[1] as f32) * 0.5;
+                Extent::Rectangle { min: -half, max: half }
+            }
+            Tiling::AsIs => Extent::Unbounded,
+        };
+        let fibers = FiberScene::new(&exemplar, extent).map_err(|e| invalid(format!("[fabric]: {e}")))?;
+        let ground_z = self.swatch.ground.then(|| f64::from(fibers.slab().0) - GROUND_GAP_CM);
+        let path_scene = PathScene { fibers, yarn_materials, lights, ground_z };
         Ok(Scene {
             exemplar,
-            yarn_materials,
             material_descs,
+            path_scene,
             swatch: self.swatch,
             camera: self.camera,
-            lights,
             render: self.render,
         })
     }
@@ -313,8 +326,8 @@ mod tests {
     fn the_default_scene_parses_and_builds() {
         let scene = SceneFile::default_scene().build().unwrap();
         assert!(scene.exemplar.segment_count() > 1000);
-        assert!(!scene.lights.is_empty());
-        assert_eq!(scene.yarn_materials.len(), scene.exemplar.yarns.len());
+        assert!(!scene.path_scene.lights.is_empty());
+        assert_eq!(scene.path_scene.yarn_materials.len(), scene.exemplar.yarns.len());
     }
 
     fn parse_err(text: &str) -> String {
