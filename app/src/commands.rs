@@ -11,11 +11,10 @@ use twill_precompute::raycast::mean_free_path;
 use twill_precompute::scene::SceneFile;
 use twill_renderer::export::{Display, write_image};
 
-pub fn fabric_presets() -> Result<()> {
+pub fn fabric_presets() {
     for preset in presets::fabric_presets() {
         println!("{:<18} {}", preset.name, preset.description);
     }
-    Ok(())
 }
 
 pub fn fabric_info(scene_path: Option<&Path>, mfp_samples: usize) -> Result<()> {
@@ -30,7 +29,10 @@ pub fn fabric_info(scene_path: Option<&Path>, mfp_samples: usize) -> Result<()> 
     println!("yarns            {}", exemplar.yarns.len());
     let mean_len = segments.iter().map(|s| f64::from(s.length())).sum::<f64>() / segments.len().max(1) as f64;
     println!("segment length   {mean_len:.5} cm (mean)");
-    println!("bounds (cm)      [{:.4}, {:.4}, {:.4}] .. [{:.4}, {:.4}, {:.4}]", lo.x, lo.y, lo.z, hi.x, hi.y, hi.z);
+    println!(
+        "bounds (cm)      [{:.4}, {:.4}, {:.4}] .. [{:.4}, {:.4}, {:.4}]",
+        lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+    );
     match exemplar.tiling {
         twill_precompute::fabric::Tiling::Periodic { period } => {
             println!("tiling           periodic, period {:.4} x {:.4} cm", period.x, period.y);
@@ -90,7 +92,8 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
             .expect("the progress template is valid"),
     );
     bar.set_message(format!("path tracing {}x{} at {} spp", camera.width(), camera.height(), settings.spp));
-    let film = pathtrace::render(&scene.path_scene, &camera, &settings, &|rows| bar.set_position(rows as u64));
+    let film =
+        pathtrace::render(&scene.path_scene, &camera, &settings, &|rows| bar.set_position(rows as u64));
     bar.finish_and_clear();
     let render_s = started.elapsed().as_secs_f64();
 
@@ -99,7 +102,9 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let display = Display { exposure: file.render.exposure, ..Display::default() };
     write_image(&options.output, &image, display)?;
     let mean = image.mean();
-    let noise = (variance.pixels.iter().map(|v| v.element_sum() / 3.0).sum::<f64>() / variance.pixels.len() as f64).sqrt();
+    let noise = (variance.pixels.iter().map(|v| v.element_sum() / 3.0).sum::<f64>()
+        / variance.pixels.len() as f64)
+        .sqrt();
     eprintln!(
         "wrote {} ({}x{}, {} spp, {:?}): mean radiance [{:.4}, {:.4}, {:.4}], per-pixel noise (std. error) {:.4}; \
          path tracing {:.2} s",

@@ -110,8 +110,13 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Fabric { command } => match command {
-            FabricCommand::Presets => commands::fabric_presets(),
-            FabricCommand::Info { scene, mfp_samples } => commands::fabric_info(scene.as_deref(), mfp_samples),
+            FabricCommand::Presets => {
+                commands::fabric_presets();
+                Ok(())
+            }
+            FabricCommand::Info { scene, mfp_samples } => {
+                commands::fabric_info(scene.as_deref(), mfp_samples)
+            }
             FabricCommand::Export { scene, format, output } => {
                 commands::fabric_export(scene.as_deref(), matches!(format, FiberFormat::Hair), &output)
             }

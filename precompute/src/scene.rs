@@ -13,11 +13,11 @@ use serde::{Deserialize, Deserializer};
 
 use crate::Rgb;
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::{Exemplar, Tiling};
-use crate::raycast::{Extent, FiberScene};
 use crate::fabric::presets::{FabricSpec, fabric_preset, fabric_presets};
+use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
+use crate::raycast::{Extent, FiberScene};
 
 /// The built-in default scene (its text).
 pub const DEFAULT_SCENE_TOML: &str = include_str!("../../assets/scenes/default.toml");
@@ -193,19 +193,23 @@ pub const GROUND_GAP_CM: f64 = 1e-4;
 impl SceneFile {
     /// Parses scene text; `path` is used in messages and to resolve relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, SceneError> {
-        let mut scene: SceneFile = toml::from_str(text)
-            .map_err(|e| SceneError::Parse { path: path.into(), message: e.to_string().trim_end().to_owned() })?;
+        let mut scene: SceneFile = toml::from_str(text).map_err(|e| SceneError::Parse {
+            path: path.into(),
+            message: e.to_string().trim_end().to_owned(),
+        })?;
         scene.path = path.into();
         Ok(scene)
     }
 
     /// Reads and parses a scene file.
     pub fn load(path: &Path) -> Result<Self, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.into(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| SceneError::Read { path: path.into(), source })?;
         Self::parse(&text, path)
     }
 
     /// The built-in default scene.
+    #[must_use]
     pub fn default_scene() -> Self {
         Self::parse(DEFAULT_SCENE_TOML, Path::new("<built-in default scene>"))
             .expect("the built-in default scene parses (tested)")
@@ -236,7 +240,8 @@ impl SceneFile {
         warp = self.materials.warp.or(warp);
         weft = self.materials.weft.or(weft);
         let base_dir = path.parent().unwrap_or(Path::new("."));
-        let exemplar = spec.build(base_dir).map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
+        let exemplar =
+            spec.build(base_dir).map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
 
         // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft.
         let fallback = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
@@ -299,6 +304,7 @@ impl SceneFile {
     }
 
     /// Sampling settings, optionally restricted to one scattering component.
+    #[must_use]
     pub fn render_settings(&self, component: Option<Component>) -> RenderSettings {
         RenderSettings {
             spp: self.render.spp,
@@ -331,10 +337,14 @@ mod tests {
     }
 
     fn parse_err(text: &str) -> String {
-        SceneFile::parse(text, Path::new("bad.toml")).and_then(|s| s.build().map(|_| ())).unwrap_err().to_string()
+        SceneFile::parse(text, Path::new("bad.toml"))
+            .and_then(|s| s.build().map(|_| ()))
+            .unwrap_err()
+            .to_string()
     }
 
-    const CAMERA: &str = "[camera]\nprojection = \"perspective\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n";
+    const CAMERA: &str =
+        "[camera]\nprojection = \"perspective\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n";
 
     #[test]
     fn errors_name_the_file_line_and_field() {
@@ -350,7 +360,9 @@ mod tests {
         let msg = parse_err(&format!("[fabric]\npreset = \"default\"\ncolour = 3\n{CAMERA}"));
         assert!(msg.contains("colour") && msg.contains("line 3"), "{msg}");
 
-        let msg = parse_err(&format!("[fabric]\npreset = \"nope\"\n{CAMERA}[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n"));
+        let msg = parse_err(&format!(
+            "[fabric]\npreset = \"nope\"\n{CAMERA}[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n"
+        ));
         assert!(msg.contains("unknown preset \"nope\"") && msg.contains("default"), "{msg}");
 
         let msg = parse_err(&format!("[fabric]\npreset = \"default\"\n{CAMERA}"));

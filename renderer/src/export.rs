@@ -62,6 +62,7 @@ pub fn write_image(path: &Path, image: &Image, display: Display) -> Result<(), E
 }
 
 /// Maps linear radiance to an 8-bit sRGB value per channel.
+#[must_use]
 pub fn display_srgb8(radiance: Rgb, display: Display) -> [u8; 3] {
     let scaled = radiance * display.exposure.exp2();
     let mapped = match display.curve {
@@ -75,6 +76,7 @@ pub fn display_srgb8(radiance: Rgb, display: Display) -> [u8; 3] {
 }
 
 /// The sRGB transfer function (IEC 61966-2-1) for a value in [0, 1].
+#[must_use]
 pub fn srgb_encode(linear: f64) -> f64 {
     if linear <= 0.003_130_8 { 12.92 * linear } else { 1.055 * linear.powf(1.0 / 2.4) - 0.055 }
 }
@@ -118,6 +120,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::float_cmp)] // f32 values must round-trip bit for bit
     fn exr_round_trips_linear_values() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.exr");

@@ -40,11 +40,19 @@ impl Camera {
     ) -> Result<Self, ParamError> {
         let forward = (target - eye).normalize_or_zero();
         if forward == DVec3::ZERO || !forward.is_finite() {
-            return Err(ParamError::new("camera.target", format!("{target}"), "a point different from camera.eye"));
+            return Err(ParamError::new(
+                "camera.target",
+                format!("{target}"),
+                "a point different from camera.eye",
+            ));
         }
         let right = forward.cross(up).normalize_or_zero();
         if right == DVec3::ZERO || !right.is_finite() {
-            return Err(ParamError::new("camera.up", format!("{up}"), "a direction not parallel to the view direction"));
+            return Err(ParamError::new(
+                "camera.up",
+                format!("{up}"),
+                "a direction not parallel to the view direction",
+            ));
         }
         match projection {
             Projection::Perspective { fov_y_deg } => {
@@ -61,6 +69,7 @@ impl Camera {
     }
 
     /// The ray through film point `(px, py)` (pixel units, y down): `(origin, unit direction)`.
+    #[must_use]
     pub fn ray(&self, px: f64, py: f64) -> (DVec3, DVec3) {
         let aspect = self.width as f64 / self.height as f64;
         // Film coordinates in [-1, 1] vertically, [-aspect, aspect] horizontally.
@@ -79,10 +88,12 @@ impl Camera {
         }
     }
 
+    #[must_use]
     pub fn width(&self) -> usize {
         self.width
     }
 
+    #[must_use]
     pub fn height(&self) -> usize {
         self.height
     }

@@ -111,6 +111,7 @@ pub fn render(
 }
 
 /// A random stream for one pixel, independent of every other pixel's.
+#[must_use]
 pub fn pixel_rng(seed: u64, pixel: u64) -> Pcg64Mcg {
     // SplitMix64 finalizer decorrelates neighbouring pixel indices.
     let mut z = seed ^ pixel.wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -120,7 +121,13 @@ pub fn pixel_rng(seed: u64, pixel: u64) -> Pcg64Mcg {
 }
 
 /// One path's estimate of the radiance arriving at `origin` from direction `-dir`.
-pub fn radiance(scene: &PathScene, origin: DVec3, dir: DVec3, settings: &RenderSettings, rng: &mut Pcg64Mcg) -> Rgb {
+pub fn radiance(
+    scene: &PathScene,
+    origin: DVec3,
+    dir: DVec3,
+    settings: &RenderSettings,
+    rng: &mut Pcg64Mcg,
+) -> Rgb {
     let Some(mut hit) = trace(scene, origin, dir, None) else {
         return Rgb::ZERO; // black background
     };
@@ -143,7 +150,9 @@ pub fn radiance(scene: &PathScene, origin: DVec3, dir: DVec3, settings: &RenderS
                 if f == Rgb::ZERO || occluded(scene, position, wi, hit.fiber) {
                     continue;
                 }
-                let mis = sample.pdf.map_or(1.0, |light_pdf| power_heuristic(light_pdf, material.pdf(t, n, wo, wi)));
+                let mis = sample
+                    .pdf
+                    .map_or(1.0, |light_pdf| power_heuristic(light_pdf, material.pdf(t, n, wo, wi)));
                 total += throughput * f * sample.weight * mis;
             }
         }
@@ -165,19 +174,18 @@ pub fn radiance(scene: &PathScene, origin: DVec3, dir: DVec3, settings: &RenderS
         throughput *= f / pdf;
         dir = wi;
 
-        match trace(scene, position, wi, Some(hit.fiber)) {
-            Some(next) => hit = next,
-            None => {
-                if counts_here && !below_ground(scene, position, wi) {
-                    for light in &scene.lights {
-                        let light_pdf = light.pdf(wi);
-                        if light_pdf > 0.0 {
-                            total += throughput * light.radiance(wi) * power_heuristic(pdf, light_pdf);
-                        }
+        if let Some(next) = trace(scene, position, wi, Some(hit.fiber)) {
+            hit = next
+        } else {
+            if counts_here && !below_ground(scene, position, wi) {
+                for light in &scene.lights {
+                    let light_pdf = light.pdf(wi);
+                    if light_pdf > 0.0 {
+                        total += throughput * light.radiance(wi) * power_heuristic(pdf, light_pdf);
                     }
                 }
-                break;
             }
+            break;
         }
         if settings.component == Component::Single {
             break;
@@ -210,7 +218,8 @@ fn trace(scene: &PathScene, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>
 }
 
 fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
-    below_ground(scene, origin, dir) || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
+    below_ground(scene, origin, dir)
+        || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
 }
 
 fn below_ground(scene: &PathScene, origin: DVec3, dir: DVec3) -> bool {

@@ -55,9 +55,12 @@ impl Light {
     }
 
     /// Draws a direction toward the light.
+    #[must_use]
     pub fn sample(&self, u: [f64; 2]) -> LightSample {
         match *self {
-            Self::Directional { to_light, irradiance } => LightSample { to_light, weight: irradiance, pdf: None },
+            Self::Directional { to_light, irradiance } => {
+                LightSample { to_light, weight: irradiance, pdf: None }
+            }
             Self::Sg { axis, sharpness, intensity } => {
                 let dir = sample_sg_dir(axis, sharpness, u);
                 // radiance / pdf = intensity * (G/M) / (G/M) = intensity.
@@ -67,6 +70,7 @@ impl Light {
     }
 
     /// Radiance arriving from direction `to_light` (zero for delta lights, which no ray hits).
+    #[must_use]
     pub fn radiance(&self, to_light: DVec3) -> Rgb {
         match *self {
             Self::Directional { .. } => Rgb::ZERO,
@@ -75,6 +79,7 @@ impl Light {
     }
 
     /// Solid-angle pdf of [`Light::sample`] for `to_light` (zero for delta lights).
+    #[must_use]
     pub fn pdf(&self, to_light: DVec3) -> f64 {
         match *self {
             Self::Directional { .. } => 0.0,
