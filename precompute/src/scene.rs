@@ -353,7 +353,8 @@ mod tests {
         );
         let msg = parse_err(&text);
         assert!(msg.starts_with("bad.toml:"), "{msg}");
-        assert!(msg.contains("line 11"), "{msg}");
+        // Tagged tables ([[lights]]) are buffered by serde, so the line is the table's header.
+        assert!(msg.contains("line 8"), "{msg}");
         assert!(msg.contains("sharpness"), "{msg}");
         assert!(msg.contains("0.0001 <= sharpness <= 100000"), "{msg}");
 

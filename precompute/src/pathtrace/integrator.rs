@@ -157,7 +157,7 @@ pub fn radiance(
             }
         }
         // Nothing further can count once single scattering is done.
-        if settings.component == Component::Single && event >= 1 && !has_sg_light(scene) {
+        if settings.component == Component::Single && !has_sg_light(scene) {
             break;
         }
 
