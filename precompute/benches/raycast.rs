@@ -56,16 +56,24 @@ fn bench(c: &mut Criterion) {
             100.0 * hits as f64 / RAYS as f64
         );
         let mut group = c.benchmark_group(format!("raycast_{name}"));
-        group.throughput(Throughput::Elements(RAYS as u64));
-        group.bench_function("closest_hit", |b| {
-            b.iter(|| {
-                let mut count = 0u32;
-                for &(o, d) in &rays {
-                    count += u32::from(scene.closest_hit(o, d, f32::INFINITY, None).is_some());
-                }
-                black_box(count)
+        let (camera, scatter): (Vec<_>, Vec<_>) = rays.iter().enumerate().partition(|(i, _)| i % 2 == 0);
+        let camera: Vec<(Vec3, Vec3)> = camera.into_iter().map(|(_, r)| *r).collect();
+        let scatter: Vec<(Vec3, Vec3)> = scatter.into_iter().map(|(_, r)| *r).collect();
+        for (label, set) in
+            [("closest_hit", &rays), ("closest_hit_camera", &camera), ("closest_hit_scatter", &scatter)]
+        {
+            group.throughput(Throughput::Elements(set.len() as u64));
+            group.bench_function(label, |b| {
+                b.iter(|| {
+                    let mut count = 0u32;
+                    for &(o, d) in set {
+                        count += u32::from(scene.closest_hit(o, d, f32::INFINITY, None).is_some());
+                    }
+                    black_box(count)
+                });
             });
-        });
+        }
+        group.throughput(Throughput::Elements(RAYS as u64));
         group.bench_function("any_hit", |b| {
             b.iter(|| {
                 let mut count = 0u32;
