@@ -44,7 +44,8 @@ fn lambertian_fiber_under_a_directional_light_matches_the_closed_form() {
         // The fiber covers 2r / H of the film; elsewhere the background is black.
         let expected = 2.0 * radius / film_height * lambert_cylinder_mean_radiance(albedo, irradiance, alpha);
         let measured = mean.mean().x;
-        let std_error = (variance.pixels.iter().map(|v| v.x).sum::<f64>()).sqrt() / variance.pixels.len() as f64;
+        let std_error =
+            (variance.pixels.iter().map(|v| v.x).sum::<f64>()).sqrt() / variance.pixels.len() as f64;
         assert!(
             (measured - expected).abs() < 4.0 * std_error + 1e-4 * expected,
             "alpha {alpha}: measured {measured} expected {expected} (std. error {std_error})"
@@ -70,8 +71,12 @@ fn white_furnace_lambertian_fabric_in_a_uniform_environment_is_exactly_one() {
         // Rays from above and from grazing angles, aimed at random points of the swatch centre.
         let u: [f64; 4] = std::array::from_fn(|_| rand::Rng::random(&mut rng));
         let target = DVec3::new(0.2 * (u[0] - 0.5), 0.2 * (u[1] - 0.5), 0.0);
-        let dir = -DVec3::new((0.9 * u[2]).sqrt() * (6.28 * u[3]).cos(), (0.9 * u[2]).sqrt() * (6.28 * u[3]).sin(), 1.0)
-            .normalize();
+        let dir = -DVec3::new(
+            (0.9 * u[2]).sqrt() * (std::f64::consts::TAU * u[3]).cos(),
+            (0.9 * u[2]).sqrt() * (std::f64::consts::TAU * u[3]).sin(),
+            1.0,
+        )
+        .normalize();
         let origin = target - 2.0 * dir;
         if scene.fibers.closest_hit_f64(origin, dir, f64::INFINITY, None).is_none() {
             continue;
@@ -85,7 +90,10 @@ fn white_furnace_lambertian_fabric_in_a_uniform_environment_is_exactly_one() {
     assert!(n > 3000, "too few rays hit the fabric: {n}");
     let mean = sum / n as f64;
     let std_error = ((sum_sq / n as f64 - mean * mean) / (n as f64 - 1.0)).sqrt();
-    assert!((mean - 1.0).abs() < 4.0 * std_error + 3e-4, "furnace: mean {mean} +- {std_error} over {n} paths");
+    assert!(
+        (mean - 1.0).abs() < 4.0 * std_error + 3e-4,
+        "furnace: mean {mean} +- {std_error} over {n} paths"
+    );
 }
 
 #[test]

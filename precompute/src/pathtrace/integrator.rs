@@ -175,7 +175,7 @@ pub fn radiance(
         dir = wi;
 
         if let Some(next) = trace(scene, position, wi, Some(hit.fiber)) {
-            hit = next
+            hit = next;
         } else {
             if counts_here && !below_ground(scene, position, wi) {
                 for light in &scene.lights {
