@@ -105,9 +105,20 @@ fn parse_size(text: &str) -> Result<(usize, usize), String> {
     if (1..=16384).contains(&w) && (1..=16384).contains(&h) { Ok((w, h)) } else { Err(err()) }
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
-    let cli = Cli::parse();
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(error) => {
+            // Every error's message already names the file, place and value (and includes its
+            // cause), so the top-level message is the whole story.
+            eprintln!("error: {error}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Fabric { command } => match command {
             FabricCommand::Presets => {

@@ -47,13 +47,13 @@ use crate::params::{ParamError, check_count, check_positive, check_range};
 /// A fabric that could not be built.
 #[derive(Debug, thiserror::Error)]
 pub enum FabricError {
-    #[error("fabric: {0}")]
+    #[error(transparent)]
     Param(#[from] ParamError),
-    #[error("fabric: {0}")]
+    #[error(transparent)]
     Weave(#[from] WeaveError),
-    #[error("fabric: {0}")]
+    #[error(transparent)]
     Io(#[from] FiberIoError),
-    #[error("fabric: {}: the file holds no fibers", file.display())]
+    #[error("{}: the file holds no fibers", file.display())]
     NoFibers { file: PathBuf },
 }
 

@@ -1,0 +1,108 @@
+//! End-to-end tests of the `twill` command line: each runs the real binary.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn twill(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_twill")).args(args).current_dir(dir).output().expect("twill runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn no_arguments_prints_help() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = twill(&[], dir.path());
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("reference"), "{}", text(&out.stderr));
+}
+
+#[test]
+fn fabric_info_reports_counts_and_mean_free_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = twill(&["fabric", "info", "--mfp-samples", "2000"], dir.path());
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    for key in ["fibers", "segments", "volume fraction", "mean free path", "periodic"] {
+        assert!(stdout.contains(key), "missing {key:?} in\n{stdout}");
+    }
+}
+
+#[test]
+fn exported_fibers_reimport_as_a_tiled_exemplar_and_render() {
+    let dir = tempfile::tempdir().unwrap();
+    for format in ["mitsuba", "hair"] {
+        let file = if format == "hair" { "fibers.hair" } else { "fibers.txt" };
+        let out = twill(&["fabric", "export", "--format", format, "-o", file], dir.path());
+        assert!(out.status.success(), "{}", text(&out.stderr));
+
+        // The default fabric's period is 0.14 cm; tile the imported fibers with it.
+        let scene = std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/default.toml"),
+        )
+        .unwrap()
+        .replace(
+            "preset = \"default\"",
+            &format!("spec = {{ file = \"{file}\", tiling = {{ period = [0.14, 0.14] }} }}"),
+        );
+        std::fs::write(dir.path().join("imported.toml"), scene).unwrap();
+        let info = twill(&["fabric", "info", "imported.toml", "--mfp-samples", "500"], dir.path());
+        assert!(info.status.success(), "{}", text(&info.stderr));
+        assert!(text(&info.stdout).contains("fibers           1296"), "{}", text(&info.stdout));
+
+        let out =
+            twill(&["reference", "imported.toml", "-o", "x.exr", "--size", "12x8", "--spp", "2"], dir.path());
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let image = exr::prelude::read_first_rgba_layer_from_file(
+            dir.path().join("x.exr"),
+            |size, _| (size.width(), size.height()),
+            |_: &mut (usize, usize), _, _: (f32, f32, f32, f32)| {},
+        )
+        .unwrap();
+        assert_eq!(image.layer_data.channel_data.pixels, (12, 8));
+    }
+}
+
+#[test]
+fn reference_writes_png_for_each_component() {
+    let dir = tempfile::tempdir().unwrap();
+    for only in ["single", "multiple"] {
+        let out =
+            twill(&["reference", "-o", "x.png", "--size", "8x8", "--spp", "1", "--only", only], dir.path());
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        assert!(text(&out.stderr).contains(if only == "single" { "Single" } else { "Multiple" }));
+        assert!(dir.path().join("x.png").metadata().unwrap().len() > 0);
+    }
+}
+
+#[test]
+fn bad_input_is_a_clear_error_never_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("bad.toml"),
+        "[fabric]\npreset = \"default\"\n[camera]\nprojection = \"fisheye\"\n",
+    )
+    .unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["reference", "bad.toml", "-o", "x.png"], "bad.toml"),
+        (&["reference", "missing.toml", "-o", "x.png"], "missing.toml"),
+        (&["reference", "-o", "x.jpg", "--size", "4x4", "--spp", "1"], "x.jpg"),
+        (&["reference", "-o", "x.png", "--size", "0x4"], "WIDTHxHEIGHT"),
+        (&["reference", "-o", "x.png", "--spp", "0"], "spp"),
+        (
+            &["fabric", "export", "--format", "mitsuba", "-o", "/nonexistent-dir/f.txt"],
+            "/nonexistent-dir/f.txt",
+        ),
+    ];
+    for (args, needle) in cases {
+        let out = twill(args, dir.path());
+        let stderr = text(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(!stderr.contains("panicked"), "{args:?} panicked:\n{stderr}");
+        assert!(stderr.contains(needle), "{args:?}: expected {needle:?} in\n{stderr}");
+    }
+    let stderr = text(&twill(&["reference", "bad.toml", "-o", "x.png"], dir.path()).stderr);
+    assert!(stderr.contains("line 4") && stderr.contains("fisheye"), "{stderr}");
+}
