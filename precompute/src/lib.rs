@@ -18,11 +18,14 @@ pub mod fibonacci;
 pub mod image;
 pub mod params;
 pub mod pathtrace;
+pub mod quadrature;
 pub mod raycast;
 pub mod scene;
 pub mod sg;
 pub mod sh;
 pub mod special;
+#[cfg(test)]
+mod test_support;
 
 /// Linear RGB triple (radiance, albedo or colour), one `f64` per channel.
 pub type Rgb = glam::DVec3;

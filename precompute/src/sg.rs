@@ -171,20 +171,12 @@ pub fn sg_pdf(axis: DVec3, lambda: f64, dir: DVec3) -> f64 {
 #[allow(clippy::float_cmp)] // exact limits are checked bit for bit
 mod tests {
     use super::*;
-    use crate::sh::{ShRotation, gauss_legendre, sh_index, sh_project};
+    use crate::quadrature::gauss_legendre;
+    use crate::sh::{ShRotation, sh_index, sh_project};
+    use crate::test_support::{gamma_q, random_unit};
     use glam::DMat3;
     use rand::{Rng, SeedableRng};
     use rand_pcg::Pcg64;
-
-    fn random_unit(rng: &mut Pcg64) -> DVec3 {
-        loop {
-            let v = DVec3::new(rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>()) * 2.0 - 1.0;
-            let len2 = v.length_squared();
-            if len2 > 1e-4 && len2 <= 1.0 {
-                return v / len2.sqrt();
-            }
-        }
-    }
 
     fn rel_err(a: f64, b: f64) -> f64 {
         assert!(a.is_finite() && b.is_finite(), "non-finite: {a} vs {b}");
@@ -388,49 +380,6 @@ mod tests {
                 assert!(d.is_finite() && (d.length() - 1.0).abs() < 1e-14, "lam {lambda}, u0 {u0}: {d}");
                 assert!(sg_pdf(axis, lambda, d).is_finite());
             }
-        }
-    }
-
-    /// Regularized upper incomplete gamma `Q(a, x)` (Numerical Recipes `gammq`).
-    fn gamma_q(a: f64, x: f64) -> f64 {
-        let gln = libm::lgamma(a);
-        if x < a + 1.0 {
-            let (mut ap, mut del) = (a, 1.0 / a);
-            let mut sum = del;
-            for _ in 0..10_000 {
-                ap += 1.0;
-                del *= x / ap;
-                sum += del;
-                if del.abs() < sum.abs() * 1e-16 {
-                    break;
-                }
-            }
-            1.0 - sum * (-x + a * x.ln() - gln).exp()
-        } else {
-            let tiny = 1e-300;
-            let mut b = x + 1.0 - a;
-            let mut c = 1.0 / tiny;
-            let mut d = 1.0 / b;
-            let mut h = d;
-            for i in 1..10_000 {
-                let an = -f64::from(i) * (f64::from(i) - a);
-                b += 2.0;
-                d = an * d + b;
-                if d.abs() < tiny {
-                    d = tiny;
-                }
-                c = b + an / c;
-                if c.abs() < tiny {
-                    c = tiny;
-                }
-                d = 1.0 / d;
-                let del = d * c;
-                h *= del;
-                if (del - 1.0).abs() < 1e-16 {
-                    break;
-                }
-            }
-            (-x + a * x.ln() - gln).exp() * h
         }
     }
 

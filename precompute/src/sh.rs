@@ -19,6 +19,8 @@
 //!   carried along by `R` (a lobe around `a` moves to `R a`).
 
 use glam::{DMat3, DVec3};
+
+use crate::quadrature::gauss_legendre;
 use std::f64::consts::PI;
 
 /// Number of coefficients of an order-`order` expansion: `(order + 1)^2`.
@@ -92,44 +94,6 @@ pub fn sh_eval_sum(order: usize, coeffs: &[f64], dir: DVec3) -> f64 {
     let mut basis = vec![0.0; n];
     sh_eval(order, dir, &mut basis);
     basis.iter().zip(coeffs).map(|(y, c)| y * c).sum()
-}
-
-/// Gauss–Legendre nodes and weights on `[-1, 1]` (`n >= 1` nodes, exact for polynomials of
-/// degree `<= 2n - 1`), by Newton iteration on `P_n` from Tricomi-style initial guesses.
-/// Nodes are in decreasing order.
-#[must_use]
-pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
-    assert!(n >= 1, "gauss_legendre: need at least one node");
-    let nf = n as f64;
-    let mut nodes = vec![0.0; n];
-    let mut weights = vec![0.0; n];
-    for i in 0..n.div_ceil(2) {
-        let mut x = (PI * (i as f64 + 0.75) / (nf + 0.5)).cos();
-        let mut dp = 1.0;
-        for iteration in 0..100 {
-            // P_n(x) and P_{n-1}(x) by the three-term recurrence.
-            let (mut p_prev, mut p) = (1.0, x);
-            for k in 2..=n {
-                let kf = k as f64;
-                (p_prev, p) = (p, ((2.0 * kf - 1.0) * x * p - (kf - 1.0) * p_prev) / kf);
-            }
-            if n == 1 {
-                p_prev = 1.0;
-            }
-            dp = nf * (x * p - p_prev) / (x * x - 1.0);
-            let dx = p / dp;
-            x -= dx;
-            if dx.abs() < 1e-16 || iteration == 99 {
-                break;
-            }
-        }
-        nodes[i] = x;
-        nodes[n - 1 - i] = -x;
-        let w = 2.0 / ((1.0 - x * x) * dp * dp);
-        weights[i] = w;
-        weights[n - 1 - i] = w;
-    }
-    (nodes, weights)
 }
 
 /// Projects `f` onto the real SH of bands `0..=order` with a product rule: `quadrature_n`
@@ -306,19 +270,10 @@ fn ivanic_band(l: usize, band1: &[f64], prev: &[f64]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::random_unit;
     use glam::DQuat;
     use rand::{Rng, SeedableRng};
     use rand_pcg::Pcg64;
-
-    fn random_unit(rng: &mut Pcg64) -> DVec3 {
-        loop {
-            let v = DVec3::new(rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>()) * 2.0 - 1.0;
-            let len2 = v.length_squared();
-            if len2 > 1e-4 && len2 <= 1.0 {
-                return v / len2.sqrt();
-            }
-        }
-    }
 
     fn random_rotation(rng: &mut Pcg64) -> DMat3 {
         let axis = random_unit(rng);
@@ -348,18 +303,6 @@ mod tests {
 
     fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
         a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
-    }
-
-    #[test]
-    fn gauss_legendre_integrates_polynomials_exactly() {
-        for n in [1_usize, 2, 5, 16, 40] {
-            let (nodes, weights) = gauss_legendre(n);
-            for degree in 0..2 * n {
-                let got: f64 = nodes.iter().zip(&weights).map(|(x, w)| w * x.powi(degree as i32)).sum();
-                let exact = if degree % 2 == 1 { 0.0 } else { 2.0 / (degree as f64 + 1.0) };
-                assert!((got - exact).abs() < 1e-14, "n = {n}, degree {degree}: {got} vs {exact}");
-            }
-        }
     }
 
     #[test]

@@ -58,11 +58,7 @@ pub struct FiberFrame {
 impl FiberFrame {
     #[must_use]
     pub fn new(t: DVec3) -> Self {
-        let sign = 1.0f64.copysign(t.z);
-        let a = -1.0 / (sign + t.z);
-        let b = t.x * t.y * a;
-        let u = DVec3::new(1.0 + sign * t.x * t.x * a, sign * b, -sign * t.x);
-        let v = DVec3::new(b, sign + t.y * t.y * a, -t.y);
+        let (u, v) = crate::sg::frame_from_z(t);
         Self { t, u, v }
     }
 

@@ -10,7 +10,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use super::quad::{gauss_legendre, integrate_panels};
+use crate::quadrature::{gauss_legendre_pairs, integrate_panels};
 
 /// Number of intervals over μ ∈ [0, π/2].
 pub(crate) const GN_TABLE_INTERVALS: usize = 2048;
@@ -26,7 +26,7 @@ pub(crate) struct GnTable {
 impl GnTable {
     /// Builds the table for lobe width `beta` (radians, `λ = 1/(2β²)`).
     pub(crate) fn new(beta: f64) -> Self {
-        let rule = gauss_legendre(16);
+        let rule = gauss_legendre_pairs(16);
         let step = FRAC_PI_2 / GN_TABLE_INTERVALS as f64;
         let (values, slopes) =
             (0..=GN_TABLE_INTERVALS).map(|k| gn_direct_with_rule(&rule, k as f64 * step, beta)).unzip();
@@ -56,7 +56,7 @@ impl GnTable {
 /// `(Gn(μ), dGn/dμ)` by direct quadrature (the reference the table is measured against).
 #[cfg(test)]
 pub(crate) fn gn_direct(mu: f64, beta: f64) -> (f64, f64) {
-    gn_direct_with_rule(&gauss_legendre(16), mu, beta)
+    gn_direct_with_rule(&gauss_legendre_pairs(16), mu, beta)
 }
 
 fn gn_direct_with_rule(rule: &[(f64, f64)], mu: f64, beta: f64) -> (f64, f64) {

@@ -14,10 +14,7 @@
 mod fiber;
 mod gn_table;
 mod lambert;
-mod quad;
 mod sampling;
-#[cfg(test)]
-mod stats;
 #[cfg(test)]
 mod tests;
 

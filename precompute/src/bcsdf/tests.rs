@@ -8,9 +8,9 @@ use rand::Rng;
 use rand_pcg::Pcg64;
 
 use super::gn_table::gn_direct;
-use super::quad::{gauss_legendre, graded_breaks};
-use super::stats::{TestFrame, chi2_test, lobe_edges};
 use super::*;
+use crate::quadrature::{gauss_legendre_pairs, graded_breaks};
+use crate::test_support::{TestFrame, chi2_test, lobe_edges};
 
 fn fiber(c_r: f64, beta_r: f64, c_tt: Rgb, beta_tt: f64, gamma: f64) -> FiberParams {
     FiberParams { c_r: Rgb::splat(c_r), beta_r_deg: beta_r, c_tt, beta_tt_deg: beta_tt, gamma_tt_deg: gamma }
@@ -42,7 +42,7 @@ fn tangent() -> DVec3 {
 
 /// Gauss–Legendre nodes and weights on panels between `breaks`.
 fn panel_nodes(breaks: &[f64]) -> Vec<(f64, f64)> {
-    let rule = gauss_legendre(16);
+    let rule = gauss_legendre_pairs(16);
     let mut nodes = Vec::new();
     for w in breaks.windows(2) {
         let (mid, half) = (0.5 * (w[0] + w[1]), 0.5 * (w[1] - w[0]));
@@ -474,7 +474,7 @@ fn material_interface() {
 /// The von Mises sampler alone, over the κ range it claims (0.1 .. 1e6): 1D chi-square.
 #[test]
 fn chi2_von_mises_sampler_from_flat_to_extremely_sharp() {
-    let rule = gauss_legendre(8);
+    let rule = gauss_legendre_pairs(8);
     let mut rng: Pcg64 = rand::SeedableRng::seed_from_u64(11);
     for kappa in [0.1, 1.0, 30.0, 1e3, 1e6] {
         let vm = super::sampling::VonMises::new(kappa);
@@ -491,7 +491,9 @@ fn chi2_von_mises_sampler_from_flat_to_extremely_sharp() {
         }
         let mut exp: Vec<f64> = edges
             .windows(2)
-            .map(|w| super::quad::integrate_panels(&rule, &[w[0], w[1]], |x| vm.pdf(x)) * f64::from(count))
+            .map(|w| {
+                crate::quadrature::integrate_panels(&rule, &[w[0], w[1]], |x| vm.pdf(x)) * f64::from(count)
+            })
             .collect();
         let inside: f64 = exp.iter().sum();
         exp.push(f64::from(count) - inside);
@@ -509,7 +511,7 @@ fn chi2_von_mises_sampler_from_flat_to_extremely_sharp() {
             stat += (po - pe) * (po - pe) / f64::max(pe, 1e-300);
             dof += 1;
         }
-        let p = super::stats::gamma_q(0.5 * (dof - 1) as f64, 0.5 * stat);
+        let p = crate::test_support::gamma_q(0.5 * (dof - 1) as f64, 0.5 * stat);
         println!("chi2 von Mises κ = {kappa:e}: p = {p:.4} (X² = {stat:.1}, dof {})", dof - 1);
         assert!(p > chi2_threshold(), "κ = {kappa}: p = {p}");
     }

@@ -1,4 +1,5 @@
-//! Test-only statistics: Pearson's chi-square test of a direction sampler against its pdf.
+//! Test-only support shared by every module's tests: random unit vectors and Pearson's
+//! chi-square test of a direction sampler against its pdf.
 //!
 //! How it works: directions are binned in (θ, φ) of a test frame (θ from the plane normal to
 //! the frame axis, so each bin is a (sin θ, φ) rectangle); expected counts integrate the pdf
@@ -10,10 +11,21 @@
 use std::f64::consts::PI;
 
 use glam::DVec3;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use super::quad::gauss_legendre;
+use crate::quadrature::gauss_legendre_pairs;
+
+/// A uniformly distributed unit vector (rejection from the cube; deterministic for a seed).
+pub(crate) fn random_unit(rng: &mut Pcg64) -> DVec3 {
+    loop {
+        let v = DVec3::new(rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>()) * 2.0 - 1.0;
+        let len2 = v.length_squared();
+        if len2 > 1e-4 && len2 <= 1.0 {
+            return v / len2.sqrt();
+        }
+    }
+}
 
 /// An orthonormal test frame chosen independently of the code under test.
 #[derive(Debug, Clone, Copy)]
@@ -94,7 +106,7 @@ pub(crate) fn chi2_test(
             None => observed[nt * np] += 1.0,
         }
     }
-    let rule = gauss_legendre(6);
+    let rule = gauss_legendre_pairs(6);
     let mut expected = vec![0.0f64; nt * np + 1];
     let mut mass = 0.0;
     for i in 0..nt {
