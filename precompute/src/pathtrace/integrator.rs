@@ -128,7 +128,22 @@ pub fn radiance(
     settings: &RenderSettings,
     rng: &mut Pcg64Mcg,
 ) -> Rgb {
-    let Some(mut hit) = trace(scene, origin, dir, None) else {
+    radiance_from(scene, origin, dir, None, settings, rng)
+}
+
+/// [`radiance`] for a ray that starts on a fiber: the first ray ignores `origin_fiber` (as the
+/// paper's V_k and IIRTF do). Light that reaches `origin` without touching a fiber is not
+/// counted (the background is black), so with one directional light of unit irradiance from
+/// ω0 this estimates the IIRTF's T(ω0, dir, origin).
+pub fn radiance_from(
+    scene: &PathScene,
+    origin: DVec3,
+    dir: DVec3,
+    origin_fiber: Option<u32>,
+    settings: &RenderSettings,
+    rng: &mut Pcg64Mcg,
+) -> Rgb {
+    let Some(mut hit) = trace(scene, origin, dir, origin_fiber) else {
         return Rgb::ZERO; // black background
     };
     let mut dir = dir;
