@@ -12,6 +12,7 @@
 //! RGB. This crate knows nothing of the GPU.
 
 pub mod atomic_file;
+pub mod bake;
 pub mod bcsdf;
 pub mod fabric;
 pub mod fibonacci;

@@ -1,0 +1,137 @@
+//! Bake settings: every knob of the precomputation, and the named quality presets.
+//!
+//! `paper` is the 2017 paper's configuration (128x128 visibility images, 48 PCA components,
+//! Q = 48 SGs of sharpness 128, cells of about one mean free path, 50,000 paths per cell, SH
+//! order 5, 512 θo values); `interactive` is sized to bake the default fabric in seconds on two
+//! cores; `draft` is the fastest useful bake, for the first picture.
+
+use crate::params::{ParamError, check_count, check_range};
+
+/// The named quality presets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    Draft,
+    Interactive,
+    Paper,
+}
+
+/// Every knob of a bake.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BakeSettings {
+    /// Visibility images are `svf_resolution` rows (θ) by `svf_resolution` columns (φ).
+    pub svf_resolution: usize,
+    /// PCA components kept for the SSDFs.
+    pub pca_components: usize,
+    /// Number Q of SGs in the sum-of-SGs visibility.
+    pub sos_count: usize,
+    /// Sharpness λ_svf of those SGs.
+    pub sos_sharpness: f64,
+    /// Target IIRTF cell side as a multiple of the measured mean free path ℓ.
+    pub cell_size_mfp: f64,
+    /// Paths traced per IIRTF cell.
+    pub iirtf_paths_per_cell: usize,
+    /// SH order L of the IIRTF (and of C_S, C_G): (L+1)² coefficients.
+    pub sh_order: usize,
+    /// Number of θo values in the C_S table, equally spaced over [-π/2, π/2].
+    pub cs_theta_count: usize,
+    /// Voxels per mean segment length along each axis of the volume (>= 1).
+    pub voxels_per_segment: f64,
+    /// Rays cast to measure the mean free path.
+    pub mfp_samples: usize,
+    pub seed: u64,
+}
+
+impl Quality {
+    pub const ALL: [Quality; 3] = [Quality::Draft, Quality::Interactive, Quality::Paper];
+
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Draft => "draft",
+            Self::Interactive => "interactive",
+            Self::Paper => "paper",
+        }
+    }
+
+    #[must_use]
+    pub fn settings(self) -> BakeSettings {
+        match self {
+            Self::Draft => BakeSettings {
+                svf_resolution: 16,
+                pca_components: 8,
+                sos_count: 16,
+                sos_sharpness: 128.0,
+                cell_size_mfp: 2.0,
+                iirtf_paths_per_cell: 1_000,
+                sh_order: 2,
+                cs_theta_count: 64,
+                voxels_per_segment: 1.0,
+                mfp_samples: 4_000,
+                seed: 1,
+            },
+            Self::Interactive => BakeSettings {
+                svf_resolution: 32,
+                pca_components: 24,
+                sos_count: 32,
+                sos_sharpness: 128.0,
+                cell_size_mfp: 1.5,
+                iirtf_paths_per_cell: 5_000,
+                sh_order: 4,
+                cs_theta_count: 256,
+                voxels_per_segment: 2.0,
+                mfp_samples: 20_000,
+                seed: 1,
+            },
+            Self::Paper => BakeSettings {
+                svf_resolution: 128,
+                pca_components: 48,
+                sos_count: 48,
+                sos_sharpness: 128.0,
+                cell_size_mfp: 1.0,
+                iirtf_paths_per_cell: 50_000,
+                sh_order: 5,
+                cs_theta_count: 512,
+                voxels_per_segment: 2.0,
+                mfp_samples: 100_000,
+                seed: 1,
+            },
+        }
+    }
+}
+
+impl BakeSettings {
+    /// Rejects values outside the ranges the stages support, naming the knob and the range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check_count("svf_resolution", self.svf_resolution, 4, 512)?;
+        check_count("pca_components", self.pca_components, 1, 256)?;
+        check_count("sos_count", self.sos_count, 1, 1024)?;
+        check_range("sos_sharpness", self.sos_sharpness, 1.0, 1e4)?;
+        check_range("cell_size_mfp", self.cell_size_mfp, 0.25, 64.0)?;
+        check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
+        check_count("sh_order", self.sh_order, 0, 8)?;
+        check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;
+        check_range("voxels_per_segment", self.voxels_per_segment, 0.25, 16.0)?;
+        check_count("mfp_samples", self.mfp_samples, 100, 100_000_000)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_paper_matches_the_paper() {
+        for q in Quality::ALL {
+            q.settings().validate().unwrap();
+        }
+        let p = Quality::Paper.settings();
+        assert_eq!((p.svf_resolution, p.pca_components, p.sos_count), (128, 48, 48));
+        assert_eq!((p.iirtf_paths_per_cell, p.sh_order, p.cs_theta_count), (50_000, 5, 512));
+        let mut bad = p;
+        bad.sh_order = 9;
+        assert!(bad.validate().unwrap_err().to_string().contains("0 <= sh_order <= 8"));
+    }
+}
