@@ -33,7 +33,7 @@ use rayon::prelude::*;
 
 use crate::Rgb;
 use crate::bcsdf::{FiberScattering, Material};
-use crate::quadrature::{gauss_legendre_pairs, integrate_panels};
+use crate::quadrature::gauss_legendre_pairs;
 use crate::sh::{sh_count, sh_eval};
 
 /// Width of the innermost quadrature panels (radians), half the narrowest lobe allowed.
@@ -258,7 +258,7 @@ pub fn cs_coefficients(fiber: &FiberScattering, order: usize, theta_o: f64) -> V
 #[cfg(test)]
 fn integrate_theta(centre: f64, f: impl FnMut(f64) -> f64) -> f64 {
     let rule = gauss_legendre_pairs(NODES_PER_PANEL);
-    integrate_panels(&rule, &graded_breaks(-FRAC_PI_2, FRAC_PI_2, centre), f)
+    crate::quadrature::integrate_panels(&rule, &graded_breaks(-FRAC_PI_2, FRAC_PI_2, centre), f)
 }
 
 #[cfg(test)]
