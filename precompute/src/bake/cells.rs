@@ -1,1 +1,277 @@
-//! (in progress)
+//! IIRTF cells: equal boxes that subdivide every exemplar block (paper section 4.2).
+//!
+//! How it works: the region divided is, for a periodic exemplar, the period rectangle
+//! `[0, px) x [0, py)` split into `blocks.nx x blocks.ny` blocks; for a `Tiling::AsIs` exemplar,
+//! the xy bounds of its fibers split the same way. Vertically every block spans the fabric slab
+//! (the z range of the fibers including their radius). Each block is cut into
+//! `dims = [dx, dy, dz]` equal cells with `d = max(1, round(side / target))` per axis, where
+//! `target = cell_size_mfp × ℓ` (ℓ the measured mean free path), so every cell side is within a
+//! factor 1.5 of the target unless the block side itself is shorter than the target (then one
+//! cell spans it). Every block has the same dims.
+//!
+//! A segment belongs to the cell containing its midpoint: for periodic exemplars the midpoint is
+//! first wrapped into the period rectangle, and z (and, for `AsIs`, x and y) is clamped into the
+//! region, so every segment lands in exactly one cell.
+//!
+//! Cell ids are block-major: `id = block * cells_per_block + (iz * dy + iy) * dx + ix` with
+//! `block = by * nx + bx`. Cells that contain no segment midpoint are allowed; their IIRTF is
+//! defined as zero (nothing can be shaded with it, since no segment maps there).
+
+use glam::DVec3;
+
+use crate::fabric::{Exemplar, Tiling};
+
+/// Most cells a grid may have (guards against a tiny mean free path).
+pub const MAX_CELLS: u64 = 1 << 22;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CellError {
+    #[error("the exemplar has no fiber segments")]
+    NoSegments,
+    #[error("the mean free path must be positive and finite, got {0} cm")]
+    InvalidMeanFreePath(f64),
+    #[error("the target cell size must be positive and finite, got {0} mean free paths")]
+    InvalidCellSize(f64),
+    #[error("the block grid must be at least 1 x 1, got {nx} x {ny}")]
+    InvalidBlocks { nx: u32, ny: u32 },
+    #[error("{cells} IIRTF cells exceed the limit of {MAX_CELLS}: increase the cell size")]
+    TooManyCells { cells: u64 },
+}
+
+/// The cells of an exemplar and the segments each one holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellGrid {
+    /// Lower corner of the divided region (cm).
+    origin: DVec3,
+    /// Block size (cm).
+    block_size: DVec3,
+    blocks: [u32; 2],
+    dims: [u32; 3],
+    cell_size: DVec3,
+    periodic: bool,
+    cell_of_segment: Vec<u32>,
+    /// Segment ids sorted by cell; `cell_starts[c]..cell_starts[c + 1]` are cell `c`'s.
+    segments_by_cell: Vec<u32>,
+    cell_starts: Vec<u32>,
+}
+
+impl CellGrid {
+    /// Builds the grid for cells of about `cell_size_mfp × mean_free_path_cm` and assigns every
+    /// segment to a cell; see the module docs.
+    pub fn new(exemplar: &Exemplar, mean_free_path_cm: f64, cell_size_mfp: f64) -> Result<Self, CellError> {
+        if !(mean_free_path_cm.is_finite() && mean_free_path_cm > 0.0) {
+            return Err(CellError::InvalidMeanFreePath(mean_free_path_cm));
+        }
+        if !(cell_size_mfp.is_finite() && cell_size_mfp > 0.0) {
+            return Err(CellError::InvalidCellSize(cell_size_mfp));
+        }
+        let (nx, ny) = (exemplar.blocks.nx, exemplar.blocks.ny);
+        if nx == 0 || ny == 0 {
+            return Err(CellError::InvalidBlocks { nx, ny });
+        }
+        let segments = exemplar.segments();
+        let Some((lo, hi)) = exemplar.bounds().filter(|_| !segments.is_empty()) else {
+            return Err(CellError::NoSegments);
+        };
+        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+        let (origin, extent, periodic) = match exemplar.tiling {
+            Tiling::Periodic { period } => {
+                let p = period.as_dvec2();
+                (DVec3::new(0.0, 0.0, lo.z), DVec3::new(p.x, p.y, hi.z - lo.z), true)
+            }
+            Tiling::AsIs => (lo, hi - lo, false),
+        };
+        // A degenerate extent (flat fibers) still gets a positive size.
+        let extent = extent.max(DVec3::splat(1e-9));
+        let block_size = DVec3::new(extent.x / f64::from(nx), extent.y / f64::from(ny), extent.z);
+        let target = cell_size_mfp * mean_free_path_cm;
+        let count = |side: f64| -> u64 { ((side / target).round() as u64).max(1) };
+        let (cx, cy, cz) = (count(block_size.x), count(block_size.y), count(block_size.z));
+        let total = cx
+            .saturating_mul(cy)
+            .saturating_mul(cz)
+            .saturating_mul(u64::from(nx))
+            .saturating_mul(u64::from(ny));
+        if total > MAX_CELLS {
+            return Err(CellError::TooManyCells { cells: total });
+        }
+        let dims = [cx as u32, cy as u32, cz as u32];
+        let cell_size = block_size / DVec3::new(cx as f64, cy as f64, cz as f64);
+        let mut grid = Self {
+            origin,
+            block_size,
+            blocks: [nx, ny],
+            dims,
+            cell_size,
+            periodic,
+            cell_of_segment: Vec::new(),
+            segments_by_cell: Vec::new(),
+            cell_starts: Vec::new(),
+        };
+        grid.cell_of_segment = segments.iter().map(|s| grid.cell_of_point(s.midpoint().as_dvec3())).collect();
+        let cells = grid.cell_count();
+        let mut counts = vec![0_u32; cells + 1];
+        for &c in &grid.cell_of_segment {
+            counts[c as usize + 1] += 1;
+        }
+        for c in 0..cells {
+            counts[c + 1] += counts[c];
+        }
+        let mut next = counts.clone();
+        let mut by_cell = vec![0_u32; segments.len()];
+        for (k, &c) in grid.cell_of_segment.iter().enumerate() {
+            by_cell[next[c as usize] as usize] = k as u32;
+            next[c as usize] += 1;
+        }
+        grid.segments_by_cell = by_cell;
+        grid.cell_starts = counts;
+        Ok(grid)
+    }
+
+    /// Total number of cells (all blocks).
+    #[must_use]
+    pub fn cell_count(&self) -> usize {
+        self.cells_per_block() * self.blocks[0] as usize * self.blocks[1] as usize
+    }
+
+    /// Cells per block along x, y, z.
+    #[must_use]
+    pub fn dims(&self) -> [u32; 3] {
+        self.dims
+    }
+
+    /// Blocks along x and y.
+    #[must_use]
+    pub fn blocks(&self) -> [u32; 2] {
+        self.blocks
+    }
+
+    #[must_use]
+    pub fn cells_per_block(&self) -> usize {
+        self.dims.iter().map(|&d| d as usize).product()
+    }
+
+    /// Side lengths of a cell (cm).
+    #[must_use]
+    pub fn cell_size_cm(&self) -> DVec3 {
+        self.cell_size
+    }
+
+    /// Size of a block (cm); z is the slab thickness.
+    #[must_use]
+    pub fn block_size_cm(&self) -> DVec3 {
+        self.block_size
+    }
+
+    /// The cell holding segment `k`'s midpoint.
+    #[must_use]
+    pub fn cell_of_segment(&self, k: u32) -> u32 {
+        self.cell_of_segment[k as usize]
+    }
+
+    /// Number of segments the grid was built for.
+    #[must_use]
+    pub fn segment_count(&self) -> usize {
+        self.cell_of_segment.len()
+    }
+
+    /// The segments whose midpoints lie in cell `c`, in increasing id order (may be empty).
+    #[must_use]
+    pub fn segments_in_cell(&self, c: u32) -> &[u32] {
+        let (a, b) = (self.cell_starts[c as usize], self.cell_starts[c as usize + 1]);
+        &self.segments_by_cell[a as usize..b as usize]
+    }
+
+    /// The cell containing point `p` (exemplar coordinates): wrapped into the period rectangle
+    /// for periodic exemplars, clamped into the region otherwise (and always in z).
+    #[must_use]
+    pub fn cell_of_point(&self, p: DVec3) -> u32 {
+        let mut local = p - self.origin;
+        let extent = DVec3::new(
+            self.block_size.x * f64::from(self.blocks[0]),
+            self.block_size.y * f64::from(self.blocks[1]),
+            self.block_size.z,
+        );
+        if self.periodic {
+            local.x = local.x.rem_euclid(extent.x);
+            local.y = local.y.rem_euclid(extent.y);
+        }
+        let index = |v: f64, size: f64, n: u64| -> u64 {
+            let i = (v / size).floor();
+            if i.is_nan() || i < 0.0 { 0 } else { (i as u64).min(n - 1) }
+        };
+        let bx = index(local.x, self.block_size.x, u64::from(self.blocks[0]));
+        let by = index(local.y, self.block_size.y, u64::from(self.blocks[1]));
+        let in_block = local - DVec3::new(bx as f64 * self.block_size.x, by as f64 * self.block_size.y, 0.0);
+        let [dx, dy, dz] = self.dims.map(u64::from);
+        let ix = index(in_block.x, self.cell_size.x, dx);
+        let iy = index(in_block.y, self.cell_size.y, dy);
+        let iz = index(in_block.z, self.cell_size.z, dz);
+        let block = by * u64::from(self.blocks[0]) + bx;
+        (block * (dx * dy * dz) + (iz * dy + iy) * dx + ix) as u32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fabric::{BlockGrid, Fiber, Yarn, YarnRole};
+    use crate::raycast::testing::{SyntheticWeave, synthetic_weave};
+    use glam::{Vec2, Vec3};
+
+    #[test]
+    fn every_segment_is_in_exactly_one_cell_and_sides_are_near_the_target() {
+        let mut ex = synthetic_weave(&SyntheticWeave::small());
+        ex.blocks = BlockGrid { nx: 2, ny: 1 };
+        let mfp = 0.004;
+        for size in [0.7, 1.0, 2.0] {
+            let grid = CellGrid::new(&ex, mfp, size).unwrap();
+            let mut seen = vec![0_u32; ex.segment_count()];
+            for c in 0..grid.cell_count() as u32 {
+                for &k in grid.segments_in_cell(c) {
+                    seen[k as usize] += 1;
+                    assert_eq!(grid.cell_of_segment(k), c);
+                }
+            }
+            assert!(seen.iter().all(|&n| n == 1));
+            let target = size * mfp;
+            let s = grid.cell_size_cm();
+            let block = grid.block_size_cm();
+            for (side, block_side) in [(s.x, block.x), (s.y, block.y), (s.z, block.z)] {
+                if block_side >= target {
+                    assert!(
+                        side <= 1.5 * target + 1e-12 && side >= target / 1.5 - 1e-12,
+                        "{side} vs {target}"
+                    );
+                } else {
+                    assert!((side - block_side).abs() < 1e-12);
+                }
+            }
+            assert_eq!(grid.cell_count(), 2 * grid.cells_per_block());
+        }
+    }
+
+    #[test]
+    fn midpoints_outside_the_period_wrap_into_it() {
+        let fiber = |a: Vec3, b: Vec3| Fiber { points: vec![a, b], radius: 0.01, yarn: 0 };
+        let ex = Exemplar {
+            fibers: vec![
+                fiber(Vec3::new(0.1, 0.1, 0.0), Vec3::new(0.2, 0.1, 0.0)),
+                // Same place one period to the right and one below.
+                fiber(Vec3::new(1.1, -0.9, 0.0), Vec3::new(1.2, -0.9, 0.0)),
+                fiber(Vec3::new(0.7, 0.7, 0.05), Vec3::new(0.8, 0.8, 0.05)),
+            ],
+            yarns: vec![Yarn { role: YarnRole::Other, material: 0 }],
+            tiling: Tiling::Periodic { period: Vec2::new(1.0, 1.0) },
+            blocks: BlockGrid { nx: 2, ny: 2 },
+        };
+        let grid = CellGrid::new(&ex, 0.1, 1.0).unwrap();
+        assert_eq!(grid.dims(), [5, 5, 1]);
+        assert_eq!(grid.cell_of_segment(0), grid.cell_of_segment(1));
+        assert_ne!(grid.cell_of_segment(0), grid.cell_of_segment(2));
+        // Segment 2 is in block (1, 1): the last block.
+        assert_eq!(grid.cell_of_segment(2) as usize / grid.cells_per_block(), 3);
+        assert!(CellGrid::new(&ex, 0.0, 1.0).is_err());
+        assert!(matches!(CellGrid::new(&ex, 1e-6, 1.0), Err(CellError::TooManyCells { .. })));
+    }
+}

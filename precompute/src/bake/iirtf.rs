@@ -1,1 +1,589 @@
-//! (in progress)
+//! Per-cell IIRTF matrices by path tracing (paper section 4.2).
+//!
+//! The IIRTF T(ω0, ω1, x) is the radiance arriving at x from −ω1 that left a directional light
+//! of unit irradiance from ω0 and touched at least one fiber. Its SH matrix over a cell C is
+//! `a_C[j0, j1] = ∫∫ T(ω0, ω1, C) Y_j0(ω0) Y_j1(ω1) dω0 dω1`, with T(·, ·, C) the mean of T over
+//! the midpoints μ_k of the segments in C.
+//!
+//! How it works: each path draws a segment k of the cell uniformly, ω0 uniformly on the upper
+//! hemisphere (pdf 1/2π, as in the paper; [`LightDomain::Sphere`] draws it on the whole sphere,
+//! pdf 1/4π, which also captures light from below) and ω1 uniformly on the sphere (pdf 1/4π),
+//! then estimates T with one path of [`radiance_from`] from μ_k (in the central copy of the
+//! fabric tiled over the whole plane, no ground) toward ω1, ignoring k's own fiber on the first
+//! ray, with the scene's single light set to the directional light from ω0. Light reaching μ_k
+//! without touching a fiber is not counted by `radiance_from`, so only scattered light enters.
+//! The estimate of every coefficient is `T · Y_j0(ω0) Y_j1(ω1) / (p(ω0) p(ω1))` (p(k)
+//! cancels the 1/|C|); the per-coefficient standard error comes from the same samples.
+//!
+//! Storage: [`CellTransfer::matrix`] is `(L+1)²` rows (output j1) by `(L+1)²` columns
+//! (input j0), row-major, so the paper's `c_T = A_C c_d` is [`CellTransfer::apply`]: row j1 of
+//! the result is `Σ_j0 a_C[j0, j1] c_d[j0]`. Cells with no segment have a zero matrix.
+//!
+//! Determinism: path `p` of cell `c` draws from `pixel_rng(seed ^ mix(c), p)` and each cell's
+//! sums are accumulated in path order by one worker, so results do not depend on threads.
+//! Parallelism: one worker per rayon thread, each owning its own [`PathScene`] (the light is
+//! swapped per path, which needs `&mut`), pulling whole cells from a shared counter.
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use glam::DVec3;
+use rand::Rng;
+
+use super::cells::CellGrid;
+use super::settings::BakeSettings;
+use super::{Cancel, Cancelled, Progress};
+use crate::Rgb;
+use crate::bcsdf::Material;
+use crate::fabric::Exemplar;
+use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng, radiance_from};
+use crate::pathtrace::light::Light;
+use crate::raycast::{Extent, FiberScene, SceneError};
+use crate::sh::{sh_count, sh_eval};
+
+/// Most scattering events of an IIRTF path (Russian roulette ends nearly all far earlier).
+pub const MAX_DEPTH: u32 = 1000;
+
+/// Where light directions ω0 are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LightDomain {
+    /// The upper hemisphere (z > 0), as in the paper: T is taken as zero for light from below.
+    #[default]
+    UpperHemisphere,
+    /// The whole sphere (light from below the fabric too).
+    Sphere,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum IirtfError {
+    #[error(transparent)]
+    Cancelled(#[from] Cancelled),
+    #[error("IIRTF scene: {0}")]
+    Scene(#[from] SceneError),
+    #[error("the exemplar has {yarns} yarns but {materials} yarn materials were given")]
+    MaterialCount { yarns: usize, materials: usize },
+    #[error("the cell grid was built for {grid} segments but the exemplar has {exemplar}")]
+    GridMismatch { grid: usize, exemplar: usize },
+}
+
+/// One cell's IIRTF matrix and its noise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellTransfer {
+    /// `matrix[j1 * n + j0] = a_C[j0, j1]`, n = (L+1)².
+    pub matrix: Vec<Rgb>,
+    /// Standard error of each entry (same layout).
+    pub std_error: Vec<Rgb>,
+    /// Paths traced (0 for an empty cell).
+    pub paths: usize,
+}
+
+impl CellTransfer {
+    /// `c_T = A_C c_in`: the SH coefficients of T(·, ω1, C) as a function of ω1 for light with
+    /// SH coefficients `c_in` (for a directional light from ω_d, `c_in = Y(ω_d)`).
+    #[must_use]
+    pub fn apply(&self, c_in: &[f64]) -> Vec<Rgb> {
+        let n = c_in.len();
+        debug_assert_eq!(n * n, self.matrix.len());
+        self.matrix.chunks_exact(n).map(|row| row.iter().zip(c_in).map(|(a, c)| *a * *c).sum()).collect()
+    }
+}
+
+/// The IIRTF of every cell of a grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Iirtf {
+    pub sh_order: usize,
+    pub light_domain: LightDomain,
+    pub cells: Vec<CellTransfer>,
+}
+
+/// An overall noise figure: root-mean-square entry and standard error over all nonempty cells,
+/// entries and channels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IirtfNoise {
+    pub rms_entry: f64,
+    pub rms_std_error: f64,
+}
+
+impl Iirtf {
+    #[must_use]
+    pub fn noise(&self) -> IirtfNoise {
+        let (mut v, mut e, mut count) = (0.0, 0.0, 0.0);
+        for cell in self.cells.iter().filter(|c| c.paths > 0) {
+            for (a, s) in cell.matrix.iter().zip(&cell.std_error) {
+                v += a.length_squared();
+                e += s.length_squared();
+                count += 3.0;
+            }
+        }
+        let count: f64 = f64::max(count, 1.0);
+        IirtfNoise { rms_entry: (v / count).sqrt(), rms_std_error: (e / count).sqrt() }
+    }
+}
+
+/// Tuning beyond [`BakeSettings`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct IirtfOptions {
+    pub light_domain: LightDomain,
+}
+
+/// One path's sample of T.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TransferSample {
+    /// ω0, toward the light.
+    pub to_light: DVec3,
+    /// ω1: the radiance arrives at μ_k from −ω1.
+    pub view: DVec3,
+    /// `T(ω0, ω1, μ_k) / (p(ω0) p(ω1))`.
+    pub weighted_radiance: Rgb,
+    pub segment: u32,
+}
+
+/// Draws [`TransferSample`]s: a fabric tiled over the plane with one swappable light.
+pub struct TransferSampler {
+    scene: PathScene,
+    midpoints: Vec<DVec3>,
+    fibers: Vec<u32>,
+    render: RenderSettings,
+    light_domain: LightDomain,
+}
+
+impl TransferSampler {
+    /// `yarn_materials[y]` is the material of yarn y.
+    pub fn new(
+        exemplar: &Exemplar,
+        yarn_materials: &[Material],
+        light_domain: LightDomain,
+    ) -> Result<Self, IirtfError> {
+        if yarn_materials.len() < exemplar.yarns.len() {
+            return Err(IirtfError::MaterialCount {
+                yarns: exemplar.yarns.len(),
+                materials: yarn_materials.len(),
+            });
+        }
+        let fibers = FiberScene::new(exemplar, Extent::Unbounded)?;
+        let offset = fibers.tile_offset(fibers.central_tile());
+        let segments = exemplar.segments();
+        let midpoints = segments.iter().map(|s| s.midpoint().as_dvec3() + offset).collect();
+        let fiber_ids = segments.iter().map(|s| s.fiber).collect();
+        let light = Light::Directional { to_light: DVec3::Z, irradiance: Rgb::ONE };
+        let scene = PathScene {
+            fibers,
+            yarn_materials: yarn_materials.to_vec(),
+            lights: vec![light],
+            ground_z: None,
+        };
+        let render = RenderSettings { spp: 1, max_depth: MAX_DEPTH, component: Component::All, seed: 0 };
+        Ok(Self { scene, midpoints, fibers: fiber_ids, render, light_domain })
+    }
+
+    /// World position (central copy) of segment k's midpoint.
+    #[must_use]
+    pub fn midpoint(&self, k: u32) -> DVec3 {
+        self.midpoints[k as usize]
+    }
+
+    /// The scene with its light set to a directional light of unit irradiance from `to_light`.
+    pub fn scene_lit_from(&mut self, to_light: DVec3) -> &PathScene {
+        self.scene.lights[0] = Light::Directional { to_light, irradiance: Rgb::ONE };
+        &self.scene
+    }
+
+    /// The path's settings (one sample, [`MAX_DEPTH`], all orders, Russian roulette on).
+    #[must_use]
+    pub fn render_settings(&self) -> RenderSettings {
+        self.render
+    }
+
+    /// Path `path` of a cell with segments `cell_segments` (nonempty), from stream `stream`.
+    pub fn sample(&mut self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
+        let mut rng = pixel_rng(stream, path);
+        let k = cell_segments[rng.random_range(0..cell_segments.len())];
+        let (to_light, p0) = match self.light_domain {
+            LightDomain::UpperHemisphere => {
+                let d = uniform_sphere(rng.random(), rng.random());
+                (DVec3::new(d.x, d.y, d.z.abs()), 1.0 / (2.0 * std::f64::consts::PI))
+            }
+            LightDomain::Sphere => {
+                (uniform_sphere(rng.random(), rng.random()), 1.0 / (4.0 * std::f64::consts::PI))
+            }
+        };
+        let view = uniform_sphere(rng.random(), rng.random());
+        let p1 = 1.0 / (4.0 * std::f64::consts::PI);
+        let origin = self.midpoints[k as usize];
+        let fiber = self.fibers[k as usize];
+        let render = self.render;
+        let scene = self.scene_lit_from(to_light);
+        let radiance = radiance_from(scene, origin, view, Some(fiber), &render, &mut rng);
+        TransferSample { to_light, view, weighted_radiance: radiance / (p0 * p1), segment: k }
+    }
+}
+
+/// A uniform direction on the unit sphere from two uniforms.
+#[must_use]
+pub fn uniform_sphere(u0: f64, u1: f64) -> DVec3 {
+    let z = 1.0 - 2.0 * u0;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let (s, c) = (2.0 * std::f64::consts::PI * u1).sin_cos();
+    DVec3::new(r * c, r * s, z)
+}
+
+/// The random stream of a cell's paths.
+#[must_use]
+pub fn cell_stream(seed: u64, cell: u32) -> u64 {
+    seed ^ (u64::from(cell) + 1).wrapping_mul(0xD1B5_4A32_D192_ED03)
+}
+
+/// Paths between cancellation checks and progress reports.
+const CHECK_EVERY: usize = 256;
+
+/// Bakes the IIRTF of every cell of `grid` with `settings.iirtf_paths_per_cell` paths per
+/// nonempty cell, `settings.sh_order` and `settings.seed`; see the module docs.
+pub fn bake_iirtf(
+    exemplar: &Exemplar,
+    yarn_materials: &[Material],
+    grid: &CellGrid,
+    settings: &BakeSettings,
+    options: &IirtfOptions,
+    cancel: &Cancel,
+    progress: Progress<'_>,
+) -> Result<Iirtf, IirtfError> {
+    if grid.segment_count() != exemplar.segment_count() {
+        return Err(IirtfError::GridMismatch {
+            grid: grid.segment_count(),
+            exemplar: exemplar.segment_count(),
+        });
+    }
+    let cells = grid.cell_count();
+    let nonempty = (0..cells as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count();
+    let workers = rayon::current_num_threads().clamp(1, nonempty.max(1));
+    let mut samplers = Vec::with_capacity(workers);
+    for _ in 0..workers {
+        cancel.check()?;
+        samplers.push(TransferSampler::new(exemplar, yarn_materials, options.light_domain)?);
+    }
+    let paths = settings.iirtf_paths_per_cell;
+    let total_paths = (nonempty * paths).max(1) as f64;
+    let next_cell = AtomicUsize::new(0);
+    let paths_done = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let results: Mutex<Vec<Option<CellTransfer>>> = Mutex::new(vec![None; cells]);
+    let order = settings.sh_order;
+    rayon::scope(|scope| {
+        for sampler in &mut samplers {
+            let (next_cell, paths_done, stop, results) = (&next_cell, &paths_done, &stop, &results);
+            scope.spawn(move |_| {
+                loop {
+                    let c = next_cell.fetch_add(1, Ordering::Relaxed);
+                    if c >= cells || stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    let cell = bake_cell(
+                        sampler,
+                        grid.segments_in_cell(c as u32),
+                        order,
+                        paths,
+                        cell_stream(settings.seed, c as u32),
+                        &|done| {
+                            if cancel.is_cancelled() {
+                                stop.store(true, Ordering::Relaxed);
+                                return false;
+                            }
+                            let all = paths_done.fetch_add(done, Ordering::Relaxed) + done;
+                            progress(all as f64 / total_paths);
+                            true
+                        },
+                    );
+                    let Some(cell) = cell else { return };
+                    results.lock().expect("a worker panicked")[c] = Some(cell);
+                }
+            });
+        }
+    });
+    cancel.check()?;
+    let cells = results
+        .into_inner()
+        .expect("a worker panicked")
+        .into_iter()
+        .map(|c| c.expect("every cell baked"))
+        .collect();
+    progress(1.0);
+    Ok(Iirtf { sh_order: order, light_domain: options.light_domain, cells })
+}
+
+/// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop
+/// (then `None`).
+fn bake_cell(
+    sampler: &mut TransferSampler,
+    segments: &[u32],
+    order: usize,
+    paths: usize,
+    stream: u64,
+    tick: &dyn Fn(usize) -> bool,
+) -> Option<CellTransfer> {
+    let n = sh_count(order);
+    if segments.is_empty() || paths == 0 {
+        return Some(CellTransfer {
+            matrix: vec![Rgb::ZERO; n * n],
+            std_error: vec![Rgb::ZERO; n * n],
+            paths: 0,
+        });
+    }
+    let mut sum = vec![Rgb::ZERO; n * n];
+    let mut sum2 = vec![Rgb::ZERO; n * n];
+    let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
+    for p in 0..paths {
+        if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
+            return None;
+        }
+        let s = sampler.sample(segments, stream, p as u64);
+        if s.weighted_radiance == Rgb::ZERO {
+            continue;
+        }
+        sh_eval(order, s.to_light, &mut y0);
+        sh_eval(order, s.view, &mut y1);
+        for (j1, (row, row2)) in sum.chunks_exact_mut(n).zip(sum2.chunks_exact_mut(n)).enumerate() {
+            let x = s.weighted_radiance * y1[j1];
+            for ((a, a2), &b) in row.iter_mut().zip(row2.iter_mut()).zip(&y0) {
+                let v = x * b;
+                *a += v;
+                *a2 += v * v;
+            }
+        }
+    }
+    tick(paths % CHECK_EVERY);
+    let count = paths as f64;
+    let matrix: Vec<Rgb> = sum.iter().map(|s| *s / count).collect();
+    let std_error = matrix
+        .iter()
+        .zip(&sum2)
+        .map(|(m, s2)| {
+            if paths > 1 {
+                ((*s2 / count - *m * *m).max(Rgb::ZERO) / (count - 1.0)).powf(0.5)
+            } else {
+                Rgb::ZERO
+            }
+        })
+        .collect();
+    Some(CellTransfer { matrix, std_error, paths })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::cs_table::{OmegaOSpace, cs_coefficients};
+    use crate::bake::no_progress;
+    use crate::bake::settings::Quality;
+    use crate::fabric::presets::fabric_preset;
+    use crate::raycast::mean_free_path;
+    use crate::sh::ShRotation;
+    use std::path::Path;
+
+    /// The default preset's exemplar and per-yarn materials.
+    fn default_fabric() -> (Exemplar, Vec<Material>) {
+        let preset = fabric_preset("default").unwrap();
+        let exemplar = preset.fabric.build(Path::new(".")).unwrap();
+        let materials = [
+            Material::from_desc(&preset.warp_material).unwrap(),
+            Material::from_desc(&preset.weft_material).unwrap(),
+        ];
+        let yarn = exemplar.yarns.iter().map(|y| materials[(y.material as usize).min(1)].clone()).collect();
+        (exemplar, yarn)
+    }
+
+    fn small_settings(paths: usize, order: usize) -> BakeSettings {
+        BakeSettings { iirtf_paths_per_cell: paths, sh_order: order, ..Quality::Draft.settings() }
+    }
+
+    #[test]
+    fn bake_is_deterministic_across_thread_counts_and_cancellable() {
+        let (exemplar, materials) = default_fabric();
+        // Huge cells: few of them, so the test stays short.
+        let grid = CellGrid::new(&exemplar, 0.01, 8.0).unwrap();
+        let settings = small_settings(300, 2);
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                bake_iirtf(
+                    &exemplar,
+                    &materials,
+                    &grid,
+                    &settings,
+                    &IirtfOptions::default(),
+                    &Cancel::new(),
+                    &no_progress,
+                )
+            })
+            .unwrap()
+        };
+        let (one, two) = (run(1), run(2));
+        assert_eq!(one, two);
+        assert_eq!(one.cells.len(), grid.cell_count());
+        for (c, cell) in one.cells.iter().enumerate() {
+            assert!(cell.matrix.iter().chain(&cell.std_error).all(|v| v.is_finite()));
+            assert_eq!(cell.paths == 0, grid.segments_in_cell(c as u32).is_empty());
+        }
+        let noise = one.noise();
+        assert!(noise.rms_entry > 0.0 && noise.rms_std_error > 0.0, "{noise:?}");
+        let cancel = Cancel::new();
+        cancel.cancel();
+        let r = bake_iirtf(
+            &exemplar,
+            &materials,
+            &grid,
+            &settings,
+            &IirtfOptions::default(),
+            &cancel,
+            &no_progress,
+        );
+        assert!(matches!(r, Err(IirtfError::Cancelled(_))));
+    }
+
+    /// Σ over paths of the SH prediction `c_S · (R_ωo A_C c_d)` averaged over the cell's
+    /// segments, as per-path values (their mean is exactly the matrix prediction).
+    struct ShPrediction {
+        mean: Rgb,
+        std_error: Rgb,
+    }
+
+    #[test]
+    fn sh_multiple_scattering_matches_path_traced_reference() {
+        let (exemplar, materials) = default_fabric();
+        // C_S rows at each segment's exact θo (the table's interpolation is tested in cs_table).
+        let cs_of = |m: &Material, order: usize, theta_o: f64| -> Vec<Rgb> {
+            let Material::Fiber(f) = m else { panic!("fiber BCSDF expected") };
+            cs_coefficients(f, order, theta_o)
+        };
+        let segments = exemplar.segments();
+        let fiber_scene = FiberScene::new(&exemplar, Extent::Unbounded).unwrap();
+        let mfp = mean_free_path(&fiber_scene, 4000, 3).mean_cm;
+        drop(fiber_scene);
+        let grid = CellGrid::new(&exemplar, mfp, 1.5).unwrap();
+        // The fullest cell.
+        let cell = (0..grid.cell_count() as u32).max_by_key(|&c| grid.segments_in_cell(c).len()).unwrap();
+        let in_cell = grid.segments_in_cell(cell);
+        let light = DVec3::new(0.3, -0.4, 0.85).normalize();
+        let wo = DVec3::new(-0.5, 0.2, 0.8).normalize();
+        let mut sampler = TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere).unwrap();
+
+        // (a) Reference: E_k ∫ T(ω_d, ωi, μ_k) S(ωi, ωo) cos θi dωi, ωi from the BCSDF sampler.
+        let reference_paths = 20_000;
+        let (mut sum, mut sum2) = (Rgb::ZERO, Rgb::ZERO);
+        for p in 0..reference_paths {
+            let mut rng = pixel_rng(99, p);
+            let k = in_cell[rng.random_range(0..in_cell.len())];
+            let seg = &segments[k as usize];
+            let t = seg.tangent().as_dvec3();
+            let material = &materials[seg.yarn as usize];
+            let n = crate::sg::frame_from_z(t).0;
+            let u = [rng.random(), rng.random(), rng.random()];
+            let mut x = Rgb::ZERO;
+            if let Some((wi, pdf)) = material.sample(t, n, wo, u) {
+                let weight = material.eval_cos(t, n, wi, wo) / pdf;
+                let origin = sampler.midpoint(k);
+                let render = sampler.render_settings();
+                let scene = sampler.scene_lit_from(light);
+                x = weight * radiance_from(scene, origin, wi, Some(seg.fiber), &render, &mut rng);
+            }
+            sum += x;
+            sum2 += x * x;
+        }
+        let count = reference_paths as f64;
+        let reference = sum / count;
+        let reference_err = ((sum2 / count - reference * reference) / (count - 1.0)).powf(0.5);
+
+        // (b) SH, for several orders from the same paths.
+        let iirtf_paths = 20_000;
+        let stream = cell_stream(5, cell);
+        let samples: Vec<TransferSample> =
+            (0..iirtf_paths).map(|p| sampler.sample(in_cell, stream, p as u64)).collect();
+        let predict = |order: usize| -> ShPrediction {
+            let n = sh_count(order);
+            // g = mean over segments of R_kᵀ C_S[θo,k]: the BCSDF expansion in world space.
+            let mut g = vec![Rgb::ZERO; n];
+            let (mut ch, mut world) = (vec![0.0; n], vec![0.0; n]);
+            for &k in in_cell {
+                let seg = &segments[k as usize];
+                let space = OmegaOSpace::new(seg.tangent().as_dvec3(), wo);
+                let c_s = cs_of(&materials[seg.yarn as usize], order, space.theta_o);
+                let back = ShRotation::new(order, &space.world_to_local.transpose());
+                for c in 0..3 {
+                    for j in 0..n {
+                        ch[j] = c_s[j][c];
+                    }
+                    back.apply(&ch, &mut world);
+                    for j in 0..n {
+                        g[j][c] += world[j] / in_cell.len() as f64;
+                    }
+                }
+            }
+            let mut c_d = vec![0.0; n];
+            sh_eval(order, light, &mut c_d);
+            let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
+            let (mut s, mut s2) = (Rgb::ZERO, Rgb::ZERO);
+            for sample in &samples {
+                sh_eval(order, sample.to_light, &mut y0);
+                sh_eval(order, sample.view, &mut y1);
+                let light_part: f64 = c_d.iter().zip(&y0).map(|(a, b)| a * b).sum();
+                let view_part: Rgb = g.iter().zip(&y1).map(|(a, b)| *a * *b).sum();
+                let x = sample.weighted_radiance * view_part * light_part;
+                s += x;
+                s2 += x * x;
+            }
+            let count = samples.len() as f64;
+            let mean = s / count;
+            ShPrediction { mean, std_error: ((s2 / count - mean * mean) / (count - 1.0)).powf(0.5) }
+        };
+        // The matrix route gives the same number as the per-path sums.
+        let transfer = bake_cell(&mut sampler, in_cell, 4, iirtf_paths, stream, &|_| true).unwrap();
+        let p4 = predict(4);
+        {
+            let n = sh_count(4);
+            let mut c_d = vec![0.0; n];
+            sh_eval(4, light, &mut c_d);
+            let c_t = transfer.apply(&c_d);
+            let mut g_dot = Rgb::ZERO;
+            for &k in in_cell {
+                let seg = &segments[k as usize];
+                let space = OmegaOSpace::new(seg.tangent().as_dvec3(), wo);
+                let c_s = cs_of(&materials[seg.yarn as usize], 4, space.theta_o);
+                let rot = ShRotation::new(4, &space.world_to_local);
+                let (mut inp, mut out) = (vec![0.0; n], vec![0.0; n]);
+                for c in 0..3 {
+                    for j in 0..n {
+                        inp[j] = c_t[j][c];
+                    }
+                    rot.apply(&inp, &mut out);
+                    g_dot[c] +=
+                        out.iter().zip(&c_s).map(|(a, b)| a * b[c]).sum::<f64>() / in_cell.len() as f64;
+                }
+            }
+            assert!(
+                (g_dot - p4.mean).abs().max_element() < 1e-9 * (1.0 + p4.mean.abs().max_element()),
+                "{g_dot} vs {}",
+                p4.mean
+            );
+        }
+        let orders: Vec<(usize, ShPrediction)> = [2, 4, 6].into_iter().map(|l| (l, predict(l))).collect();
+        for (l, p) in &orders {
+            eprintln!(
+                "order {l}: SH {} ± {}  reference {} ± {}  (cell {cell}, {} segments, mfp {mfp:.5} cm)",
+                p.mean,
+                p.std_error,
+                reference,
+                reference_err,
+                in_cell.len()
+            );
+        }
+        let p6 = &orders[2].1;
+        // Truncation estimate: the change from order 4 to 6 (same paths, so mostly not noise).
+        let truncation = (p4.mean - p6.mean).abs();
+        let bound =
+            4.0 * (p6.std_error * p6.std_error + reference_err * reference_err).powf(0.5) + truncation;
+        assert!(reference.is_finite() && p6.mean.is_finite());
+        assert!(
+            (p6.mean - reference).abs().cmple(bound).all(),
+            "SH {} vs reference {reference} (bound {bound})",
+            p6.mean
+        );
+    }
+}
