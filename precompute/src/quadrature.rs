@@ -71,7 +71,7 @@ pub fn integrate_panels(rule: &[(f64, f64)], breaks: &[f64], mut f: impl FnMut(f
 
 /// Breakpoints on `[lo, hi]` graded around `centre`: `centre ± width·{0.5, 1, 2, 4, ...}`, so
 /// panels are about `width` wide near the centre and double in size away from it.
-#[cfg(test)]
+#[must_use]
 pub fn graded_breaks(lo: f64, hi: f64, centre: f64, width: f64) -> Vec<f64> {
     let mut b = vec![lo, hi];
     if centre > lo && centre < hi {

@@ -163,20 +163,10 @@ fn theta_at(k: usize, count: usize) -> f64 {
     -FRAC_PI_2 + PI * k as f64 / (count - 1) as f64
 }
 
-/// Breakpoints on `[lo, hi]` at `centre ± FINEST_PANEL·{0.5, 1, 2, 4, …}` (panels double away
-/// from the centre), then split so that no panel is wider than [`WIDEST_PANEL`].
+/// Breakpoints graded around `centre` from [`FINEST_PANEL`] (panels double away from it),
+/// then split so that no panel is wider than [`WIDEST_PANEL`].
 fn graded_breaks(lo: f64, hi: f64, centre: f64) -> Vec<f64> {
-    let mut b = vec![lo, hi];
-    if centre > lo && centre < hi {
-        b.push(centre);
-    }
-    let mut d = 0.5 * FINEST_PANEL;
-    while d < hi - lo {
-        b.extend([centre - d, centre + d].into_iter().filter(|&x| x > lo && x < hi));
-        d *= 2.0;
-    }
-    b.sort_by(f64::total_cmp);
-    b.dedup_by(|a, b| (*a - *b).abs() < 1e-14);
+    let b = crate::quadrature::graded_breaks(lo, hi, centre, FINEST_PANEL);
     let mut out = vec![b[0]];
     for w in b.windows(2) {
         let pieces = ((w[1] - w[0]) / WIDEST_PANEL).ceil().max(1.0) as usize;
