@@ -25,8 +25,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use crate::Rgb;
-use crate::bcsdf::{FiberParams, FiberScattering, MaterialDesc};
+use crate::bcsdf::{FiberScattering, GN_TABLE_INTERVALS, LobeGnTable, MaterialDesc};
 use crate::params::{ParamError, check_count};
 use crate::sg::sg_zonal_sh;
 
@@ -124,7 +123,7 @@ impl CgTable {
 }
 
 /// Intervals of the Gn tables over μ ∈ [0, π/2] (the BCSDF's CPU table uses the same grid).
-pub const GN_INTERVALS: usize = 2048;
+pub const GN_INTERVALS: usize = GN_TABLE_INTERVALS;
 
 /// The two lobes of the fiber model, in table order.
 pub const GN_LOBES: [&str; 2] = ["R", "TT"];
@@ -137,41 +136,10 @@ pub struct GnTable {
     data: Vec<f32>,
 }
 
-/// The BCSDF's own `Gn(μ; β)` (β in degrees), read back through its public evaluation: with
-/// `C_R = 1`, `C_TT = 0` and `θo = -θi`, `S = sqrt(λ/π) / (2π Gn(-θi))`.
-fn bcsdf_gn(beta_deg: f64) -> Result<impl Fn(f64) -> f64, ParamError> {
-    let probe = FiberScattering::new(&FiberParams {
-        c_r: Rgb::ONE,
-        beta_r_deg: beta_deg,
-        c_tt: Rgb::ZERO,
-        beta_tt_deg: beta_deg,
-        gamma_tt_deg: 10.0,
-    })?;
-    let beta = beta_deg.to_radians();
-    let lam = 0.5 / (beta * beta);
-    let peak = (lam / PI).sqrt() / (2.0 * PI);
-    Ok(move |mu: f64| peak / probe.eval_angles(-mu, 0.0, mu, 0.0).x)
-}
-
-/// Node values and slopes of `gn` on the table grid, interleaved `(Gn, dGn/dμ)`.
-fn gn_nodes(gn: impl Fn(f64) -> f64) -> Vec<f32> {
-    let step = FRAC_PI_2 / GN_INTERVALS as f64;
-    let delta = step / 64.0;
-    let mut out = Vec::with_capacity(2 * (GN_INTERVALS + 1));
-    for k in 0..=GN_INTERVALS {
-        let mu = k as f64 * step;
-        let value = gn(mu);
-        // One-sided, second order, within the interval left of the node (where the CPU's
-        // Hermite piece ends with this node's exact slope); Gn is even, so 0 at μ = 0.
-        let slope = if k == 0 {
-            0.0
-        } else {
-            (3.0 * value - 4.0 * gn(mu - delta) + gn(mu - 2.0 * delta)) / (2.0 * delta)
-        };
-        out.push(value as f32);
-        out.push(slope as f32);
-    }
-    out
+/// Node values and exact slopes of one lobe's Gn, interleaved `(Gn, dGn/dμ)`: exactly the
+/// BCSDF's own table, so the bake and the CPU model agree node for node.
+fn gn_nodes(lobe: &LobeGnTable) -> Vec<f32> {
+    lobe.values().iter().zip(lobe.slopes()).flat_map(|(&v, &d)| [v as f32, d as f32]).collect()
 }
 
 impl GnTable {
@@ -181,8 +149,10 @@ impl GnTable {
         for m in materials {
             match m {
                 MaterialDesc::Fiber(p) => {
-                    data.extend(gn_nodes(bcsdf_gn(p.beta_r_deg)?));
-                    data.extend(gn_nodes(bcsdf_gn(p.beta_tt_deg)?));
+                    let fiber = FiberScattering::new(p)?;
+                    let (r, tt) = fiber.gn_tables();
+                    data.extend(gn_nodes(r));
+                    data.extend(gn_nodes(tt));
                 }
                 MaterialDesc::Lambert { .. } => {
                     for _ in 0..2 * (GN_INTERVALS + 1) {
@@ -246,6 +216,8 @@ impl GnTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Rgb;
+    use crate::bcsdf::FiberParams;
     use crate::quadrature::{gauss_legendre_pairs, integrate_panels};
 
     fn max_midpoint_error(order: usize, points: usize) -> (f64, f64) {
@@ -342,7 +314,8 @@ mod tests {
         for (m, &b) in betas.iter().enumerate() {
             for (lobe, beta_deg) in [b, (b * 2.0).min(60.0)].into_iter().enumerate() {
                 let beta = beta_deg.to_radians();
-                let gn = bcsdf_gn(beta_deg).unwrap();
+                let lobe_table = LobeGnTable::new(beta);
+                let gn = |mu: f64| lobe_table.eval(mu);
                 let mut mus: Vec<f64> =
                     (0..3000).map(|k| -FRAC_PI_2 + PI * (f64::from(k) + 0.29) / 3000.0).collect();
                 let near = (20.0 * beta).min(FRAC_PI_2);

@@ -115,6 +115,12 @@ impl FiberScattering {
         })
     }
 
+    /// The Gn normalizer tables of the R and TT lobes (what [`Self::eval`] divides by).
+    #[must_use]
+    pub fn gn_tables(&self) -> (&GnTable, &GnTable) {
+        (&self.gn_r, &self.gn_tt)
+    }
+
     /// Schlick-form reflectance `F_R(θ) = C_R + (1 - C_R)(1 - cos θ)^5`.
     #[must_use]
     pub fn fresnel(&self, cos_theta: f64) -> Rgb {

@@ -13,11 +13,11 @@ use std::f64::consts::{FRAC_PI_2, PI};
 use crate::quadrature::{gauss_legendre_pairs, integrate_panels};
 
 /// Number of intervals over μ ∈ [0, π/2].
-pub(crate) const GN_TABLE_INTERVALS: usize = 2048;
+pub const GN_TABLE_INTERVALS: usize = 2048;
 
 /// Tabulated `Gn(·; λ)` for one lobe width.
 #[derive(Debug, Clone)]
-pub(crate) struct GnTable {
+pub struct GnTable {
     step: f64,
     values: Vec<f64>,
     slopes: Vec<f64>,
@@ -25,7 +25,8 @@ pub(crate) struct GnTable {
 
 impl GnTable {
     /// Builds the table for lobe width `beta` (radians, `λ = 1/(2β²)`).
-    pub(crate) fn new(beta: f64) -> Self {
+    #[must_use]
+    pub fn new(beta: f64) -> Self {
         let rule = gauss_legendre_pairs(16);
         let step = FRAC_PI_2 / GN_TABLE_INTERVALS as f64;
         let (values, slopes) =
@@ -34,7 +35,8 @@ impl GnTable {
     }
 
     /// `Gn(μ)`, for any μ (clamped to [-π/2, π/2]); always positive.
-    pub(crate) fn eval(&self, mu: f64) -> f64 {
+    #[must_use]
+    pub fn eval(&self, mu: f64) -> f64 {
         let m = mu.abs().min(FRAC_PI_2);
         let x = m / self.step;
         let k = (x as usize).min(GN_TABLE_INTERVALS - 1);
@@ -50,6 +52,18 @@ impl GnTable {
         // Hermite interpolation of a positive, smooth function on nodes ≤ β/10 apart cannot go
         // far; the floor only guards the division downstream.
         v.max(0.5 * p0.min(p1))
+    }
+
+    /// Node values `Gn(k·π/(2·GN_TABLE_INTERVALS))`, `k = 0..=GN_TABLE_INTERVALS`.
+    #[must_use]
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// Exact node slopes `dGn/dμ` at the same nodes.
+    #[must_use]
+    pub fn slopes(&self) -> &[f64] {
+        &self.slopes
     }
 }
 

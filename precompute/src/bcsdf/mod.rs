@@ -19,6 +19,7 @@ mod sampling;
 mod tests;
 
 pub use fiber::{BETA_RANGE_DEG, FiberFrame, FiberScattering, GAMMA_RANGE_DEG};
+pub use gn_table::{GN_TABLE_INTERVALS, GnTable as LobeGnTable};
 pub use lambert::Lambertian;
 
 use glam::DVec3;
