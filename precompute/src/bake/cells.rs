@@ -39,7 +39,7 @@ pub enum CellError {
 }
 
 /// The cells of an exemplar and the segments each one holds.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CellGrid {
     /// Lower corner of the divided region (cm).
     origin: DVec3,

@@ -81,7 +81,7 @@ impl OmegaOSpace {
 }
 
 /// C_S for one material: `theta_count` rows of `(L+1)²` RGB coefficients.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CsTable {
     sh_order: usize,
     theta_count: usize,

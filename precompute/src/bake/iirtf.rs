@@ -45,7 +45,7 @@ use crate::sh::{sh_count, sh_eval};
 pub const MAX_DEPTH: u32 = 1000;
 
 /// Where light directions ω0 are drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum LightDomain {
     /// The upper hemisphere (z > 0), as in the paper: T is taken as zero for light from below.
     #[default]
@@ -67,7 +67,7 @@ pub enum IirtfError {
 }
 
 /// One cell's IIRTF matrix and its noise.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CellTransfer {
     /// `matrix[j1 * n + j0] = a_C[j0, j1]`, n = (L+1)².
     pub matrix: Vec<Rgb>,
@@ -89,7 +89,7 @@ impl CellTransfer {
 }
 
 /// The IIRTF of every cell of a grid.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Iirtf {
     pub sh_order: usize,
     pub light_domain: LightDomain,

@@ -35,7 +35,7 @@ pub enum PatternError {
 }
 
 /// Exemplar index of every block of a patterned cloth.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct PatternMap {
     pub width: u32,
     pub height: u32,

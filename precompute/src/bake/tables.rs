@@ -37,7 +37,7 @@ pub const CG_LAMBDA_MAX: f64 = 1e5;
 pub const CG_DEFAULT_POINTS: usize = 1024;
 
 /// Zonal SH coefficients of the normalized SG, `z_l(λ)`, tabulated over `ln λ`.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CgTable {
     order: usize,
     points: usize,
@@ -129,7 +129,7 @@ pub const GN_INTERVALS: usize = GN_TABLE_INTERVALS;
 pub const GN_LOBES: [&str; 2] = ["R", "TT"];
 
 /// `Gn(μ)` and `dGn/dμ` per material and lobe, for GPU upload.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GnTable {
     materials: usize,
     /// `materials × 2 lobes × (GN_INTERVALS + 1) nodes × 2 (Gn, dGn/dμ)`, row-major.

@@ -65,7 +65,7 @@ pub enum VolumeError {
 }
 
 /// A voxel grid of segment ids.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VoxelVolume {
     /// Voxels along x, y, z.
     pub dims: [u32; 3],
@@ -109,7 +109,7 @@ impl VoxelVolume {
 
 /// Per-segment data the volume's ids index: unit tangent (zero for a zero-length segment) and
 /// material index.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SegmentTable {
     pub direction: Vec<[f32; 3]>,
     pub material: Vec<u32>,
