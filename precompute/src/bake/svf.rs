@@ -253,7 +253,7 @@ pub fn render_segments(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::bake::no_progress;
     use crate::fabric::{BlockGrid, Fiber, Tiling, Yarn, YarnRole};
