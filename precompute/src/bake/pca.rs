@@ -1,1 +1,696 @@
-//! (in progress)
+//! PCA compression of the SSDFs (paper section 4.1: "compressed with PCA using 48 principal
+//! components").
+//!
+//! Each segment's SSDF is a vector of `dims = n²` values. PCA keeps the mean vector, the `K`
+//! leading principal directions (orthonormal, stored f32, `K x dims` row-major) and each
+//! segment's `K` coefficients (f32), so that
+//! `d_k(p) ≈ mean[p] + Σ_c coefficient[k][c] component[c][p]`.
+//!
+//! How it works: the data (`segments x dims`, f32) is never held centred in f64 as a whole;
+//! every pass streams blocks of [`BLOCK_ROWS`] segments, centres them in f64 and multiplies with
+//! faer (parallel GEMM), checking the [`Cancel`] token between blocks. Two methods:
+//! - [`PcaMethod::CovarianceEigen`] (used when `dims <= 4096`, e.g. `n <= 64`): accumulate the
+//!   `dims x dims` scatter matrix `Σ (x − μ)(x − μ)ᵀ` and take its symmetric eigendecomposition
+//!   (faer `self_adjoint_eigen`); the components are the eigenvectors of the `K` largest
+//!   eigenvalues. Cost `O(segments dims² + dims³)`.
+//! - [`PcaMethod::RandomizedRangeFinder`] (larger `dims`, e.g. the paper's 128² = 16384):
+//!   Halko, Martinsson and Tropp 2011. With `l = K + 10` Gaussian test vectors `Ω` (seeded),
+//!   `Y = X Ω`, then two power iterations (`Y ← X qr(Xᵀ qr(Y))`, re-orthonormalizing with QR
+//!   each time), `Q = qr(Y)`; the data's row space is then captured by `W = Xᵀ Q` (`dims x l`,
+//!   `X ≈ Q Wᵀ`). The small `l x l` eigendecomposition `Wᵀ W = V Σ² Vᵀ` gives the principal
+//!   directions `W V` (orthonormalized by one more QR), of which the `K` largest are kept.
+//!   Cost: about 7 streaming passes of `2 segments dims l` flops.
+//!
+//! Stats ([`PcaStats`]) come from one more pass that projects and reconstructs every segment in
+//! f64: explained variance fraction (kept eigenvalues over the total sum of squares about the
+//! mean), RMS reconstruction error in radians over all pixels, and the fraction of pixels whose
+//! reconstructed SSDF has the sign of the original (which by construction is the binary
+//! visibility, see [`super::ssdf`]).
+
+use faer::diag::Diag;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::matmul::matmul;
+use faer::{Accum, Conj, Mat, MatRef, Par, Spec};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+
+use super::{Cancel, Cancelled};
+
+/// Every faer call runs sequentially with this: faer's own parallel kernels split reductions
+/// by thread count, which changes the last bits of the result. Parallelism comes from rayon
+/// over blocks of segments or of output columns instead, with a fixed summation order, so the
+/// result does not depend on the number of threads.
+const PAR: Par = Par::Seq;
+/// Output columns per parallel task of the scatter-matrix and `Xᵀ L` products.
+const COLUMN_CHUNK: usize = 64;
+/// Segments per streamed block.
+pub const BLOCK_ROWS: usize = 1024;
+/// Largest `dims` for which [`compress`] uses [`PcaMethod::CovarianceEigen`].
+pub const COVARIANCE_EIGEN_MAX_DIMS: usize = 4096;
+/// Extra test vectors of the randomized range finder.
+const OVERSAMPLING: usize = 10;
+/// Power iterations of the randomized range finder.
+const POWER_ITERATIONS: usize = 2;
+
+/// How the principal directions are found; see the module docs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PcaMethod {
+    CovarianceEigen,
+    RandomizedRangeFinder,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum PcaError {
+    #[error("PCA needs at least one segment and one value per segment")]
+    Empty,
+    #[error("PCA input has {len} values, not a multiple of {dims} values per segment")]
+    LengthMismatch { len: usize, dims: usize },
+    #[error("PCA needs at least one component")]
+    NoComponents,
+    #[error("PCA input value {index} is not finite")]
+    NonFinite { index: usize },
+    #[error("eigendecomposition failed: {0}")]
+    Eigen(String),
+    #[error(transparent)]
+    Cancelled(#[from] Cancelled),
+}
+
+/// Quality of a compression (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PcaStats {
+    pub method: PcaMethod,
+    /// Fraction of the variance about the mean that the kept components explain, in [0, 1].
+    pub explained_variance: f64,
+    /// Root-mean-square reconstruction error over all segments and pixels (radians).
+    pub rms_error: f64,
+    /// Fraction of pixels whose reconstructed value has the sign of the original value.
+    pub sign_agreement: f64,
+}
+
+/// Mean, components and per-segment coefficients of the compressed SSDFs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PcaBasis {
+    /// Values per segment (`n²`).
+    pub dims: usize,
+    /// Number of components `K`.
+    pub component_count: usize,
+    pub segment_count: usize,
+    mean: Vec<f32>,
+    /// `K x dims`, row-major, orthonormal rows, largest variance first.
+    components: Vec<f32>,
+    /// `segments x K`, row-major.
+    coefficients: Vec<f32>,
+    pub stats: PcaStats,
+}
+
+impl PcaBasis {
+    /// The mean SSDF (`dims` values).
+    #[must_use]
+    pub fn mean(&self) -> &[f32] {
+        &self.mean
+    }
+
+    /// All components, `K x dims` row-major (component `c` at `c dims`).
+    #[must_use]
+    pub fn components(&self) -> &[f32] {
+        &self.components
+    }
+
+    /// Component `c` (`dims` values).
+    #[must_use]
+    pub fn component(&self, c: usize) -> &[f32] {
+        &self.components[c * self.dims..(c + 1) * self.dims]
+    }
+
+    /// All coefficients, `segments x K` row-major.
+    #[must_use]
+    pub fn all_coefficients(&self) -> &[f32] {
+        &self.coefficients
+    }
+
+    /// The `K` coefficients of one segment.
+    #[must_use]
+    pub fn coefficients(&self, segment: usize) -> &[f32] {
+        &self.coefficients[segment * self.component_count..(segment + 1) * self.component_count]
+    }
+
+    /// The reconstructed SSDF of `segment` (`dims` values).
+    #[must_use]
+    pub fn reconstruct(&self, segment: usize) -> Vec<f32> {
+        (0..self.dims).map(|p| self.eval_pixel(segment, p)).collect()
+    }
+
+    /// Reconstructed value at pixel `pixel` (row-major index).
+    #[must_use]
+    pub fn eval_pixel(&self, segment: usize, pixel: usize) -> f32 {
+        let coeffs = self.coefficients(segment);
+        let mut v = f64::from(self.mean[pixel]);
+        for (c, &a) in coeffs.iter().enumerate() {
+            v += f64::from(a) * f64::from(self.components[c * self.dims + pixel]);
+        }
+        v as f32
+    }
+
+    /// Reconstructed value at (`row`, `col`) of an `n x n` image, `n = sqrt(dims)`.
+    #[must_use]
+    pub fn eval(&self, segment: usize, row: usize, col: usize) -> f32 {
+        self.eval_pixel(segment, row * self.dims.isqrt() + col)
+    }
+}
+
+/// Compresses `ssdfs` (row-major `segments x dims`) to `k` components (clamped to at most
+/// `min(segments, dims)`), choosing the method by `dims` (see the module docs). `seed` drives
+/// the randomized method's test vectors.
+pub fn compress(
+    ssdfs: &[f32],
+    dims: usize,
+    k: usize,
+    seed: u64,
+    cancel: &Cancel,
+) -> Result<PcaBasis, PcaError> {
+    let method = if dims <= COVARIANCE_EIGEN_MAX_DIMS {
+        PcaMethod::CovarianceEigen
+    } else {
+        PcaMethod::RandomizedRangeFinder
+    };
+    compress_with(ssdfs, dims, k, method, seed, cancel)
+}
+
+/// [`compress`] with the method chosen by the caller.
+pub fn compress_with(
+    ssdfs: &[f32],
+    dims: usize,
+    k: usize,
+    method: PcaMethod,
+    seed: u64,
+    cancel: &Cancel,
+) -> Result<PcaBasis, PcaError> {
+    if dims == 0 || ssdfs.is_empty() {
+        return Err(PcaError::Empty);
+    }
+    if !ssdfs.len().is_multiple_of(dims) {
+        return Err(PcaError::LengthMismatch { len: ssdfs.len(), dims });
+    }
+    if k == 0 {
+        return Err(PcaError::NoComponents);
+    }
+    if let Some(index) = ssdfs.iter().position(|v| !v.is_finite()) {
+        return Err(PcaError::NonFinite { index });
+    }
+    let segments = ssdfs.len() / dims;
+    let k = k.min(segments).min(dims);
+    let data = Data { values: ssdfs, dims, segments, mean: mean(ssdfs, dims, segments) };
+    cancel.check()?;
+    let total_square = data.total_square(cancel)?;
+    let (basis, kept_square) = match method {
+        PcaMethod::CovarianceEigen => covariance_eigen(&data, k, cancel)?,
+        PcaMethod::RandomizedRangeFinder => randomized(&data, k, seed, cancel)?,
+    };
+    let (coefficients, square_error, agree) = data.project(basis.as_ref(), cancel)?;
+    let explained_variance =
+        if total_square > 0.0 { (kept_square / total_square).clamp(0.0, 1.0) } else { 1.0 };
+    let pixels = (segments * dims) as f64;
+    let stats = PcaStats {
+        method,
+        explained_variance,
+        rms_error: (square_error / pixels).sqrt(),
+        sign_agreement: agree as f64 / pixels,
+    };
+    let mut components = vec![0.0_f32; k * dims];
+    for c in 0..k {
+        for p in 0..dims {
+            components[c * dims + p] = basis[(p, c)] as f32;
+        }
+    }
+    Ok(PcaBasis {
+        dims,
+        component_count: k,
+        segment_count: segments,
+        mean: data.mean.iter().map(|&m| m as f32).collect(),
+        components,
+        coefficients,
+        stats,
+    })
+}
+
+fn mean(values: &[f32], dims: usize, segments: usize) -> Vec<f64> {
+    let mut sum = vec![0.0_f64; dims];
+    for row in values.chunks_exact(dims) {
+        for (s, &v) in sum.iter_mut().zip(row) {
+            *s += f64::from(v);
+        }
+    }
+    sum.iter().map(|s| s / segments as f64).collect()
+}
+
+/// The input and its mean; yields centred f64 blocks.
+struct Data<'a> {
+    values: &'a [f32],
+    dims: usize,
+    segments: usize,
+    mean: Vec<f64>,
+}
+
+impl Data<'_> {
+    fn blocks(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (0..self.segments).step_by(BLOCK_ROWS).map(|s| (s, (s + BLOCK_ROWS).min(self.segments)))
+    }
+
+    /// Segments `start..end`, pixels `c0..c1`, centred, as a `(end − start) x (c1 − c0)` matrix.
+    fn block(&self, start: usize, end: usize, c0: usize, c1: usize) -> Mat<f64> {
+        let d = self.dims;
+        Mat::from_fn(end - start, c1 - c0, |i, j| {
+            f64::from(self.values[(start + i) * d + c0 + j]) - self.mean[c0 + j]
+        })
+    }
+
+    fn total_square(&self, cancel: &Cancel) -> Result<f64, Cancelled> {
+        let mut total = 0.0;
+        for row in self.values.chunks_exact(self.dims) {
+            total += row.iter().zip(&self.mean).map(|(&v, m)| (f64::from(v) - m).powi(2)).sum::<f64>();
+        }
+        cancel.check()?;
+        Ok(total)
+    }
+
+    /// `X R` for the centred data `X` (`segments x dims`) and `R` (`dims x l`).
+    fn times(&self, right: MatRef<'_, f64>, cancel: &Cancel) -> Result<Mat<f64>, Cancelled> {
+        let blocks: Vec<Mat<f64>> = self
+            .blocks()
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(start, end)| {
+                cancel.check()?;
+                let block = self.block(start, end, 0, self.dims);
+                let mut out = Mat::zeros(end - start, right.ncols());
+                matmul(out.as_mut(), Accum::Replace, block.as_ref(), right, 1.0, PAR);
+                Ok(out)
+            })
+            .collect::<Result<_, Cancelled>>()?;
+        let mut out = Mat::zeros(self.segments, right.ncols());
+        for ((start, end), block) in self.blocks().zip(blocks) {
+            out.as_mut().subrows_mut(start, end - start).copy_from(block.as_ref());
+        }
+        Ok(out)
+    }
+
+    /// `Xᵀ L` for the centred data `X` and `L` (`segments x l`), in parallel over chunks of
+    /// output rows (pixels), each summed over the blocks in order.
+    fn transpose_times(&self, left: MatRef<'_, f64>, cancel: &Cancel) -> Result<Mat<f64>, Cancelled> {
+        let chunks: Vec<Mat<f64>> = (0..self.dims)
+            .step_by(COLUMN_CHUNK)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|c0| {
+                let c1 = (c0 + COLUMN_CHUNK).min(self.dims);
+                let mut out = Mat::zeros(c1 - c0, left.ncols());
+                for (start, end) in self.blocks() {
+                    cancel.check()?;
+                    let block = self.block(start, end, c0, c1);
+                    matmul(
+                        out.as_mut(),
+                        Accum::Add,
+                        block.transpose(),
+                        left.subrows(start, end - start),
+                        1.0,
+                        PAR,
+                    );
+                }
+                Ok(out)
+            })
+            .collect::<Result<_, Cancelled>>()?;
+        let mut out = Mat::zeros(self.dims, left.ncols());
+        for (i, chunk) in chunks.iter().enumerate() {
+            out.as_mut().subrows_mut(i * COLUMN_CHUNK, chunk.nrows()).copy_from(chunk.as_ref());
+        }
+        Ok(out)
+    }
+
+    /// Coefficients (f32, `segments x K`), squared reconstruction error and the number of
+    /// pixels whose reconstruction has the original's sign, for orthonormal `basis` (`dims x K`).
+    fn project(&self, basis: MatRef<'_, f64>, cancel: &Cancel) -> Result<(Vec<f32>, f64, usize), Cancelled> {
+        let k = basis.ncols();
+        let parts: Vec<(Vec<f32>, f64, usize)> = self
+            .blocks()
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(start, end)| {
+                cancel.check()?;
+                let block = self.block(start, end, 0, self.dims);
+                let mut coeffs = Mat::zeros(end - start, k);
+                matmul(coeffs.as_mut(), Accum::Replace, block.as_ref(), basis, 1.0, PAR);
+                let mut recon = Mat::zeros(end - start, self.dims);
+                matmul(recon.as_mut(), Accum::Replace, coeffs.as_ref(), basis.transpose(), 1.0, PAR);
+                let mut coefficients = vec![0.0_f32; (end - start) * k];
+                let (mut square_error, mut agree) = (0.0, 0_usize);
+                for i in 0..end - start {
+                    for c in 0..k {
+                        coefficients[i * k + c] = coeffs[(i, c)] as f32;
+                    }
+                    for p in 0..self.dims {
+                        let original = f64::from(self.values[(start + i) * self.dims + p]);
+                        let approx = recon[(i, p)] + self.mean[p];
+                        square_error += (approx - original).powi(2);
+                        agree += usize::from((approx > 0.0) == (original > 0.0));
+                    }
+                }
+                Ok((coefficients, square_error, agree))
+            })
+            .collect::<Result<_, Cancelled>>()?;
+        let mut coefficients = Vec::with_capacity(self.segments * k);
+        let (mut square_error, mut agree) = (0.0, 0_usize);
+        for (c, e, a) in parts {
+            coefficients.extend(c);
+            square_error += e;
+            agree += a;
+        }
+        Ok((coefficients, square_error, agree))
+    }
+}
+
+/// Leading `k` eigenvectors of the scatter matrix, and the sum of their eigenvalues.
+fn covariance_eigen(data: &Data, k: usize, cancel: &Cancel) -> Result<(Mat<f64>, f64), PcaError> {
+    let d = data.dims;
+    // Scatter matrix, in parallel over chunks of its columns, each summed over blocks in order.
+    let chunks: Vec<Mat<f64>> = (0..d)
+        .step_by(COLUMN_CHUNK)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|c0| {
+            let c1 = (c0 + COLUMN_CHUNK).min(d);
+            let mut out = Mat::zeros(d, c1 - c0);
+            for (start, end) in data.blocks() {
+                cancel.check()?;
+                let block = data.block(start, end, 0, d);
+                let right = block.as_ref().subcols(c0, c1 - c0);
+                matmul(out.as_mut(), Accum::Add, block.transpose(), right, 1.0, PAR);
+            }
+            Ok(out)
+        })
+        .collect::<Result<_, Cancelled>>()?;
+    let mut scatter = Mat::<f64>::zeros(d, d);
+    for (i, chunk) in chunks.iter().enumerate() {
+        scatter.as_mut().subcols_mut(i * COLUMN_CHUNK, chunk.ncols()).copy_from(chunk.as_ref());
+    }
+    cancel.check()?;
+    let (values, vectors) = symmetric_eigen(scatter.as_ref())?;
+    // Eigenvalues are sorted nondecreasing: the last k, largest first.
+    let basis = Mat::from_fn(d, k, |i, c| vectors[(i, d - 1 - c)]);
+    let kept = (0..k).map(|c| values[d - 1 - c].max(0.0)).sum();
+    Ok((basis, kept))
+}
+
+/// Eigenvalues (nondecreasing) and eigenvectors of a symmetric matrix (lower triangle read),
+/// by faer, sequentially.
+fn symmetric_eigen(a: MatRef<'_, f64>) -> Result<(Vec<f64>, Mat<f64>), PcaError> {
+    use faer::linalg::evd::{ComputeEigenvectors, self_adjoint_evd, self_adjoint_evd_scratch};
+    let n = a.nrows();
+    let mut u = Mat::zeros(n, n);
+    let mut s = Diag::zeros(n);
+    let scratch = self_adjoint_evd_scratch::<f64>(n, ComputeEigenvectors::Yes, PAR, Spec::default());
+    self_adjoint_evd(
+        a,
+        s.as_mut(),
+        Some(u.as_mut()),
+        PAR,
+        MemStack::new(&mut MemBuffer::new(scratch)),
+        Spec::default(),
+    )
+    .map_err(|e| PcaError::Eigen(format!("{e:?}")))?;
+    let values = (0..n).map(|i| s.column_vector()[i]).collect();
+    Ok((values, u))
+}
+
+/// Orthonormal basis of the column space of `m` (thin Q of its Householder QR, by faer,
+/// sequentially).
+fn orthonormalize(m: &Mat<f64>) -> Mat<f64> {
+    use faer::linalg::householder::{
+        apply_block_householder_sequence_on_the_left_in_place_scratch,
+        apply_block_householder_sequence_on_the_left_in_place_with_conj,
+    };
+    use faer::linalg::qr::no_pivoting::factor::{qr_in_place, qr_in_place_scratch, recommended_block_size};
+    let (rows, cols) = m.shape();
+    let size = rows.min(cols);
+    let block_size = recommended_block_size::<f64>(rows, cols);
+    let mut qr = m.clone();
+    let mut coeffs = Mat::zeros(block_size, size);
+    let scratch = qr_in_place_scratch::<f64>(rows, cols, block_size, PAR, Spec::default());
+    qr_in_place(
+        qr.as_mut(),
+        coeffs.as_mut(),
+        PAR,
+        MemStack::new(&mut MemBuffer::new(scratch)),
+        Spec::default(),
+    );
+    let mut q = Mat::identity(rows, size);
+    let scratch =
+        apply_block_householder_sequence_on_the_left_in_place_scratch::<f64>(rows, block_size, size);
+    apply_block_householder_sequence_on_the_left_in_place_with_conj(
+        qr.as_ref().subcols(0, size),
+        coeffs.as_ref(),
+        Conj::No,
+        q.as_mut(),
+        PAR,
+        MemStack::new(&mut MemBuffer::new(scratch)),
+    );
+    q
+}
+
+/// Randomized range finder (see the module docs): `k` leading directions and their variance.
+fn randomized(data: &Data, k: usize, seed: u64, cancel: &Cancel) -> Result<(Mat<f64>, f64), PcaError> {
+    let l = (k + OVERSAMPLING).min(data.dims).min(data.segments);
+    let mut rng = Pcg64::seed_from_u64(seed ^ 0x5EED_F00D_5CA1_AB1E);
+    let omega = Mat::from_fn(data.dims, l, |_, _| standard_normal(&mut rng));
+    let mut y = data.times(omega.as_ref(), cancel)?;
+    for _ in 0..POWER_ITERATIONS {
+        let q = orthonormalize(&y);
+        let z = orthonormalize(&data.transpose_times(q.as_ref(), cancel)?);
+        y = data.times(z.as_ref(), cancel)?;
+    }
+    let q = orthonormalize(&y);
+    let w = data.transpose_times(q.as_ref(), cancel)?;
+    let mut gram = Mat::zeros(l, l);
+    matmul(gram.as_mut(), Accum::Replace, w.transpose(), w.as_ref(), 1.0, PAR);
+    let (values, vectors) = symmetric_eigen(gram.as_ref())?;
+    let top = Mat::from_fn(l, k, |i, c| vectors[(i, l - 1 - c)]);
+    let mut directions = Mat::zeros(data.dims, k);
+    matmul(directions.as_mut(), Accum::Replace, w.as_ref(), top.as_ref(), 1.0, PAR);
+    let basis = orthonormalize(&directions);
+    let kept = (0..k).map(|c| values[l - 1 - c].max(0.0)).sum();
+    Ok((basis, kept))
+}
+
+/// A standard normal sample (Box–Muller).
+fn standard_normal(rng: &mut Pcg64) -> f64 {
+    let u: f64 = 1.0 - rng.random::<f64>();
+    let v: f64 = rng.random();
+    (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `segments` vectors `mean + Σ a_i u_i` in a random `rank`-dimensional subspace.
+    fn low_rank(segments: usize, dims: usize, rank: usize, seed: u64) -> Vec<f32> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        let mean: Vec<f64> = (0..dims).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let dirs: Vec<Vec<f64>> =
+            (0..rank).map(|_| (0..dims).map(|_| standard_normal(&mut rng)).collect()).collect();
+        let mut out = Vec::with_capacity(segments * dims);
+        for _ in 0..segments {
+            let a: Vec<f64> = (0..rank).map(|i| standard_normal(&mut rng) / (1.0 + i as f64)).collect();
+            out.extend(
+                (0..dims).map(|p| (mean[p] + (0..rank).map(|i| a[i] * dirs[i][p]).sum::<f64>()) as f32),
+            );
+        }
+        out
+    }
+
+    fn check_orthonormal(basis: &PcaBasis) -> f64 {
+        let mut worst = 0.0_f64;
+        for a in 0..basis.component_count {
+            for b in 0..basis.component_count {
+                let dot: f64 = basis
+                    .component(a)
+                    .iter()
+                    .zip(basis.component(b))
+                    .map(|(&x, &y)| f64::from(x) * f64::from(y))
+                    .sum();
+                worst = worst.max((dot - f64::from(u8::from(a == b))).abs());
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn data_in_a_subspace_is_reconstructed_by_both_methods() {
+        let (segments, dims, rank) = (1500, 100, 6);
+        let data = low_rank(segments, dims, rank, 7);
+        for method in [PcaMethod::CovarianceEigen, PcaMethod::RandomizedRangeFinder] {
+            let basis = compress_with(&data, dims, 8, method, 1, &Cancel::new()).unwrap();
+            let ortho = check_orthonormal(&basis);
+            let worst = (0..segments)
+                .step_by(37)
+                .flat_map(|s| {
+                    basis
+                        .reconstruct(s)
+                        .into_iter()
+                        .zip(&data[s * dims..(s + 1) * dims])
+                        .map(|(a, &b)| (a - b).abs())
+                        .collect::<Vec<_>>()
+                })
+                .fold(0.0_f32, f32::max);
+            eprintln!(
+                "{method:?}: stats {:?}, orthonormality error {ortho:e}, worst reconstruction error {worst:e}",
+                basis.stats
+            );
+            assert!(ortho < 1e-6, "{ortho}");
+            assert!(basis.stats.rms_error < 1e-5 && worst < 1e-4, "{:?} {worst}", basis.stats);
+            assert!((basis.stats.explained_variance - 1.0).abs() < 1e-9);
+            assert!(basis.stats.sign_agreement > 1.0 - 1e-12);
+        }
+    }
+
+    #[test]
+    fn both_methods_agree_on_the_leading_components() {
+        // Full-rank data with a decaying spectrum: the kept variance must match.
+        let (segments, dims) = (800, 64);
+        let mut data = low_rank(segments, dims, 40, 3);
+        let mut rng = Pcg64::seed_from_u64(9);
+        for v in &mut data {
+            *v += 1e-3 * standard_normal(&mut rng) as f32;
+        }
+        let exact = compress_with(&data, dims, 5, PcaMethod::CovarianceEigen, 1, &Cancel::new()).unwrap();
+        let approx =
+            compress_with(&data, dims, 5, PcaMethod::RandomizedRangeFinder, 1, &Cancel::new()).unwrap();
+        eprintln!("exact {:?}\nrandomized {:?}", exact.stats, approx.stats);
+        assert!((exact.stats.explained_variance - approx.stats.explained_variance).abs() < 1e-3);
+        assert!(
+            (exact.stats.rms_error - approx.stats.rms_error).abs() < 1e-3 * exact.stats.rms_error.max(1e-3)
+        );
+    }
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let data = low_rank(3000, 64, 40, 3);
+        for method in [PcaMethod::CovarianceEigen, PcaMethod::RandomizedRangeFinder] {
+            let pooled = compress_with(&data, 64, 5, method, 1, &Cancel::new()).unwrap();
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+            let single = pool.install(|| compress_with(&data, 64, 5, method, 1, &Cancel::new()).unwrap());
+            assert!(pooled == single, "{method:?}");
+        }
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let c = Cancel::new();
+        assert_eq!(compress(&[], 4, 2, 0, &c), Err(PcaError::Empty));
+        assert_eq!(compress(&[1.0; 5], 4, 2, 0, &c), Err(PcaError::LengthMismatch { len: 5, dims: 4 }));
+        assert_eq!(compress(&[1.0; 8], 4, 0, 0, &c), Err(PcaError::NoComponents));
+        assert_eq!(compress(&[1.0, f32::NAN, 1.0, 1.0], 4, 1, 0, &c), Err(PcaError::NonFinite { index: 1 }));
+        let cancelled = Cancel::new();
+        cancelled.cancel();
+        assert_eq!(compress(&[1.0; 8], 4, 1, 0, &cancelled), Err(PcaError::Cancelled(Cancelled)));
+        // k is clamped to min(segments, dims); constant data has zero variance.
+        let basis = compress(&[1.0; 8], 4, 10, 0, &c).unwrap();
+        assert_eq!(basis.component_count, 2);
+        assert!(basis.stats.rms_error < 1e-12 && basis.reconstruct(1) == vec![1.0; 4]);
+    }
+}
+
+#[cfg(test)]
+mod default_fabric_tests {
+    use super::*;
+    use crate::bake::settings::Quality;
+    use crate::bake::svf::tests::default_exemplar;
+    use crate::bake::{no_progress, ssdf, sum_of_sg, svf};
+    use crate::raycast::{Extent, FiberScene};
+    use std::time::Instant;
+
+    /// Every `stride`-th segment of the default fabric at the `interactive` settings: images,
+    /// SSDFs and their PCA.
+    fn default_fabric_pca(stride: usize) -> (svf::VisibilityImages, Vec<f32>, PcaBasis) {
+        let settings = Quality::Interactive.settings();
+        let scene = FiberScene::new(&default_exemplar(), Extent::Unbounded).unwrap();
+        let ids: Vec<u32> = (0..scene.segments().len() as u32).step_by(stride).collect();
+        let cancel = Cancel::new();
+        let t = Instant::now();
+        let images =
+            svf::render_segments(&scene, &ids, settings.svf_resolution, &cancel, &no_progress).unwrap();
+        let t_svf = t.elapsed();
+        let t = Instant::now();
+        let ssdfs = ssdf::ssdf_all(&images, &cancel).unwrap();
+        let t_ssdf = t.elapsed();
+        let t = Instant::now();
+        let dims = images.pixel_count();
+        let basis = compress(&ssdfs, dims, settings.pca_components, settings.seed, &cancel).unwrap();
+        let t_pca = t.elapsed();
+        let t = Instant::now();
+        let sos = sum_of_sg::fit_weights(
+            &images,
+            settings.sos_count,
+            settings.sos_sharpness,
+            settings.seed,
+            &cancel,
+        )
+        .unwrap();
+        let t_sos = t.elapsed();
+        eprintln!(
+            "default fabric, {} of {} segments, n = {}, K = {}, Q = {}: svf {t_svf:.2?}, ssdf {t_ssdf:.2?}, \
+             pca {t_pca:.2?}, sum of SGs {t_sos:.2?} ({} threads); {:?}",
+            ids.len(),
+            scene.segments().len(),
+            settings.svf_resolution,
+            basis.component_count,
+            sos.count,
+            rayon::current_num_threads(),
+            basis.stats
+        );
+        (images, ssdfs, basis)
+    }
+
+    #[test]
+    fn default_fabric_pca_keeps_the_sign_of_visibility() {
+        let (images, _, basis) = default_fabric_pca(20);
+        // Measured (every 20th segment, 1037 segments): sign agreement 0.980, RMS error
+        // 0.051 rad, explained variance 0.998; bounds set below that.
+        assert!(basis.stats.sign_agreement >= 0.95, "{:?}", basis.stats);
+        assert!(basis.stats.rms_error < 0.1, "{:?}", basis.stats);
+        let n = images.resolution;
+        let mut agree = 0;
+        for k in 0..images.segment_count() {
+            for p in 0..n * n {
+                agree += usize::from((basis.eval(k, p / n, p % n) > 0.0) == images.get_pixel(k, p));
+            }
+        }
+        let fraction = agree as f64 / (images.segment_count() * n * n) as f64;
+        assert!((fraction - basis.stats.sign_agreement).abs() < 1e-3, "{fraction}");
+    }
+
+    /// Whole default fabric at the interactive settings, for the timings (`--ignored`).
+    #[test]
+    #[ignore = "timing: renders every segment of the default fabric"]
+    fn default_fabric_full_interactive_bake_timings() {
+        let _ = default_fabric_pca(1);
+    }
+}
+
+#[cfg(test)]
+mod paper_size_timing {
+    use super::*;
+
+    /// Cost of the randomized method at the paper's image size (`--ignored`).
+    #[test]
+    #[ignore = "timing: 2000 synthetic 128x128 SSDFs"]
+    fn randomized_range_finder_at_paper_resolution() {
+        let (segments, dims) = (2000, 128 * 128);
+        let mut rng = Pcg64::seed_from_u64(5);
+        let data: Vec<f32> = (0..segments * dims).map(|_| rng.random::<f32>()).collect();
+        let t = std::time::Instant::now();
+        let basis = compress(&data, dims, 48, 1, &Cancel::new()).unwrap();
+        eprintln!("randomized PCA, {segments} x {dims}, K = 48: {:.2?}; {:?}", t.elapsed(), basis.stats);
+        assert_eq!(basis.stats.method, PcaMethod::RandomizedRangeFinder);
+    }
+}
