@@ -5,6 +5,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use twill_precompute::bake::Cancel;
+use twill_precompute::bake::file::Cache;
+use twill_precompute::bake::pipeline::{BakeInputs, Stage, StageSource, bake as run_bake, write_bake};
+use twill_precompute::bake::settings::Quality;
 use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
@@ -118,6 +122,100 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
         mean.z,
         noise,
         render_s
+    );
+    Ok(())
+}
+
+/// Options of `twill bake`.
+pub struct BakeOptions {
+    pub scene: Option<PathBuf>,
+    pub quality: Quality,
+    pub output: Option<PathBuf>,
+    pub cache: Option<PathBuf>,
+    pub no_cache: bool,
+}
+
+/// The stage cache folder: `$TWILL_CACHE_DIR`, else `$XDG_CACHE_HOME/twill`, else `~/.cache/twill`.
+fn default_cache_dir() -> Option<PathBuf> {
+    let var = |name| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
+    var("TWILL_CACHE_DIR")
+        .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("twill")))
+        .or_else(|| var("HOME").map(|d| d.join(".cache").join("twill")))
+}
+
+pub fn bake(options: &BakeOptions) -> Result<()> {
+    let file = SceneFile::load_or_default(options.scene.as_deref())?;
+    let scene = file.build()?;
+    let settings = options.quality.settings();
+    let stem = options
+        .scene
+        .as_deref()
+        .and_then(Path::file_stem)
+        .map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned());
+    let output = options
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", options.quality.name())));
+    let cache = if options.no_cache {
+        None
+    } else {
+        match options.cache.clone().or_else(default_cache_dir) {
+            Some(dir) => Some(Cache::new(&dir)?),
+            None => None,
+        }
+    };
+
+    let bar = ProgressBar::new(1000).with_style(
+        ProgressStyle::with_template("{msg:>16} [{bar:40}] {percent:>3}%, {elapsed} elapsed, eta {eta}")
+            .expect("the progress template is valid"),
+    );
+    let current = std::sync::Mutex::new(None::<Stage>);
+    let progress = |stage: Stage, fraction: f64| {
+        let mut current = current.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if *current != Some(stage) {
+            *current = Some(stage);
+            bar.reset();
+            bar.set_message(stage.name());
+        }
+        bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
+    };
+    let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
+    let started = Instant::now();
+    let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &progress);
+    bar.finish_and_clear();
+    let outcome = outcome.map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    write_bake(&output, &outcome)?;
+
+    let b = &outcome.baked;
+    eprintln!(
+        "baked {} ({} quality, {} segments) in {:.2} s -> {} ({:.1} MB)",
+        file.path.display(),
+        options.quality.name(),
+        scene.exemplar.segment_count(),
+        started.elapsed().as_secs_f64(),
+        output.display(),
+        std::fs::metadata(&output).map_or(0.0, |m| m.len() as f64 / 1e6)
+    );
+    for run in &outcome.stages {
+        let how = if run.source == StageSource::Cached { "cached" } else { "computed" };
+        eprintln!("  {:<16} {how:<8} {:>8.2} s", run.stage.name(), run.seconds);
+    }
+    let pca = &b.visibility.ssdf.stats;
+    let noise = b.transfer.iirtf.noise();
+    eprintln!(
+        "  mean free path {:.5} cm; {} IIRTF cells ({} with segments), rms entry {:.3e} +- {:.3e}",
+        b.mean_free_path.mean_cm,
+        b.transfer.cells.cell_count(),
+        b.transfer.iirtf.cells.iter().filter(|c| c.paths > 0).count(),
+        noise.rms_entry,
+        noise.rms_std_error
+    );
+    eprintln!(
+        "  SSDF PCA: {} components explain {:.1}% of the variance, rms error {:.4} rad, sign agreement {:.2}%",
+        b.visibility.ssdf.component_count,
+        100.0 * pca.explained_variance,
+        pca.rms_error,
+        100.0 * pca.sign_agreement
     );
     Ok(())
 }

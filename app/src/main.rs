@@ -28,6 +28,36 @@ enum Command {
     },
     /// Path-trace a fiber-level reference image of a scene.
     Reference(ReferenceArgs),
+    /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
+    Bake(BakeArgs),
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum QualityArg {
+    /// Fastest useful bake (first picture).
+    Draft,
+    /// Sized for seconds on the default fabric.
+    Interactive,
+    /// The 2017 paper's settings.
+    Paper,
+}
+
+#[derive(Debug, clap::Args)]
+struct BakeArgs {
+    /// Scene file (default: the built-in default scene).
+    scene: Option<PathBuf>,
+    /// Quality preset.
+    #[arg(long, value_enum, default_value = "interactive")]
+    quality: QualityArg,
+    /// Output bake file (default: SCENE-STEM.QUALITY.twillbake in the current folder).
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Stage cache folder (default: $TWILL_CACHE_DIR, else $XDG_CACHE_HOME/twill, else ~/.cache/twill).
+    #[arg(long, conflicts_with = "no_cache")]
+    cache: Option<PathBuf>,
+    /// Recompute every stage and cache nothing.
+    #[arg(long)]
+    no_cache: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -132,6 +162,17 @@ fn run(cli: Cli) -> Result<()> {
                 commands::fabric_export(scene.as_deref(), matches!(format, FiberFormat::Hair), &output)
             }
         },
+        Command::Bake(args) => commands::bake(&commands::BakeOptions {
+            scene: args.scene,
+            quality: match args.quality {
+                QualityArg::Draft => twill_precompute::bake::settings::Quality::Draft,
+                QualityArg::Interactive => twill_precompute::bake::settings::Quality::Interactive,
+                QualityArg::Paper => twill_precompute::bake::settings::Quality::Paper,
+            },
+            output: args.output,
+            cache: args.cache,
+            no_cache: args.no_cache,
+        }),
         Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
             scene: args.scene,
             output: args.output,

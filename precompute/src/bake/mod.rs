@@ -23,6 +23,7 @@ pub mod file;
 pub mod iirtf;
 pub mod pattern;
 pub mod pca;
+pub mod pipeline;
 pub mod settings;
 pub mod ssdf;
 pub mod sum_of_sg;

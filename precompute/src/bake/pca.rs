@@ -54,7 +54,7 @@ const OVERSAMPLING: usize = 10;
 const POWER_ITERATIONS: usize = 2;
 
 /// How the principal directions are found; see the module docs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum PcaMethod {
     CovarianceEigen,
     RandomizedRangeFinder,
@@ -77,7 +77,7 @@ pub enum PcaError {
 }
 
 /// Quality of a compression (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PcaStats {
     pub method: PcaMethod,
     /// Fraction of the variance about the mean that the kept components explain, in [0, 1].
@@ -89,7 +89,7 @@ pub struct PcaStats {
 }
 
 /// Mean, components and per-segment coefficients of the compressed SSDFs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PcaBasis {
     /// Values per segment (`n²`).
     pub dims: usize,

@@ -2,8 +2,13 @@
 //!
 //! `paper` is the 2017 paper's configuration (128x128 visibility images, 48 PCA components,
 //! Q = 48 SGs of sharpness 128, cells of about one mean free path, 50,000 paths per cell, SH
-//! order 5, 512 θo values); `interactive` is sized to bake the default fabric in seconds on two
-//! cores; `draft` is the fastest useful bake, for the first picture.
+//! order 5, 512 θo values); `interactive` is sized to bake the default fabric (~20k segments) in
+//! about ten seconds on two cores; `draft` is the fastest useful bake, for the first picture.
+//!
+//! The IIRTF dominates the cost (about 20 µs per path, bound by ray casting), so the cheaper
+//! presets use larger cells (the paper finds cells up to 2ℓ lose little; beyond that multiple
+//! scattering darkens and gets blockier) and fewer paths per cell (noisier transfer matrices).
+//! `docs/BENCHMARKS.md` has the measured times.
 
 use crate::params::{ParamError, check_count, check_range};
 
@@ -63,24 +68,24 @@ impl Quality {
                 pca_components: 8,
                 sos_count: 16,
                 sos_sharpness: 128.0,
-                cell_size_mfp: 2.0,
-                iirtf_paths_per_cell: 1_000,
+                cell_size_mfp: 4.0,
+                iirtf_paths_per_cell: 256,
                 sh_order: 2,
                 cs_theta_count: 64,
-                voxels_per_segment: 1.0,
+                voxels_per_segment: 2.0,
                 mfp_samples: 4_000,
                 seed: 1,
             },
             Self::Interactive => BakeSettings {
-                svf_resolution: 32,
+                svf_resolution: 24,
                 pca_components: 24,
                 sos_count: 32,
                 sos_sharpness: 128.0,
-                cell_size_mfp: 1.5,
-                iirtf_paths_per_cell: 5_000,
+                cell_size_mfp: 2.5,
+                iirtf_paths_per_cell: 600,
                 sh_order: 4,
                 cs_theta_count: 256,
-                voxels_per_segment: 2.0,
+                voxels_per_segment: 4.0,
                 mfp_samples: 20_000,
                 seed: 1,
             },
@@ -93,7 +98,7 @@ impl Quality {
                 iirtf_paths_per_cell: 50_000,
                 sh_order: 5,
                 cs_theta_count: 512,
-                voxels_per_segment: 2.0,
+                voxels_per_segment: 8.0,
                 mfp_samples: 100_000,
                 seed: 1,
             },

@@ -37,7 +37,7 @@ pub enum SumOfSgError {
 }
 
 /// Per-segment sum-of-SGs visibility weights.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SumOfSgVisibility {
     /// `Q`, SGs per segment.
     pub count: usize,

@@ -1,0 +1,661 @@
+//! The bake pipeline: runs the stages in dependency order, each cached under the hash of
+//! exactly what it depends on, so an edit reruns only the stages it invalidates.
+//!
+//! | stage | depends on |
+//! |---|---|
+//! | mean free path | geometry, `mfp_samples`, `seed` |
+//! | visibility (SVF → SSDF → PCA, sum of SGs) | geometry, `svf_resolution`, `pca_components`, `sos_count`, `sos_sharpness`, `seed` |
+//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed` |
+//! | C_S tables | materials, `sh_order`, `cs_theta_count` |
+//! | Gn tables | materials |
+//! | C_G table | `sh_order` |
+//! | volume (voxels, segment table) | geometry (which includes each yarn's material slot), `voxels_per_segment` |
+//!
+//! "Geometry" is the hash of the exemplar itself (every fiber point, radius, yarn, the tiling
+//! and blocks), so it does not matter how the fabric was described. Lights are no input at all:
+//! a light edit reruns nothing. Each key also hashes the stage's code version
+//! ([`STAGE_VERSIONS`]): bump it when a stage's output changes meaning.
+//!
+//! With a [`Cache`], every stage first looks for its key; a missing, corrupt, truncated or
+//! stale entry is recomputed (the cache deletes bad files and says why). A stage's result is
+//! stored only once complete, through an atomic write, so a cancelled or failed bake leaves no
+//! partial file. Stage results are serialized with serde (postcard) into one section each.
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use super::cells::{CellError, CellGrid};
+use super::cs_table::{CsTable, CsTableError};
+use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
+use super::iirtf::{Iirtf, IirtfError, IirtfOptions, bake_iirtf};
+use super::pca::{PcaBasis, PcaError, compress};
+use super::settings::BakeSettings;
+use super::ssdf::ssdf_all;
+use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
+use super::svf::{SvfError, render_exemplar};
+use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
+use super::volume::{Occupancy, SegmentTable, VolumeError, VoxelVolume, rasterize};
+use super::{Cancel, Cancelled};
+use crate::bcsdf::{Material, MaterialDesc};
+use crate::fabric::Exemplar;
+use crate::params::ParamError;
+use crate::raycast::{Extent, FiberScene, mean_free_path};
+
+/// The stages, in the order they run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stage {
+    MeanFreePath,
+    Visibility,
+    Transfer,
+    CsTables,
+    GnTables,
+    CgTable,
+    Volume,
+}
+
+impl Stage {
+    pub const ALL: [Stage; 7] = [
+        Stage::MeanFreePath,
+        Stage::Visibility,
+        Stage::Transfer,
+        Stage::CsTables,
+        Stage::GnTables,
+        Stage::CgTable,
+        Stage::Volume,
+    ];
+
+    /// The stage's name (also its section name in bake files).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::MeanFreePath => "mean_free_path",
+            Self::Visibility => "visibility",
+            Self::Transfer => "transfer",
+            Self::CsTables => "cs_tables",
+            Self::GnTables => "gn_tables",
+            Self::CgTable => "cg_table",
+            Self::Volume => "volume",
+        }
+    }
+
+    fn version(self) -> u32 {
+        STAGE_VERSIONS[self as usize]
+    }
+}
+
+/// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
+pub const STAGE_VERSIONS: [u32; 7] = [1, 1, 1, 1, 1, 1, 1];
+
+/// Version of the serialized layout of [`Baked`] (part of the whole-file key).
+pub const BAKE_LAYOUT_VERSION: u32 = 1;
+
+/// What a bake needs: the fabric, its material slots, the settings.
+#[derive(Debug, Clone, Copy)]
+pub struct BakeInputs<'a> {
+    pub exemplar: &'a Exemplar,
+    /// Material slots, indexed by `Yarn::material`.
+    pub materials: &'a [MaterialDesc],
+    pub settings: BakeSettings,
+}
+
+/// Mean free path ℓ as measured by ray casting.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MeanFreePathData {
+    pub mean_cm: f64,
+    pub std_error_cm: f64,
+    pub escaped_fraction: f64,
+}
+
+/// Per-segment visibility: PCA-compressed SSDFs and sum-of-SGs weights.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VisibilityData {
+    /// Visibility images were `resolution x resolution` (see `svf`).
+    pub resolution: usize,
+    pub ssdf: PcaBasis,
+    pub sum_of_sg: SumOfSgVisibility,
+    /// Mean visible solid angle over segments (steradians), for reports.
+    pub mean_visible_solid_angle: f64,
+}
+
+/// IIRTF cells and their transfer matrices.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TransferData {
+    pub cells: CellGrid,
+    pub iirtf: Iirtf,
+}
+
+/// Voxel volume of segment ids and the per-segment table.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VolumeData {
+    pub volume: VoxelVolume,
+    pub segments: SegmentTable,
+}
+
+/// Everything a bake produces.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Baked {
+    pub settings: BakeSettings,
+    pub materials: Vec<MaterialDesc>,
+    pub mean_free_path: MeanFreePathData,
+    pub visibility: VisibilityData,
+    pub transfer: TransferData,
+    /// C_S table per material slot (`None` for Lambertian materials, which have none).
+    pub cs_tables: Vec<Option<CsTable>>,
+    pub gn: GnTable,
+    pub cg: CgTable,
+    pub volume: VolumeData,
+}
+
+/// Whether a stage ran or came from the cache.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StageSource {
+    Computed,
+    Cached,
+}
+
+/// One stage of one bake: its key, where its result came from and how long it took.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StageRun {
+    pub stage: Stage,
+    pub key: ContentHash,
+    pub source: StageSource,
+    pub seconds: f64,
+}
+
+/// A finished bake with its whole-file key and the record of its stages.
+#[derive(Debug, Clone)]
+pub struct BakeOutcome {
+    pub key: ContentHash,
+    pub baked: Baked,
+    pub stages: Vec<StageRun>,
+}
+
+impl BakeOutcome {
+    /// The stages that were computed (not loaded from the cache).
+    #[must_use]
+    pub fn computed(&self) -> Vec<Stage> {
+        self.stages.iter().filter(|s| s.source == StageSource::Computed).map(|s| s.stage).collect()
+    }
+}
+
+/// Why a bake failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error("bake cancelled")]
+    Cancelled,
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    #[error("fabric: {0}")]
+    Fabric(String),
+    #[error("visibility: {0}")]
+    Svf(#[from] SvfError),
+    #[error("PCA: {0}")]
+    Pca(#[from] PcaError),
+    #[error("sum of SGs: {0}")]
+    SumOfSg(#[from] SumOfSgError),
+    #[error("IIRTF cells: {0}")]
+    Cells(#[from] CellError),
+    #[error("IIRTF: {0}")]
+    Iirtf(#[from] IirtfError),
+    #[error("C_S table: {0}")]
+    CsTable(#[from] CsTableError),
+    #[error("volume: {0}")]
+    Volume(#[from] VolumeError),
+    #[error(transparent)]
+    File(#[from] BakeFileError),
+    #[error("{stage}: could not serialize the result: {message}")]
+    Serialize { stage: &'static str, message: String },
+}
+
+impl From<Cancelled> for BakeError {
+    fn from(_: Cancelled) -> Self {
+        Self::Cancelled
+    }
+}
+
+/// Progress of a bake: the stage and the fraction of it done.
+pub type BakeProgress<'a> = &'a (dyn Fn(Stage, f64) + Sync);
+
+/// Runs every stage (or loads it from `cache`), checking `cancel` often.
+pub fn bake(
+    inputs: &BakeInputs<'_>,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: BakeProgress<'_>,
+) -> Result<BakeOutcome, BakeError> {
+    let s = &inputs.settings;
+    s.validate()?;
+    let materials: Vec<Material> =
+        inputs.materials.iter().map(Material::from_desc).collect::<Result<_, _>>()?;
+    let yarn_materials: Vec<Material> = inputs
+        .exemplar
+        .yarns
+        .iter()
+        .map(|y| {
+            materials.get(y.material as usize).cloned().ok_or_else(|| {
+                ParamError::new(
+                    "yarn material",
+                    y.material,
+                    format!("a material slot below {}", materials.len()),
+                )
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let keys = StageKeys::new(inputs);
+    let mut runs = Vec::new();
+    let mut stage_runner = StageRunner { cache, runs: &mut runs };
+
+    let fibers =
+        || FiberScene::new(inputs.exemplar, Extent::Unbounded).map_err(|e| BakeError::Fabric(e.to_string()));
+    let mfp = stage_runner.run(Stage::MeanFreePath, keys.mfp, || {
+        cancel.check()?;
+        let m = mean_free_path(&fibers()?, s.mfp_samples, s.seed);
+        progress(Stage::MeanFreePath, 1.0);
+        if !(m.mean_cm.is_finite() && m.mean_cm > 0.0) {
+            return Err(BakeError::Fabric(format!(
+                "no mean free path could be measured ({:.0}% of rays escaped the fabric)",
+                100.0 * m.escaped_fraction
+            )));
+        }
+        Ok(MeanFreePathData {
+            mean_cm: m.mean_cm,
+            std_error_cm: m.std_error_cm,
+            escaped_fraction: m.escaped_fraction,
+        })
+    })?;
+
+    let visibility = stage_runner.run(Stage::Visibility, keys.visibility, || {
+        let report = |f: f64| progress(Stage::Visibility, f);
+        let images = render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?;
+        let ssdfs = ssdf_all(&images, cancel)?;
+        report(0.8);
+        let dims = s.svf_resolution * s.svf_resolution;
+        let ssdf = compress(&ssdfs, dims, s.pca_components, s.seed, cancel)?;
+        report(0.95);
+        let sum_of_sg = fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, cancel)?;
+        let n = images.segment_count().max(1);
+        let mean_visible_solid_angle =
+            (0..images.segment_count()).map(|k| images.visible_solid_angle(k)).sum::<f64>() / n as f64;
+        report(1.0);
+        Ok(VisibilityData { resolution: s.svf_resolution, ssdf, sum_of_sg, mean_visible_solid_angle })
+    })?;
+
+    let transfer = stage_runner.run(Stage::Transfer, keys.transfer(&mfp), || {
+        let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp)?;
+        let iirtf = bake_iirtf(
+            inputs.exemplar,
+            &yarn_materials,
+            &cells,
+            s,
+            &IirtfOptions::default(),
+            cancel,
+            &|f| progress(Stage::Transfer, f),
+        )?;
+        Ok(TransferData { cells, iirtf })
+    })?;
+
+    let cs_tables = stage_runner.run(Stage::CsTables, keys.cs, || {
+        let mut tables = Vec::with_capacity(materials.len());
+        for (i, m) in materials.iter().enumerate() {
+            cancel.check()?;
+            tables.push(match m {
+                Material::Fiber(fiber) => Some(CsTable::new(fiber, s.sh_order, s.cs_theta_count)?),
+                Material::Lambert(_) => None,
+            });
+            progress(Stage::CsTables, (i + 1) as f64 / materials.len() as f64);
+        }
+        Ok(tables)
+    })?;
+
+    let gn = stage_runner.run(Stage::GnTables, keys.gn, || Ok(GnTable::new(inputs.materials)?))?;
+    let cg =
+        stage_runner.run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.sh_order, CG_DEFAULT_POINTS)?))?;
+
+    let volume = stage_runner.run(Stage::Volume, keys.volume, || {
+        let volume = rasterize(inputs.exemplar, s.voxels_per_segment, Occupancy::default(), cancel, &|f| {
+            progress(Stage::Volume, f);
+        })?;
+        Ok(VolumeData { volume, segments: SegmentTable::new(inputs.exemplar) })
+    })?;
+
+    let baked = Baked {
+        settings: *s,
+        materials: inputs.materials.to_vec(),
+        mean_free_path: mfp,
+        visibility,
+        transfer,
+        cs_tables,
+        gn,
+        cg,
+        volume,
+    };
+    let key = whole_key(&runs);
+    Ok(BakeOutcome { key, baked, stages: runs })
+}
+
+/// Writes a finished bake atomically: one section per stage, each with its stage key.
+pub fn write_bake(path: &Path, outcome: &BakeOutcome) -> Result<(), BakeError> {
+    let mut writer = BakeWriter::new(outcome.key);
+    let b = &outcome.baked;
+    let sections: [(Stage, Vec<u8>); 7] = [
+        (Stage::MeanFreePath, encode(Stage::MeanFreePath, &b.mean_free_path)?),
+        (Stage::Visibility, encode(Stage::Visibility, &b.visibility)?),
+        (Stage::Transfer, encode(Stage::Transfer, &b.transfer)?),
+        (Stage::CsTables, encode(Stage::CsTables, &b.cs_tables)?),
+        (Stage::GnTables, encode(Stage::GnTables, &b.gn)?),
+        (Stage::CgTable, encode(Stage::CgTable, &b.cg)?),
+        (Stage::Volume, encode(Stage::Volume, &b.volume)?),
+    ];
+    for (stage, bytes) in sections {
+        let key = outcome.stages.iter().find(|r| r.stage == stage).map_or(outcome.key, |r| r.key);
+        writer = writer.section(stage.name(), key, Array::vector(ArrayData::U8(bytes)));
+    }
+    let settings = encode_settings(b)?;
+    writer = writer.section("inputs", outcome.key, Array::vector(ArrayData::U8(settings)));
+    writer.write(path)?;
+    Ok(())
+}
+
+/// Reads a bake file written by [`write_bake`]; every integrity check of the file format runs
+/// first, and a section that does not decode is reported as corrupt.
+pub fn read_bake(path: &Path) -> Result<(ContentHash, Baked), BakeError> {
+    let file = BakeFile::open_unkeyed(path)?;
+    let inputs = decode_inputs(&file)?;
+    let baked = Baked {
+        settings: inputs.settings,
+        materials: inputs.materials,
+        mean_free_path: decode_section(&file, Stage::MeanFreePath.name())?,
+        visibility: decode_section(&file, Stage::Visibility.name())?,
+        transfer: decode_section(&file, Stage::Transfer.name())?,
+        cs_tables: decode_section(&file, Stage::CsTables.name())?,
+        gn: decode_section(&file, Stage::GnTables.name())?,
+        cg: decode_section(&file, Stage::CgTable.name())?,
+        volume: decode_section(&file, Stage::Volume.name())?,
+    };
+    Ok((file.key(), baked))
+}
+
+/// The settings and materials a bake was made with, stored as TOML text (materials are
+/// internally tagged enums, which postcard cannot decode; TOML also keeps them readable).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct InputsRecord {
+    settings: BakeSettings,
+    materials: Vec<MaterialDesc>,
+}
+
+fn encode_settings(b: &Baked) -> Result<Vec<u8>, BakeError> {
+    let record = InputsRecord { settings: b.settings, materials: b.materials.clone() };
+    toml::to_string(&record)
+        .map(String::into_bytes)
+        .map_err(|e| BakeError::Serialize { stage: "inputs", message: e.to_string() })
+}
+
+fn decode_inputs(file: &BakeFile) -> Result<InputsRecord, BakeError> {
+    let corrupt = |what: String| {
+        BakeError::File(BakeFileError::InvalidSection {
+            name: format!("{}: inputs", file.path().display()),
+            what,
+        })
+    };
+    let section = file.section("inputs").ok_or_else(|| corrupt("missing".into()))?;
+    let bytes = section.array.as_u8().ok_or_else(|| corrupt("not a byte section".into()))?;
+    let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("not UTF-8: {e}")))?;
+    toml::from_str(text).map_err(|e| corrupt(format!("does not parse: {e}")))
+}
+
+fn encode<T: Serialize>(stage: Stage, value: &T) -> Result<Vec<u8>, BakeError> {
+    postcard::to_allocvec(value)
+        .map_err(|e| BakeError::Serialize { stage: stage.name(), message: e.to_string() })
+}
+
+fn decode_section<T: DeserializeOwned>(file: &BakeFile, name: &str) -> Result<T, BakeError> {
+    let corrupt = |what: String| {
+        BakeError::File(BakeFileError::InvalidSection {
+            name: format!("{}: {name}", file.path().display()),
+            what,
+        })
+    };
+    let section = file.section(name).ok_or_else(|| corrupt("missing".into()))?;
+    let bytes = section.array.as_u8().ok_or_else(|| corrupt("not a byte section".into()))?;
+    postcard::from_bytes(bytes).map_err(|e| corrupt(format!("does not decode: {e}")))
+}
+
+/// Runs stages through the cache and records what happened.
+struct StageRunner<'a, 'b> {
+    cache: Option<&'a Cache>,
+    runs: &'b mut Vec<StageRun>,
+}
+
+impl StageRunner<'_, '_> {
+    fn run<T, F>(&mut self, stage: Stage, key: ContentHash, compute: F) -> Result<T, BakeError>
+    where
+        T: Serialize + DeserializeOwned,
+        F: FnOnce() -> Result<T, BakeError>,
+    {
+        let started = Instant::now();
+        if let Some(value) = self.cache.and_then(|c| c.load(key)).and_then(|file| {
+            let decoded = decode_section(&file, stage.name());
+            if let Err(e) = &decoded {
+                log::warn!("ignoring cached {}: {e}", stage.name());
+            }
+            decoded.ok()
+        }) {
+            self.record(stage, key, StageSource::Cached, started);
+            return Ok(value);
+        }
+        let value = compute()?;
+        if let Some(cache) = self.cache {
+            let bytes = encode(stage, &value)?;
+            cache.store(&BakeWriter::new(key).section(
+                stage.name(),
+                key,
+                Array::vector(ArrayData::U8(bytes)),
+            ))?;
+        }
+        self.record(stage, key, StageSource::Computed, started);
+        Ok(value)
+    }
+
+    fn record(&mut self, stage: Stage, key: ContentHash, source: StageSource, started: Instant) {
+        self.runs.push(StageRun { stage, key, source, seconds: started.elapsed().as_secs_f64() });
+    }
+}
+
+/// The cache key of every stage (see the module docs for what each depends on).
+struct StageKeys {
+    geometry: ContentHash,
+    materials: ContentHash,
+    settings: BakeSettings,
+    mfp: ContentHash,
+    visibility: ContentHash,
+    cs: ContentHash,
+    gn: ContentHash,
+    cg: ContentHash,
+    volume: ContentHash,
+}
+
+impl StageKeys {
+    fn new(inputs: &BakeInputs<'_>) -> Self {
+        let s = inputs.settings;
+        let geometry = Hasher::new("twill.geometry").exemplar(inputs.exemplar).finish();
+        let mut materials_hasher = Hasher::new("twill.materials");
+        materials_hasher.usize(inputs.materials.len());
+        for m in inputs.materials {
+            materials_hasher.str(&format!("{m:?}"));
+        }
+        let materials = materials_hasher.finish();
+        let key = |stage: Stage| {
+            let mut h = Hasher::new("twill.stage");
+            h.stage(stage.name(), stage.version());
+            h
+        };
+        let mfp = key(Stage::MeanFreePath).hash(&geometry).usize(s.mfp_samples).u64(s.seed).finish();
+        let visibility = key(Stage::Visibility)
+            .hash(&geometry)
+            .usize(s.svf_resolution)
+            .usize(s.pca_components)
+            .usize(s.sos_count)
+            .f64(s.sos_sharpness)
+            .u64(s.seed)
+            .finish();
+        let cs = key(Stage::CsTables).hash(&materials).usize(s.sh_order).usize(s.cs_theta_count).finish();
+        let gn = key(Stage::GnTables).hash(&materials).finish();
+        let cg = key(Stage::CgTable).usize(s.sh_order).usize(CG_DEFAULT_POINTS).finish();
+        let volume = key(Stage::Volume).hash(&geometry).f64(s.voxels_per_segment).finish();
+        Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume }
+    }
+
+    /// The transfer stage also depends on the measured mean free path (it sizes the cells).
+    fn transfer(&self, mfp: &MeanFreePathData) -> ContentHash {
+        let s = self.settings;
+        let mut h = Hasher::new("twill.stage");
+        h.stage(Stage::Transfer.name(), Stage::Transfer.version())
+            .hash(&self.geometry)
+            .hash(&self.materials)
+            .f64(mfp.mean_cm)
+            .f64(s.cell_size_mfp)
+            .usize(s.iirtf_paths_per_cell)
+            .usize(s.sh_order)
+            .u64(s.seed);
+        h.finish()
+    }
+}
+
+/// The whole bake's key: every stage key plus the layout version.
+fn whole_key(runs: &[StageRun]) -> ContentHash {
+    let mut h = Hasher::new("twill.bake");
+    h.u32(BAKE_LAYOUT_VERSION);
+    for r in runs {
+        h.str(r.stage.name()).hash(&r.key);
+    }
+    h.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Rgb;
+    use crate::bcsdf::FiberParams;
+    use crate::fabric::presets::{FabricSpec, WeaveSource, fabric_preset};
+    use crate::fabric::weave::WeavePreset;
+
+    /// A plain weave with very few fibers, and settings small enough for a test.
+    fn tiny(weave: WeavePreset) -> (Exemplar, Vec<MaterialDesc>) {
+        let preset = fabric_preset("cotton_plain").unwrap();
+        let FabricSpec::Woven(mut spec) = preset.fabric else { panic!("cotton_plain is woven") };
+        spec.weave = WeaveSource::Preset(weave);
+        spec.warp.fibers_per_ply = 3;
+        spec.weft.fibers_per_ply = 3;
+        let exemplar = FabricSpec::Woven(spec).build(Path::new(".")).unwrap();
+        (exemplar, vec![preset.warp_material, preset.weft_material])
+    }
+
+    fn test_settings() -> BakeSettings {
+        BakeSettings {
+            svf_resolution: 8,
+            pca_components: 4,
+            sos_count: 8,
+            sos_sharpness: 128.0,
+            cell_size_mfp: 16.0,
+            iirtf_paths_per_cell: 8,
+            sh_order: 2,
+            cs_theta_count: 8,
+            voxels_per_segment: 0.5,
+            mfp_samples: 400,
+            seed: 3,
+        }
+    }
+
+    fn run(
+        exemplar: &Exemplar,
+        materials: &[MaterialDesc],
+        settings: BakeSettings,
+        cache: &Cache,
+    ) -> BakeOutcome {
+        let inputs = BakeInputs { exemplar, materials, settings };
+        bake(&inputs, Some(cache), &Cancel::new(), &|_, _| {}).unwrap()
+    }
+
+    fn with_colour(material: MaterialDesc, c_tt: Rgb) -> MaterialDesc {
+        match material {
+            MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_tt, ..p }),
+            MaterialDesc::Lambert { .. } => MaterialDesc::Lambert { albedo: c_tt },
+        }
+    }
+
+    #[test]
+    fn each_kind_of_edit_reruns_exactly_the_stages_that_depend_on_it() {
+        use Stage::{CgTable as Cg, CsTables, GnTables, MeanFreePath, Transfer, Visibility, Volume};
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::new(dir.path()).unwrap();
+        let (exemplar, materials) = tiny(WeavePreset::Plain);
+        let settings = test_settings();
+
+        let first = run(&exemplar, &materials, settings, &cache);
+        assert_eq!(first.computed(), Stage::ALL.to_vec(), "a cold cache computes everything");
+
+        // Nothing changed (a light edit changes no bake input): everything comes from the cache.
+        let again = run(&exemplar, &materials, settings, &cache);
+        assert!(again.computed().is_empty(), "{:?}", again.computed());
+        assert_eq!(again.key, first.key);
+        assert_eq!(again.baked, first.baked);
+
+        // A BCSDF colour edit: transfer and the material tables, not visibility or geometry.
+        let recoloured = [with_colour(materials[0], Rgb::new(0.2, 0.6, 0.3)), materials[1]];
+        let edit = run(&exemplar, &recoloured, settings, &cache);
+        assert_eq!(edit.computed(), vec![Transfer, CsTables, GnTables]);
+        assert_ne!(edit.key, first.key);
+
+        // SH order: transfer and the SH tables.
+        let higher = BakeSettings { sh_order: 3, ..settings };
+        assert_eq!(run(&exemplar, &materials, higher, &cache).computed(), vec![Transfer, CsTables, Cg]);
+
+        // A weave edit: everything that depends on geometry.
+        let (twill, _) = tiny(WeavePreset::Twill2_2);
+        assert_eq!(
+            run(&twill, &materials, settings, &cache).computed(),
+            vec![MeanFreePath, Visibility, Transfer, Volume]
+        );
+    }
+
+    #[test]
+    fn a_cancelled_bake_stores_nothing_and_writes_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::new(&dir.path().join("cache")).unwrap();
+        let (exemplar, materials) = tiny(WeavePreset::Plain);
+        let cancel = Cancel::new();
+        cancel.cancel();
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: test_settings() };
+        let result = bake(&inputs, Some(&cache), &cancel, &|_, _| {});
+        assert!(matches!(result, Err(BakeError::Cancelled)), "{result:?}");
+        let stored = std::fs::read_dir(cache.dir()).unwrap().filter_map(Result::ok).count();
+        assert_eq!(stored, 0, "a cancelled bake leaves no cache entry");
+    }
+
+    #[test]
+    fn bake_files_round_trip_and_corruption_is_detected() {
+        let dir = tempfile::tempdir().unwrap();
+        let (exemplar, materials) = tiny(WeavePreset::Plain);
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: test_settings() };
+        let outcome = bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap();
+        let path = dir.path().join("x.twillbake");
+        write_bake(&path, &outcome).unwrap();
+        let (key, baked) = read_bake(&path).unwrap();
+        assert_eq!(key, outcome.key);
+        assert_eq!(baked, outcome.baked);
+
+        let bytes = std::fs::read(&path).unwrap();
+        for position in [0, 9, 70, bytes.len() / 2, bytes.len() - 1] {
+            let mut bad = bytes.clone();
+            bad[position] ^= 0x10;
+            std::fs::write(&path, &bad).unwrap();
+            assert!(read_bake(&path).is_err(), "flipped byte {position} went unnoticed");
+        }
+        std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
+        let err = read_bake(&path).unwrap_err().to_string();
+        assert!(err.contains("x.twillbake"), "{err}");
+    }
+}
