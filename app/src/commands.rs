@@ -7,7 +7,9 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::file::Cache;
-use twill_precompute::bake::pipeline::{BakeInputs, Stage, StageSource, bake as run_bake, write_bake};
+use twill_precompute::bake::pipeline::{
+    BakeInputs, BakeSet, Stage, StageSource, bake as run_bake, write_bake,
+};
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::pathtrace::{self, Component};
@@ -184,7 +186,9 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
     let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &progress);
     bar.finish_and_clear();
     let outcome = outcome.map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-    write_bake(&output, &outcome)?;
+    let set = BakeSet::single(outcome);
+    write_bake(&output, &set)?;
+    let outcome = &set.exemplars[0];
 
     let b = &outcome.baked;
     eprintln!(

@@ -106,3 +106,33 @@ fn bad_input_is_a_clear_error_never_a_panic() {
     let stderr = text(&twill(&["reference", "bad.toml", "-o", "x.png"], dir.path()).stderr);
     assert!(stderr.contains("line 4") && stderr.contains("fisheye"), "{stderr}");
 }
+
+#[test]
+fn bake_writes_a_bake_file_and_reports_every_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let cache_arg = cache.to_str().unwrap();
+    let out = twill(&["bake", "--quality", "draft", "--cache", cache_arg, "-o", "d.twillbake"], dir.path());
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    for stage in ["mean_free_path", "visibility", "transfer", "cs_tables", "gn_tables", "cg_table", "volume"]
+    {
+        assert!(stderr.contains(stage), "missing {stage} in\n{stderr}");
+    }
+    assert!(dir.path().join("d.twillbake").metadata().unwrap().len() > 1000);
+    // The second bake comes entirely from the stage cache.
+    let again = twill(&["bake", "--quality", "draft", "--cache", cache_arg, "-o", "d.twillbake"], dir.path());
+    assert!(!text(&again.stderr).contains("computed"), "{}", text(&again.stderr));
+
+    // A file where the cache folder should be, and an unwritable output, are clear errors.
+    std::fs::write(dir.path().join("not-a-dir"), "x").unwrap();
+    let out =
+        twill(&["bake", "--quality", "draft", "--cache", "not-a-dir/c", "-o", "e.twillbake"], dir.path());
+    assert!(!out.status.success() && text(&out.stderr).contains("not-a-dir"), "{}", text(&out.stderr));
+    let out = twill(
+        &["bake", "--quality", "draft", "--cache", cache_arg, "-o", "/nonexistent-dir/x.twillbake"],
+        dir.path(),
+    );
+    assert!(!out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains("/nonexistent-dir/x.twillbake"), "{}", text(&out.stderr));
+}

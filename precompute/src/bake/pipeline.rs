@@ -31,6 +31,7 @@ use super::cells::{CellError, CellGrid};
 use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
 use super::iirtf::{Iirtf, IirtfError, IirtfOptions, bake_iirtf};
+use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress};
 use super::settings::BakeSettings;
 use super::ssdf::ssdf_all;
@@ -40,7 +41,7 @@ use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
 use super::volume::{Occupancy, SegmentTable, VolumeError, VoxelVolume, rasterize};
 use super::{Cancel, Cancelled};
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::Exemplar;
+use crate::fabric::{Exemplar, Tiling};
 use crate::params::ParamError;
 use crate::raycast::{Extent, FiberScene, mean_free_path};
 
@@ -206,6 +207,8 @@ pub enum BakeError {
     Volume(#[from] VolumeError),
     #[error(transparent)]
     File(#[from] BakeFileError),
+    #[error("patterned cloth: {0}")]
+    Pattern(String),
     #[error("{stage}: could not serialize the result: {message}")]
     Serialize { stage: &'static str, message: String },
 }
@@ -336,46 +339,159 @@ pub fn bake(
     Ok(BakeOutcome { key, baked, stages: runs })
 }
 
-/// Writes a finished bake atomically: one section per stage, each with its stage key.
-pub fn write_bake(path: &Path, outcome: &BakeOutcome) -> Result<(), BakeError> {
-    let mut writer = BakeWriter::new(outcome.key);
-    let b = &outcome.baked;
-    let sections: [(Stage, Vec<u8>); 7] = [
-        (Stage::MeanFreePath, encode(Stage::MeanFreePath, &b.mean_free_path)?),
-        (Stage::Visibility, encode(Stage::Visibility, &b.visibility)?),
-        (Stage::Transfer, encode(Stage::Transfer, &b.transfer)?),
-        (Stage::CsTables, encode(Stage::CsTables, &b.cs_tables)?),
-        (Stage::GnTables, encode(Stage::GnTables, &b.gn)?),
-        (Stage::CgTable, encode(Stage::CgTable, &b.cg)?),
-        (Stage::Volume, encode(Stage::Volume, &b.volume)?),
-    ];
-    for (stage, bytes) in sections {
-        let key = outcome.stages.iter().find(|r| r.stage == stage).map_or(outcome.key, |r| r.key);
-        writer = writer.section(stage.name(), key, Array::vector(ArrayData::U8(bytes)));
+/// One or more baked exemplars and the map saying which exemplar covers each block of the
+/// cloth (patterned cloth, paper section 6.4). A plain fabric is one exemplar and a uniform map.
+#[derive(Debug, Clone)]
+pub struct BakeSet {
+    pub pattern: PatternMap,
+    pub exemplars: Vec<BakeOutcome>,
+}
+
+impl BakeSet {
+    /// A single exemplar covering every block.
+    #[must_use]
+    pub fn single(outcome: BakeOutcome) -> Self {
+        Self { pattern: PatternMap::uniform(0), exemplars: vec![outcome] }
     }
-    let settings = encode_settings(b)?;
-    writer = writer.section("inputs", outcome.key, Array::vector(ArrayData::U8(settings)));
+
+    /// The whole file's key: the pattern and every exemplar's key.
+    #[must_use]
+    pub fn key(&self) -> ContentHash {
+        let mut h = Hasher::new("twill.bake_set");
+        h.u32(BAKE_LAYOUT_VERSION).u32(self.pattern.width).u32(self.pattern.height);
+        for &e in &self.pattern.exemplar_of_block {
+            h.u32(u32::from(e));
+        }
+        for outcome in &self.exemplars {
+            h.hash(&outcome.key);
+        }
+        h.finish()
+    }
+}
+
+/// A bake file as read back: its key, the pattern and every exemplar's data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadedBake {
+    pub key: ContentHash,
+    pub pattern: PatternMap,
+    pub exemplars: Vec<Baked>,
+}
+
+/// Bakes every exemplar of a patterned cloth. All exemplars must have blocks of the same size
+/// (blocks of different exemplars sit side by side), and the pattern may only name exemplars
+/// that are given.
+pub fn bake_set(
+    inputs: &[BakeInputs<'_>],
+    pattern: PatternMap,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: BakeProgress<'_>,
+) -> Result<BakeSet, BakeError> {
+    if inputs.is_empty() {
+        return Err(BakeError::Pattern("no exemplars to bake".into()));
+    }
+    if pattern.exemplar_count() > inputs.len() {
+        return Err(BakeError::Pattern(format!(
+            "the pattern names exemplar {} but only {} exemplar(s) are given",
+            pattern.exemplar_count() - 1,
+            inputs.len()
+        )));
+    }
+    let block_size = |e: &Exemplar| match e.tiling {
+        Tiling::Periodic { period } => Some(period / glam::Vec2::new(e.blocks.nx as f32, e.blocks.ny as f32)),
+        Tiling::AsIs => None,
+    };
+    let describe = |size: Option<glam::Vec2>| {
+        size.map_or_else(
+            || "no blocks (used as-is)".to_owned(),
+            |s| format!("blocks of {} x {} cm", s.x, s.y),
+        )
+    };
+    let first = block_size(inputs[0].exemplar);
+    for (i, input) in inputs.iter().enumerate().skip(1) {
+        let size = block_size(input.exemplar);
+        let same = match (first, size) {
+            (Some(a), Some(b)) => (a - b).abs().max_element() <= 1e-5 * a.max_element(),
+            _ => false,
+        };
+        if !same {
+            return Err(BakeError::Pattern(format!(
+                "exemplar {i} has {}, exemplar 0 has {}: patterned exemplars must be periodic with equal block sizes",
+                describe(size),
+                describe(first)
+            )));
+        }
+    }
+    let exemplars =
+        inputs.iter().map(|input| bake(input, cache, cancel, progress)).collect::<Result<_, _>>()?;
+    Ok(BakeSet { pattern, exemplars })
+}
+
+/// Writes a bake set atomically: the pattern, then for exemplar `i` one section `e{i}.STAGE`
+/// per stage (with that stage's key) and `e{i}.inputs`.
+pub fn write_bake(path: &Path, set: &BakeSet) -> Result<(), BakeError> {
+    let pattern = encode(Stage::Volume, &set.pattern)?;
+    let mut writer =
+        BakeWriter::new(set.key()).section("pattern", set.key(), Array::vector(ArrayData::U8(pattern)));
+    for (i, outcome) in set.exemplars.iter().enumerate() {
+        let b = &outcome.baked;
+        let sections: [(Stage, Vec<u8>); 7] = [
+            (Stage::MeanFreePath, encode(Stage::MeanFreePath, &b.mean_free_path)?),
+            (Stage::Visibility, encode(Stage::Visibility, &b.visibility)?),
+            (Stage::Transfer, encode(Stage::Transfer, &b.transfer)?),
+            (Stage::CsTables, encode(Stage::CsTables, &b.cs_tables)?),
+            (Stage::GnTables, encode(Stage::GnTables, &b.gn)?),
+            (Stage::CgTable, encode(Stage::CgTable, &b.cg)?),
+            (Stage::Volume, encode(Stage::Volume, &b.volume)?),
+        ];
+        for (stage, bytes) in sections {
+            let key = outcome.stages.iter().find(|r| r.stage == stage).map_or(outcome.key, |r| r.key);
+            writer =
+                writer.section(&format!("e{i}.{}", stage.name()), key, Array::vector(ArrayData::U8(bytes)));
+        }
+        writer = writer.section(
+            &format!("e{i}.inputs"),
+            outcome.key,
+            Array::vector(ArrayData::U8(encode_settings(b)?)),
+        );
+    }
     writer.write(path)?;
     Ok(())
 }
 
 /// Reads a bake file written by [`write_bake`]; every integrity check of the file format runs
 /// first, and a section that does not decode is reported as corrupt.
-pub fn read_bake(path: &Path) -> Result<(ContentHash, Baked), BakeError> {
+pub fn read_bake(path: &Path) -> Result<LoadedBake, BakeError> {
     let file = BakeFile::open_unkeyed(path)?;
-    let inputs = decode_inputs(&file)?;
-    let baked = Baked {
-        settings: inputs.settings,
-        materials: inputs.materials,
-        mean_free_path: decode_section(&file, Stage::MeanFreePath.name())?,
-        visibility: decode_section(&file, Stage::Visibility.name())?,
-        transfer: decode_section(&file, Stage::Transfer.name())?,
-        cs_tables: decode_section(&file, Stage::CsTables.name())?,
-        gn: decode_section(&file, Stage::GnTables.name())?,
-        cg: decode_section(&file, Stage::CgTable.name())?,
-        volume: decode_section(&file, Stage::Volume.name())?,
-    };
-    Ok((file.key(), baked))
+    let pattern: PatternMap = decode_section(&file, "pattern")?;
+    let mut exemplars = Vec::new();
+    while file.section(&format!("e{}.inputs", exemplars.len())).is_some() {
+        let e = format!("e{}.", exemplars.len());
+        let inputs = decode_inputs(&file, &format!("{e}inputs"))?;
+        let section = |stage: Stage| format!("{e}{}", stage.name());
+        exemplars.push(Baked {
+            settings: inputs.settings,
+            materials: inputs.materials,
+            mean_free_path: decode_section(&file, &section(Stage::MeanFreePath))?,
+            visibility: decode_section(&file, &section(Stage::Visibility))?,
+            transfer: decode_section(&file, &section(Stage::Transfer))?,
+            cs_tables: decode_section(&file, &section(Stage::CsTables))?,
+            gn: decode_section(&file, &section(Stage::GnTables))?,
+            cg: decode_section(&file, &section(Stage::CgTable))?,
+            volume: decode_section(&file, &section(Stage::Volume))?,
+        });
+    }
+    if exemplars.is_empty() || pattern.exemplar_count() > exemplars.len() {
+        return Err(BakeError::File(BakeFileError::InvalidSection {
+            name: format!("{}: pattern", path.display()),
+            what: format!(
+                "names {} exemplar(s), the file holds {}",
+                pattern.exemplar_count(),
+                exemplars.len()
+            ),
+        }));
+    }
+    Ok(LoadedBake { key: file.key(), pattern, exemplars })
 }
 
 /// The settings and materials a bake was made with, stored as TOML text (materials are
@@ -393,14 +509,14 @@ fn encode_settings(b: &Baked) -> Result<Vec<u8>, BakeError> {
         .map_err(|e| BakeError::Serialize { stage: "inputs", message: e.to_string() })
 }
 
-fn decode_inputs(file: &BakeFile) -> Result<InputsRecord, BakeError> {
+fn decode_inputs(file: &BakeFile, name: &str) -> Result<InputsRecord, BakeError> {
     let corrupt = |what: String| {
         BakeError::File(BakeFileError::InvalidSection {
-            name: format!("{}: inputs", file.path().display()),
+            name: format!("{}: {name}", file.path().display()),
             what,
         })
     };
-    let section = file.section("inputs").ok_or_else(|| corrupt("missing".into()))?;
+    let section = file.section(name).ok_or_else(|| corrupt("missing".into()))?;
     let bytes = section.array.as_u8().ok_or_else(|| corrupt("not a byte section".into()))?;
     let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("not UTF-8: {e}")))?;
     toml::from_str(text).map_err(|e| corrupt(format!("does not parse: {e}")))
@@ -544,9 +660,14 @@ mod tests {
 
     /// A plain weave with very few fibers, and settings small enough for a test.
     fn tiny(weave: WeavePreset) -> (Exemplar, Vec<MaterialDesc>) {
+        tiny_with_blocks(weave, [1, 1])
+    }
+
+    fn tiny_with_blocks(weave: WeavePreset, blocks: [u32; 2]) -> (Exemplar, Vec<MaterialDesc>) {
         let preset = fabric_preset("cotton_plain").unwrap();
         let FabricSpec::Woven(mut spec) = preset.fabric else { panic!("cotton_plain is woven") };
         spec.weave = WeaveSource::Preset(weave);
+        spec.blocks = blocks;
         spec.warp.fibers_per_ply = 3;
         spec.weft.fibers_per_ply = 3;
         let exemplar = FabricSpec::Woven(spec).build(Path::new(".")).unwrap();
@@ -642,10 +763,12 @@ mod tests {
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: test_settings() };
         let outcome = bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap();
         let path = dir.path().join("x.twillbake");
-        write_bake(&path, &outcome).unwrap();
-        let (key, baked) = read_bake(&path).unwrap();
-        assert_eq!(key, outcome.key);
-        assert_eq!(baked, outcome.baked);
+        let set = BakeSet::single(outcome.clone());
+        write_bake(&path, &set).unwrap();
+        let loaded = read_bake(&path).unwrap();
+        assert_eq!(loaded.key, set.key());
+        assert_eq!(loaded.exemplars, vec![outcome.baked]);
+        assert_eq!(loaded.pattern, PatternMap::uniform(0));
 
         let bytes = std::fs::read(&path).unwrap();
         for position in [0, 9, 70, bytes.len() / 2, bytes.len() - 1] {
@@ -657,5 +780,31 @@ mod tests {
         std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
         let err = read_bake(&path).unwrap_err().to_string();
         assert!(err.contains("x.twillbake"), "{err}");
+    }
+
+    #[test]
+    fn a_patterned_bake_holds_every_exemplar_and_its_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let (plain, materials) = tiny(WeavePreset::Plain);
+        // Basket repeats over 4 x 4 yarns, plain over 2 x 2: 2 x 2 blocks make them the same size.
+        let (basket, _) = tiny_with_blocks(WeavePreset::Basket, [2, 2]);
+        let settings = test_settings();
+        let inputs = [
+            BakeInputs { exemplar: &plain, materials: &materials, settings },
+            BakeInputs { exemplar: &basket, materials: &materials, settings },
+        ];
+        let pattern = PatternMap::from_rows(&["0110", "1001"]).unwrap();
+        let set = bake_set(&inputs, pattern.clone(), None, &Cancel::new(), &|_, _| {}).unwrap();
+        let path = dir.path().join("patterned.twillbake");
+        write_bake(&path, &set).unwrap();
+        let loaded = read_bake(&path).unwrap();
+        assert_eq!(loaded.pattern, pattern);
+        assert_eq!(loaded.exemplars.len(), 2);
+        assert_ne!(loaded.exemplars[0].volume, loaded.exemplars[1].volume, "different weaves");
+
+        // The map may not name an exemplar that is not given.
+        let three = PatternMap::from_rows(&["012"]).unwrap();
+        let err = bake_set(&inputs, three, None, &Cancel::new(), &|_, _| {}).unwrap_err().to_string();
+        assert!(err.contains("exemplar 2"), "{err}");
     }
 }
