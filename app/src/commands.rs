@@ -10,7 +10,7 @@ use twill_precompute::bake::file::Cache;
 use twill_precompute::bake::pipeline::{
     BakeInputs, BakeSet, Stage, StageSource, bake as run_bake, write_bake,
 };
-use twill_precompute::bake::settings::Quality;
+use twill_precompute::bake::settings::{BakeSettings, Quality};
 use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
@@ -135,6 +135,33 @@ pub struct BakeOptions {
     pub output: Option<PathBuf>,
     pub cache: Option<PathBuf>,
     pub no_cache: bool,
+    pub overrides: Vec<String>,
+}
+
+/// Applies `KNOB=VALUE` overrides to bake settings (through their TOML form, so unknown knobs
+/// and wrong types are rejected with the parser's message) and validates the result.
+fn apply_overrides(settings: BakeSettings, overrides: &[String]) -> Result<BakeSettings> {
+    if overrides.is_empty() {
+        return Ok(settings);
+    }
+    let mut text = toml::to_string(&settings).context("bake settings serialize")?;
+    let mut table: toml::Table = text.parse().context("bake settings parse")?;
+    for item in overrides {
+        let (knob, value) = item
+            .split_once('=')
+            .with_context(|| format!("--set {item:?}: expected KNOB=VALUE, e.g. iirtf_paths_per_cell=500"))?;
+        let value: toml::Value = format!("v = {}", value.trim())
+            .parse::<toml::Table>()
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .with_context(|| format!("--set {item:?}: {value:?} is not a number or boolean"))?;
+        table.insert(knob.trim().to_owned(), value);
+    }
+    text = toml::to_string(&table).context("bake settings serialize")?;
+    let settings: BakeSettings =
+        toml::from_str(&text).map_err(|e| anyhow::anyhow!("--set: {}", e.message()))?;
+    settings.validate()?;
+    Ok(settings)
 }
 
 /// The stage cache folder: `$TWILL_CACHE_DIR`, else `$XDG_CACHE_HOME/twill`, else `~/.cache/twill`.
@@ -148,7 +175,7 @@ fn default_cache_dir() -> Option<PathBuf> {
 pub fn bake(options: &BakeOptions) -> Result<()> {
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
     let scene = file.build()?;
-    let settings = options.quality.settings();
+    let settings = apply_overrides(options.quality.settings(), &options.overrides)?;
     let stem = options
         .scene
         .as_deref()

@@ -58,6 +58,10 @@ struct BakeArgs {
     /// Recompute every stage and cache nothing.
     #[arg(long)]
     no_cache: bool,
+    /// Override one knob of the quality preset, e.g. `--set iirtf_paths_per_cell=500`
+    /// (repeatable; the knobs are the fields of `BakeSettings`, see docs/BENCHMARKS.md).
+    #[arg(long = "set", value_name = "KNOB=VALUE")]
+    overrides: Vec<String>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -172,6 +176,7 @@ fn run(cli: Cli) -> Result<()> {
             output: args.output,
             cache: args.cache,
             no_cache: args.no_cache,
+            overrides: args.overrides,
         }),
         Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
             scene: args.scene,
