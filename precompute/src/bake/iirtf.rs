@@ -67,7 +67,7 @@ pub enum IirtfError {
 }
 
 /// One cell's IIRTF matrix and its noise.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct CellTransfer {
     /// `matrix[j1 * n + j0] = a_C[j0, j1]`, n = (L+1)².
     pub matrix: Vec<Rgb>,
@@ -88,8 +88,10 @@ impl CellTransfer {
     }
 }
 
-/// The IIRTF of every cell of a grid.
+/// The IIRTF of every cell of a grid. Stored (serde) as f32 values with empty cells left out:
+/// see [`StoredIirtf`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(into = "StoredIirtf", try_from = "StoredIirtf")]
 pub struct Iirtf {
     pub sh_order: usize,
     pub light_domain: LightDomain,
@@ -117,6 +119,74 @@ impl Iirtf {
         }
         let count: f64 = f64::max(count, 1.0);
         IirtfNoise { rms_entry: (v / count).sqrt(), rms_std_error: (e / count).sqrt() }
+    }
+}
+
+/// How an [`Iirtf`] is stored: entries in f32 (their noise is far above f32 rounding) and empty
+/// cells (no segments, so no paths) without matrices; loading refills those with zeros.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct StoredIirtf {
+    sh_order: usize,
+    light_domain: LightDomain,
+    cells: Vec<StoredCell>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredCell {
+    paths: usize,
+    matrix: Vec<[f32; 3]>,
+    std_error: Vec<[f32; 3]>,
+}
+
+impl From<Iirtf> for StoredIirtf {
+    fn from(iirtf: Iirtf) -> Self {
+        let to_f32 = |v: &[Rgb]| -> Vec<[f32; 3]> { v.iter().map(|c| c.as_vec3().to_array()).collect() };
+        let cells = iirtf
+            .cells
+            .iter()
+            .map(|c| {
+                let keep = c.paths > 0;
+                StoredCell {
+                    paths: c.paths,
+                    matrix: if keep { to_f32(&c.matrix) } else { Vec::new() },
+                    std_error: if keep { to_f32(&c.std_error) } else { Vec::new() },
+                }
+            })
+            .collect();
+        Self { sh_order: iirtf.sh_order, light_domain: iirtf.light_domain, cells }
+    }
+}
+
+impl TryFrom<StoredIirtf> for Iirtf {
+    type Error = String;
+
+    fn try_from(stored: StoredIirtf) -> Result<Self, String> {
+        let n = (stored.sh_order + 1) * (stored.sh_order + 1);
+        let to_rgb =
+            |v: &[[f32; 3]]| -> Vec<Rgb> { v.iter().map(|c| glam::Vec3::from(*c).as_dvec3()).collect() };
+        let cells = stored
+            .cells
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                if c.paths == 0 {
+                    return Ok(CellTransfer {
+                        matrix: vec![Rgb::ZERO; n * n],
+                        std_error: vec![Rgb::ZERO; n * n],
+                        paths: 0,
+                    });
+                }
+                if c.matrix.len() != n * n || c.std_error.len() != n * n {
+                    return Err(format!("IIRTF cell {i} has {} entries, expected {}", c.matrix.len(), n * n));
+                }
+                Ok(CellTransfer {
+                    matrix: to_rgb(&c.matrix),
+                    std_error: to_rgb(&c.std_error),
+                    paths: c.paths,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Self { sh_order: stored.sh_order, light_domain: stored.light_domain, cells })
     }
 }
 

@@ -30,7 +30,7 @@ use serde::de::DeserializeOwned;
 use super::cells::{CellError, CellGrid};
 use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
-use super::iirtf::{Iirtf, IirtfError, IirtfOptions, bake_iirtf};
+use super::iirtf::{Iirtf, IirtfError, IirtfOptions, StoredIirtf, bake_iirtf};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress};
 use super::settings::BakeSettings;
@@ -297,6 +297,8 @@ pub fn bake(
             cancel,
             &|f| progress(Stage::Transfer, f),
         )?;
+        // Round to the stored precision now, so a fresh bake equals one loaded from a file.
+        let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf)).map_err(BakeError::Fabric)?;
         Ok(TransferData { cells, iirtf })
     })?;
 
