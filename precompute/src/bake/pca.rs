@@ -668,29 +668,4 @@ mod default_fabric_tests {
         let fraction = agree as f64 / (images.segment_count() * n * n) as f64;
         assert!((fraction - basis.stats.sign_agreement).abs() < 1e-3, "{fraction}");
     }
-
-    /// Whole default fabric at the interactive settings, for the timings (`--ignored`).
-    #[test]
-    #[ignore = "timing: renders every segment of the default fabric"]
-    fn default_fabric_full_interactive_bake_timings() {
-        let _ = default_fabric_pca(1);
-    }
-}
-
-#[cfg(test)]
-mod paper_size_timing {
-    use super::*;
-
-    /// Cost of the randomized method at the paper's image size (`--ignored`).
-    #[test]
-    #[ignore = "timing: 2000 synthetic 128x128 SSDFs"]
-    fn randomized_range_finder_at_paper_resolution() {
-        let (segments, dims) = (2000, 128 * 128);
-        let mut rng = Pcg64::seed_from_u64(5);
-        let data: Vec<f32> = (0..segments * dims).map(|_| rng.random::<f32>()).collect();
-        let t = std::time::Instant::now();
-        let basis = compress(&data, dims, 48, 1, &Cancel::new()).unwrap();
-        eprintln!("randomized PCA, {segments} x {dims}, K = 48: {:.2?}; {:?}", t.elapsed(), basis.stats);
-        assert_eq!(basis.stats.method, PcaMethod::RandomizedRangeFinder);
-    }
 }

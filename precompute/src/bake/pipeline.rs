@@ -298,7 +298,8 @@ pub fn bake(
             &|f| progress(Stage::Transfer, f),
         )?;
         // Round to the stored precision now, so a fresh bake equals one loaded from a file.
-        let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf)).map_err(BakeError::Fabric)?;
+        let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf))
+            .map_err(|message| BakeError::Serialize { stage: Stage::Transfer.name(), message })?;
         Ok(TransferData { cells, iirtf })
     })?;
 
@@ -512,16 +513,10 @@ fn encode_settings(b: &Baked) -> Result<Vec<u8>, BakeError> {
 }
 
 fn decode_inputs(file: &BakeFile, name: &str) -> Result<InputsRecord, BakeError> {
-    let corrupt = |what: String| {
-        BakeError::File(BakeFileError::InvalidSection {
-            name: format!("{}: {name}", file.path().display()),
-            what,
-        })
-    };
-    let section = file.section(name).ok_or_else(|| corrupt("missing".into()))?;
-    let bytes = section.array.as_u8().ok_or_else(|| corrupt("not a byte section".into()))?;
-    let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("not UTF-8: {e}")))?;
-    toml::from_str(text).map_err(|e| corrupt(format!("does not parse: {e}")))
+    let bytes = section_bytes(file, name)?;
+    let text =
+        std::str::from_utf8(bytes).map_err(|e| corrupt_section(file, name, format!("not UTF-8: {e}")))?;
+    toml::from_str(text).map_err(|e| corrupt_section(file, name, format!("does not parse: {e}")))
 }
 
 fn encode<T: Serialize>(stage: Stage, value: &T) -> Result<Vec<u8>, BakeError> {
@@ -530,15 +525,21 @@ fn encode<T: Serialize>(stage: Stage, value: &T) -> Result<Vec<u8>, BakeError> {
 }
 
 fn decode_section<T: DeserializeOwned>(file: &BakeFile, name: &str) -> Result<T, BakeError> {
-    let corrupt = |what: String| {
-        BakeError::File(BakeFileError::InvalidSection {
-            name: format!("{}: {name}", file.path().display()),
-            what,
-        })
-    };
-    let section = file.section(name).ok_or_else(|| corrupt("missing".into()))?;
-    let bytes = section.array.as_u8().ok_or_else(|| corrupt("not a byte section".into()))?;
-    postcard::from_bytes(bytes).map_err(|e| corrupt(format!("does not decode: {e}")))
+    postcard::from_bytes(section_bytes(file, name)?)
+        .map_err(|e| corrupt_section(file, name, format!("does not decode: {e}")))
+}
+
+/// The bytes of a byte section, or an error naming the file and section.
+fn section_bytes<'f>(file: &'f BakeFile, name: &str) -> Result<&'f [u8], BakeError> {
+    let section = file.section(name).ok_or_else(|| corrupt_section(file, name, "missing".into()))?;
+    section.array.as_u8().ok_or_else(|| corrupt_section(file, name, "not a byte section".into()))
+}
+
+fn corrupt_section(file: &BakeFile, name: &str, what: String) -> BakeError {
+    BakeError::File(BakeFileError::InvalidSection {
+        name: format!("{}: {name}", file.path().display()),
+        what,
+    })
 }
 
 /// Runs stages through the cache and records what happened.

@@ -256,16 +256,11 @@ pub fn render_segments(
 pub(crate) mod tests {
     use super::*;
     use crate::bake::no_progress;
-    use crate::fabric::{BlockGrid, Fiber, Tiling, Yarn, YarnRole};
+    use crate::fabric::{BlockGrid, Fiber, Tiling};
     use glam::{Vec2, Vec3};
 
     fn exemplar(fibers: Vec<Fiber>, tiling: Tiling) -> Exemplar {
-        Exemplar {
-            fibers,
-            yarns: vec![Yarn { role: YarnRole::Other, material: 0 }],
-            tiling,
-            blocks: BlockGrid { nx: 1, ny: 1 },
-        }
+        crate::fabric::fiber_io::exemplar_from_fibers(fibers, tiling, BlockGrid { nx: 1, ny: 1 })
     }
 
     fn fiber(a: Vec3, b: Vec3, radius: f32) -> Fiber {
