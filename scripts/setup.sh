@@ -4,7 +4,9 @@
 # and the tests need when they are missing. Safe to run again; does nothing when all is present.
 set -euo pipefail
 
-need_packages=(pkg-config)
+# mesa-vulkan-drivers + libvulkan1: lavapipe (software Vulkan) for the GPU tests on machines
+# without a GPU.
+need_packages=(pkg-config mesa-vulkan-drivers libvulkan1)
 
 missing=()
 for pkg in "${need_packages[@]}"; do

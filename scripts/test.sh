@@ -1,10 +1,18 @@
 #!/usr/bin/env bash
 # Runs every check and test of twill: formatting, clippy (pedantic, warnings are errors), and
-# the whole workspace's tests (unit, integration and workspace-level tests in tests/).
+# the whole workspace's tests (unit, integration and workspace-level tests in tests/). The GPU
+# tests run on lavapipe (installed by setup.sh) when the machine has no GPU; they fail rather
+# than skip when no Vulkan adapter is found.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export PATH="$HOME/.cargo/bin:$PATH"
+# Mesa wants a runtime directory; give it a private one when the session has none.
+if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
+  XDG_RUNTIME_DIR=$(mktemp -d)
+  export XDG_RUNTIME_DIR
+  chmod 700 "$XDG_RUNTIME_DIR"
+fi
 
 echo "== cargo fmt --check"
 cargo fmt --all --check
