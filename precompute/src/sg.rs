@@ -167,6 +167,38 @@ pub fn sg_pdf(axis: DVec3, lambda: f64, dir: DVec3) -> f64 {
     (lambda * (dir.dot(axis) - 1.0)).exp() / sg_mass(lambda)
 }
 
+/// f32 twin of `sg_mass` for the GPU (`shaders/shared/sg.wgsl`): `-2π expm1(-2λ)/λ`, 4π at
+/// λ = 0.
+#[must_use]
+pub fn sg_mass_f32(lambda: f32) -> f32 {
+    if lambda <= 0.0 {
+        return 4.0 * std::f32::consts::PI;
+    }
+    -2.0 * std::f32::consts::PI * crate::special::expm1_f32(-2.0 * lambda) / lambda
+}
+
+/// The azimuthal average of an SG in the fiber frame, overflow-free:
+/// `(1/2π) ∫ exp(λ(ω·ξ − 1)) dφ = exp(−λ(1 − cos(θ − θξ))) · i0e(λ cos θ cos θξ)`, with θ, θξ
+/// measured from the normal plane (cos ≥ 0). `1 − cos(Δ)` is computed as `2 sin²(Δ/2)`, so
+/// nearly aligned directions keep their accuracy at λ up to 1e5.
+#[must_use]
+pub fn sg_azimuthal_average(theta: f64, theta_xi: f64, lambda: f64) -> f64 {
+    let half = 0.5 * (theta - theta_xi);
+    let one_minus_cos = 2.0 * half.sin() * half.sin();
+    (-lambda * one_minus_cos).exp()
+        * crate::special::i0e(lambda * theta.cos().max(0.0) * theta_xi.cos().max(0.0))
+}
+
+/// f32 twin of [`sg_azimuthal_average`] (`shaders/shared/sg.wgsl`).
+#[must_use]
+pub fn sg_azimuthal_average_f32(theta: f32, theta_xi: f32, lambda: f32) -> f32 {
+    let half = 0.5 * (theta - theta_xi);
+    let s = half.sin();
+    let one_minus_cos = 2.0 * s * s;
+    (-lambda * one_minus_cos).exp()
+        * crate::special::i0e_f32(lambda * theta.cos().max(0.0) * theta_xi.cos().max(0.0))
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp)] // exact limits are checked bit for bit
 mod tests {
@@ -174,6 +206,47 @@ mod tests {
     use crate::quadrature::gauss_legendre;
     use crate::sh::{ShRotation, sh_index, sh_project};
     use crate::test_support::{gamma_q, random_unit};
+
+    #[test]
+    fn azimuthal_average_matches_quadrature_and_its_f32_twin() {
+        for &lambda in &[1e-4, 0.3, 5.0, 80.0, 1e3] {
+            for &(theta, theta_xi) in &[
+                (0.0_f64, 0.0_f64),
+                (0.4, -0.2),
+                (1.2, 1.1),
+                (-1.5, 0.3),
+                (std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2),
+            ] {
+                let xi = DVec3::new(f64::cos(theta_xi), 0.0, f64::sin(theta_xi));
+                let n = 4096;
+                let quadrature = (0..n)
+                    .map(|k| {
+                        let phi = std::f64::consts::TAU * (f64::from(k) + 0.5) / f64::from(n);
+                        let w = DVec3::new(theta.cos() * phi.cos(), theta.cos() * phi.sin(), f64::sin(theta));
+                        (lambda * (w.dot(xi) - 1.0)).exp()
+                    })
+                    .sum::<f64>()
+                    / f64::from(n);
+                let formula = sg_azimuthal_average(theta, theta_xi, lambda);
+                assert!(
+                    (formula - quadrature).abs() <= 1e-12 + 1e-10 * quadrature,
+                    "{lambda} {theta} {theta_xi}: {formula} vs {quadrature}"
+                );
+                let twin = f64::from(sg_azimuthal_average_f32(theta as f32, theta_xi as f32, lambda as f32));
+                // f32 rounding of θ and θξ (relative 6e-8) is amplified by d ln f / dθ ≲ λ: the
+                // twin cannot beat that conditioning, plus a few ulp of its own arithmetic.
+                let tolerance = 1e-6 + 2.4e-7 * lambda * (theta.abs() + theta_xi.abs());
+                // Below f32's normal range (subnormals) only an absolute comparison makes sense.
+                let close = (twin - formula).abs() <= tolerance * formula + f64::from(f32::MIN_POSITIVE);
+                assert!(close, "{lambda} {theta} {theta_xi}: {twin} vs {formula}");
+            }
+        }
+        for &lambda in &[0.0f32, 1e-4, 1e-3, 0.1, 0.25, 0.3, 1.0, 1e5] {
+            let reference = sg_mass(f64::from(lambda));
+            let twin = f64::from(sg_mass_f32(lambda));
+            assert!((twin / reference - 1.0).abs() < 1e-6, "mass({lambda}): {twin} vs {reference}");
+        }
+    }
     use glam::DMat3;
     use rand::{Rng, SeedableRng};
     use rand_pcg::Pcg64;

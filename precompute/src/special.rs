@@ -270,6 +270,22 @@ pub fn i0e_f32(x: f32) -> f32 {
     }
 }
 
+/// `e^x - 1` in f32 without cancellation near 0 (WGSL has no `expm1`): Taylor series through
+/// `x^8/8!` for `|x| < 0.5` (truncation below 3e-9 relative), `exp(x) - 1` above, where the
+/// subtraction loses at most about two bits.
+#[must_use]
+pub fn expm1_f32(x: f32) -> f32 {
+    if x.abs() < 0.5 {
+        x * (1.0
+            + x * (1.0 / 2.0
+                + x * (1.0 / 6.0
+                    + x * (1.0 / 24.0
+                        + x * (1.0 / 120.0 + x * (1.0 / 720.0 + x * (1.0 / 5040.0 + x / 40320.0)))))))
+    } else {
+        x.exp() - 1.0
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp)] // exact limits and symmetries are checked bit for bit
 mod tests {

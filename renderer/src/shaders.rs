@@ -5,5 +5,16 @@
 /// `erf_f32`, `erfc_f32`, `i0e_f32`: twins of `twill_precompute::special`.
 pub const SPECIAL: &str = include_str!("../../shaders/shared/special.wgsl");
 
-/// Every shared module, with its file name (for validation and error messages).
-pub const SHARED: &[(&str, &str)] = &[("shared/special.wgsl", SPECIAL)];
+/// `expm1_f32`, `sg_mass_f32`, `sg_azimuthal_average_f32`: twins of `twill_precompute::special`
+/// and `twill_precompute::sg`. Needs [`SPECIAL`] before it.
+pub const SG: &str = include_str!("../../shaders/shared/sg.wgsl");
+
+/// Every shared module, with its file name (for validation and error messages), in an order
+/// where each needs only those before it.
+pub const SHARED: &[(&str, &str)] = &[("shared/special.wgsl", SPECIAL), ("shared/sg.wgsl", SG)];
+
+/// The shared modules concatenated in dependency order (what a pass shader is appended to).
+#[must_use]
+pub fn shared_library() -> String {
+    SHARED.iter().map(|(_, source)| *source).collect::<Vec<_>>().join("\n")
+}

@@ -6,6 +6,7 @@
 //! they print a loud SKIPPED line: skipping is never silent. `scripts/test.sh` installs
 //! lavapipe, so CI always runs them.
 
+use twill_precompute::sg::{sg_azimuthal_average, sg_azimuthal_average_f32, sg_mass, sg_mass_f32};
 use twill_precompute::special::{erf, erf_f32, erfc, erfc_f32, i0e, i0e_f32};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::shaders;
@@ -66,5 +67,62 @@ fn special_functions_match_their_rust_twins() {
     eprintln!(
         "GPU vs f64 reference over {} arguments: erf abs {worst_erf:.2e}, erfc rel {worst_erfc:.2e}, i0e rel {worst_i0e:.2e}",
         xs.len()
+    );
+}
+
+#[test]
+fn sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5() {
+    let Some(gpu) = gpu_or_skip("sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5") else { return };
+    let half_pi = std::f32::consts::FRAC_PI_2;
+    // Sharpness log-spaced over the whole supported range; angles include aligned directions,
+    // grazing ones (exactly ±π/2) and opposite ones.
+    let lambdas: Vec<f32> = (0..=36).map(|i| 1e-4_f32 * 10f32.powf(i as f32 / 4.0)).collect();
+    let angles = [-half_pi, -1.3, -0.7, -1e-3, 0.0, 1e-6, 0.5, 1.2, 1.5, half_pi];
+    let mut inputs = Vec::new();
+    for &lambda in &lambdas {
+        for &theta in &angles {
+            for &theta_xi in &angles {
+                inputs.push([theta, theta_xi, lambda, 0.0]);
+            }
+        }
+    }
+    let out = gpu
+        .evaluate(
+            &shaders::shared_library(),
+            "vec4<f32>(sg_azimuthal_average_f32(input.x, input.y, input.z), sg_mass_f32(input.z), 0.0, 0.0)",
+            &inputs,
+        )
+        .unwrap();
+    let (mut worst_avg, mut worst_mass) = (0.0f64, 0.0f64);
+    for (input, r) in inputs.iter().zip(&out) {
+        let [theta, theta_xi, lambda, _] = *input;
+        assert!(r.iter().all(|v| v.is_finite()), "{input:?}: non-finite GPU result {r:?}");
+        let reference = sg_azimuthal_average(f64::from(theta), f64::from(theta_xi), f64::from(lambda));
+        // The same conditioning bound as the CPU twin's test (f32 angles, amplified by λ), plus
+        // lavapipe's looser exp/sin; absolute below f32's normal range.
+        let tolerance = 4e-6 + 4.8e-7 * f64::from(lambda) * f64::from(theta.abs() + theta_xi.abs());
+        let error = (f64::from(r[0]) - reference).abs();
+        assert!(
+            error <= tolerance * reference + f64::from(f32::MIN_POSITIVE),
+            "sg_azimuthal_average{input:?}: GPU {} CPU twin {} reference {reference}",
+            r[0],
+            sg_azimuthal_average_f32(theta, theta_xi, lambda)
+        );
+        if reference > 1e-30 {
+            worst_avg = worst_avg.max(error / reference);
+        }
+        let mass = sg_mass(f64::from(lambda));
+        let e = (f64::from(r[1]) / mass - 1.0).abs();
+        assert!(
+            e < 2e-6,
+            "sg_mass({lambda}): GPU {} CPU twin {} reference {mass}",
+            r[1],
+            sg_mass_f32(lambda)
+        );
+        worst_mass = worst_mass.max(e);
+    }
+    eprintln!(
+        "GPU vs f64 reference over {} cases: SG azimuthal average rel {worst_avg:.2e}, SG mass rel {worst_mass:.2e}",
+        inputs.len()
     );
 }

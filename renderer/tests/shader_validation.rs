@@ -13,6 +13,22 @@ fn wgsl_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
+/// Shared modules may call functions of the modules before them (WGSL has no includes), so
+/// each file is validated after everything `shaders::SHARED` lists before it.
+fn with_prerequisites(file: &Path, source: &str) -> String {
+    let name = file.to_string_lossy().replace('\\', "/");
+    let mut text = String::new();
+    for (shared, shared_source) in twill_renderer::shaders::SHARED {
+        if name.ends_with(shared) {
+            break;
+        }
+        text.push_str(shared_source);
+        text.push('\n');
+    }
+    text.push_str(source);
+    text
+}
+
 #[test]
 fn every_wgsl_file_validates() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders");
@@ -22,7 +38,7 @@ fn every_wgsl_file_validates() {
     assert!(!files.is_empty(), "no WGSL files found under {}", root.display());
     let mut failures = Vec::new();
     for file in &files {
-        let source = std::fs::read_to_string(file).unwrap();
+        let source = with_prerequisites(file, &std::fs::read_to_string(file).unwrap());
         let module = match naga::front::wgsl::parse_str(&source) {
             Ok(m) => m,
             Err(e) => {
