@@ -21,17 +21,18 @@ use twill_precompute::raycast::{Extent, FiberScene};
 const RAYS: usize = 1 << 15;
 const SWATCH_CM: f32 = 2.0;
 
+/// A uniformly random point of the swatch's fabric slab (z between `lo` and `hi`).
+fn point_in_slab(rng: &mut Pcg64, lo: f32, hi: f32) -> Vec3 {
+    Vec3::new(rng.random::<f32>() * SWATCH_CM, rng.random::<f32>() * SWATCH_CM, rng.random_range(lo..hi))
+}
+
 /// Camera-like rays: from above the fabric, aimed into the slab.
 fn camera_rays(scene: &FiberScene, seed: u64) -> Vec<(Vec3, Vec3)> {
     let (lo, hi) = scene.slab();
     let mut rng = Pcg64::seed_from_u64(seed);
     (0..RAYS)
         .map(|_| {
-            let p = Vec3::new(
-                rng.random::<f32>() * SWATCH_CM,
-                rng.random::<f32>() * SWATCH_CM,
-                rng.random_range(lo..hi),
-            );
+            let p = point_in_slab(&mut rng, lo, hi);
             let o = p + Vec3::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5), 0.5 + hi - p.z);
             (o, (p - o).normalize())
         })
@@ -44,11 +45,7 @@ fn scatter_rays(scene: &FiberScene, seed: u64) -> Vec<(Vec3, Vec3)> {
     let mut rng = Pcg64::seed_from_u64(seed);
     (0..RAYS)
         .map(|_| {
-            let p = Vec3::new(
-                rng.random::<f32>() * SWATCH_CM,
-                rng.random::<f32>() * SWATCH_CM,
-                rng.random_range(lo..hi),
-            );
+            let p = point_in_slab(&mut rng, lo, hi);
             let z: f32 = rng.random_range(-1.0..1.0);
             let phi = rng.random::<f32>() * std::f32::consts::TAU;
             let s = (1.0 - z * z).sqrt();

@@ -247,7 +247,7 @@ pub fn bake(
             })
         })
         .collect::<Result<_, _>>()?;
-    let keys = StageKeys::new(inputs);
+    let keys = StageKeys::new(inputs)?;
     let mut runs = Vec::new();
     let mut stage_runner = StageRunner { cache, runs: &mut runs };
 
@@ -597,15 +597,13 @@ struct StageKeys {
 }
 
 impl StageKeys {
-    fn new(inputs: &BakeInputs<'_>) -> Self {
+    fn new(inputs: &BakeInputs<'_>) -> Result<Self, BakeError> {
         let s = inputs.settings;
         let geometry = Hasher::new("twill.geometry").exemplar(inputs.exemplar).finish();
-        let mut materials_hasher = Hasher::new("twill.materials");
-        materials_hasher.usize(inputs.materials.len());
-        for m in inputs.materials {
-            materials_hasher.str(&format!("{m:?}"));
-        }
-        let materials = materials_hasher.finish();
+        let materials = Hasher::new("twill.materials")
+            .serde(&inputs.materials)
+            .map_err(|e| BakeError::Serialize { stage: "materials key", message: e.to_string() })?
+            .finish();
         let key = |stage: Stage| {
             let mut h = Hasher::new("twill.stage");
             h.stage(stage.name(), stage.version());
@@ -624,7 +622,7 @@ impl StageKeys {
         let gn = key(Stage::GnTables).hash(&materials).finish();
         let cg = key(Stage::CgTable).usize(s.sh_order).usize(CG_DEFAULT_POINTS).finish();
         let volume = key(Stage::Volume).hash(&geometry).f64(s.voxels_per_segment).finish();
-        Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume }
+        Ok(Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume })
     }
 
     /// The transfer stage also depends on the measured mean free path (it sizes the cells).
