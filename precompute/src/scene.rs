@@ -52,6 +52,10 @@ pub struct SceneFile {
     pub lights: Vec<LightSection>,
     #[serde(default)]
     pub render: RenderSection,
+    #[serde(default)]
+    pub mesh: MeshSection,
+    #[serde(default)]
+    pub gpu: GpuSection,
     /// Where the file was read from (relative paths inside it are resolved against its folder).
     #[serde(skip)]
     pub path: PathBuf,
@@ -160,6 +164,73 @@ impl Default for RenderSection {
     }
 }
 
+/// `[mesh]`: the base surface the fabric is shell-mapped onto (GPU renderer). Give at most one
+/// of `builtin` and `path`; with neither, the flat swatch of `[swatch]` is used.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MeshSection {
+    /// A built-in surface: `swatch`, `drape` or `cushion` (UVs in cm).
+    pub builtin: Option<String>,
+    /// An OBJ or glTF file with UVs (relative to the scene file's folder).
+    pub path: Option<PathBuf>,
+    /// Size in cm of a built-in surface (default: `[swatch] size_cm`).
+    pub size_cm: Option<[f64; 2]>,
+    /// Centimetres of fabric per unit of the mesh's UV coordinates (1 for the built-ins).
+    pub cm_per_uv: f64,
+    /// Shell thickness as a multiple of the fabric's own thickness (1 keeps fibers unstretched).
+    pub thickness_scale: f64,
+}
+
+impl Default for MeshSection {
+    fn default() -> Self {
+        Self { builtin: None, path: None, size_cm: None, cm_per_uv: 1.0, thickness_scale: 1.0 }
+    }
+}
+
+/// `[gpu]`: settings of the GPU renderer (`twill render`, the viewer).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GpuSection {
+    /// Volume samples per shell tetrahedron along each eye ray (paper: 32, 64 or 128).
+    pub volume_samples: u32,
+    /// Standard deviation of the multiple-scattering visibility blur, cm of flat fabric (0: none).
+    pub sigma_glo_cm: f64,
+    /// Side of each light's shadow map in texels.
+    pub shadow_map_size: u32,
+    /// Side of the shell-space textures (top-surface positions X[u, v], visibility V[u, v]).
+    pub visibility_texture_size: u32,
+    /// PCF kernel radius in shadow-map texels (directional lights).
+    pub pcf_radius_texels: f64,
+    /// Depth bias of shadow lookups, in shadow-map texels.
+    pub shadow_bias_texels: f64,
+}
+
+impl Default for GpuSection {
+    fn default() -> Self {
+        Self {
+            volume_samples: 64,
+            sigma_glo_cm: 0.05,
+            shadow_map_size: 2048,
+            visibility_texture_size: 1024,
+            pcf_radius_texels: 1.5,
+            shadow_bias_texels: 2.0,
+        }
+    }
+}
+
+impl GpuSection {
+    /// Checks every field against its valid range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check_count("gpu.volume_samples", self.volume_samples as usize, 2, 1024)?;
+        check_range("gpu.sigma_glo_cm", self.sigma_glo_cm, 0.0, 100.0)?;
+        check_count("gpu.shadow_map_size", self.shadow_map_size as usize, 64, 16384)?;
+        check_count("gpu.visibility_texture_size", self.visibility_texture_size as usize, 16, 16384)?;
+        check_range("gpu.pcf_radius_texels", self.pcf_radius_texels, 0.0, 64.0)?;
+        check_range("gpu.shadow_bias_texels", self.shadow_bias_texels, 0.0, 64.0)?;
+        Ok(())
+    }
+}
+
 fn positive_pair<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
     let v = <[f64; 2]>::deserialize(d)?;
     for x in v {
@@ -185,6 +256,10 @@ pub struct Scene {
     pub swatch: SwatchSection,
     pub camera: CameraSection,
     pub render: RenderSection,
+    pub mesh: MeshSection,
+    pub gpu: GpuSection,
+    /// Folder of the scene file (relative mesh paths resolve against it).
+    pub base_dir: PathBuf,
 }
 
 /// Gap between the lowest fiber and the black ground plane, in cm.
@@ -277,6 +352,16 @@ impl SceneFile {
         check_count("render.height", r.height, 1, 16384).map_err(param)?;
         self.render_settings(None).validate().map_err(param)?;
         check_range("render.exposure", r.exposure, -30.0, 30.0).map_err(param)?;
+        self.gpu.validate().map_err(param)?;
+        let m = &self.mesh;
+        if m.builtin.is_some() && m.path.is_some() {
+            return Err(invalid("[mesh]: give at most one of `builtin` and `path`".into()));
+        }
+        check_range("mesh.cm_per_uv", m.cm_per_uv, 1e-6, 1e6).map_err(param)?;
+        check_range("mesh.thickness_scale", m.thickness_scale, 0.01, 100.0).map_err(param)?;
+        for x in m.size_cm.into_iter().flatten() {
+            check_range("mesh.size_cm", x, 1e-3, 1e4).map_err(param)?;
+        }
         self.camera(r.width, r.height).map_err(param)?;
         let extent = match exemplar.tiling {
             Tiling::Periodic { .. } => {
@@ -295,6 +380,9 @@ impl SceneFile {
             swatch: self.swatch,
             camera: self.camera,
             render: self.render,
+            mesh: self.mesh.clone(),
+            gpu: self.gpu,
+            base_dir: base_dir.to_path_buf(),
         })
     }
 

@@ -7,5 +7,6 @@
 //! pass.
 
 pub mod export;
+pub mod fabric_data;
 pub mod gpu;
 pub mod shaders;

@@ -1,0 +1,542 @@
+//! A baked fabric on the GPU: the bake set's tables packed into the storage buffers of bind
+//! group 1, the layout `shaders/shared/fabric_data.wgsl` reads.
+//!
+//! How it works: every exemplar of the set is appended to one shared buffer per kind of data
+//! (voxels, segments, PCA basis and coefficients, sum-of-SG weights, IIRTF, C_S, Gn), and an
+//! [`ExemplarGpu`] per exemplar records where its slices start; segment and cell ids in the
+//! segment table are made global the same way, and so are material ids. The C_G table is the
+//! same for every exemplar (it depends only on the SH order), so the first one is used.
+//!
+//! The IIRTF dominates the memory (`cells × 3 × (L+1)⁴` values) and is stored as f16 pairs:
+//! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
+//! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
+//! binding. Every buffer is checked against the adapter's `max_storage_buffer_binding_size`
+//! before upload; one that does not fit is an error naming the buffer, its size and the limit.
+
+use glam::Vec3;
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::Baked;
+use twill_precompute::bcsdf::MaterialDesc;
+
+/// Why a bake could not be placed on the GPU.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FabricDataError {
+    #[error(
+        "the bake's {buffer} data needs {bytes} bytes but the adapter allows {limit} bytes per storage \
+         binding (max_storage_buffer_binding_size); bake at a lower quality or a smaller fabric"
+    )]
+    TooLarge { buffer: &'static str, bytes: u64, limit: u64 },
+    #[error("the bake set is inconsistent: {0}")]
+    Inconsistent(String),
+    #[error("the bake set has no exemplars")]
+    Empty,
+}
+
+/// Twin of `FabricHeader` in `shaders/shared/fabric_data.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FabricHeaderGpu {
+    pub exemplar_count: u32,
+    pub sh_order: u32,
+    pub sh_count: u32,
+    pub svf_resolution: u32,
+    pub pca_components: u32,
+    pub sos_count: u32,
+    pub sos_sharpness: f32,
+    pub cs_theta_count: u32,
+    pub cg_points: u32,
+    pub gn_intervals: u32,
+    pub pattern_width: u32,
+    pub pattern_height: u32,
+    pub block_size: [f32; 2],
+    pub z_range: [f32; 2],
+}
+const _: () = assert!(size_of::<FabricHeaderGpu>() == 64);
+
+/// Twin of `ExemplarGpu` in `shaders/shared/fabric_data.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ExemplarGpu {
+    pub volume_origin: [f32; 3],
+    pub voxel_offset: u32,
+    pub voxel_size: [f32; 3],
+    pub periodic: u32,
+    pub volume_dims: [u32; 3],
+    pub segment_offset: u32,
+    pub period: [f32; 2],
+    pub pca_offset: u32,
+    pub segment_count: u32,
+}
+const _: () = assert!(size_of::<ExemplarGpu>() == 64);
+
+/// Twin of `SegmentGpu` in `shaders/shared/fabric_data.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SegmentGpu {
+    pub direction: [f32; 3],
+    pub material: u32,
+    pub cell: u32,
+    pub sos_rotation: f32,
+    pub pad: [u32; 2],
+}
+const _: () = assert!(size_of::<SegmentGpu>() == 32);
+
+/// Twin of `MaterialGpu` in `shaders/shared/fabric_data.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct MaterialGpu {
+    pub c_r: [f32; 3],
+    pub model: u32,
+    pub c_tt: [f32; 3],
+    pub beta_r: f32,
+    pub albedo: [f32; 3],
+    pub beta_tt: f32,
+    pub gamma_tt: f32,
+    pub pad: [u32; 3],
+}
+const _: () = assert!(size_of::<MaterialGpu>() == 64);
+
+/// `MaterialGpu::model` of the fiber model (twin of `MATERIAL_FIBER`).
+pub const MATERIAL_FIBER: u32 = 0;
+/// `MaterialGpu::model` of a Lambertian fiber (twin of `MATERIAL_LAMBERT`).
+pub const MATERIAL_LAMBERT: u32 = 1;
+
+/// The packed contents of every buffer of bind group 1, before upload (also what the CPU-side
+/// tests inspect).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FabricArrays {
+    pub header: FabricHeaderGpu,
+    pub exemplars: Vec<ExemplarGpu>,
+    pub pattern: Vec<u32>,
+    pub voxels: Vec<u32>,
+    pub segments: Vec<SegmentGpu>,
+    pub materials: Vec<MaterialGpu>,
+    pub pca_basis: Vec<f32>,
+    pub pca_coefficients: Vec<f32>,
+    pub sos_weights: Vec<f32>,
+    /// f16 pairs (see the module doc).
+    pub iirtf: Vec<u32>,
+    pub cs_table: Vec<f32>,
+    pub cg_table: Vec<f32>,
+    pub gn_table: Vec<f32>,
+    /// The largest relative error f16 storage gave any IIRTF entry whose magnitude is at least
+    /// 1e-3 of its cell's largest entry (smaller ones are noise-dominated).
+    pub iirtf_f16_max_rel_error: f64,
+}
+
+fn f32s(v: Vec3) -> [f32; 3] {
+    v.to_array()
+}
+
+fn material_gpu(desc: &MaterialDesc) -> MaterialGpu {
+    let zero = [0.0; 3];
+    match desc {
+        MaterialDesc::Fiber(p) => MaterialGpu {
+            c_r: f32s(p.c_r.as_vec3()),
+            model: MATERIAL_FIBER,
+            c_tt: f32s(p.c_tt.as_vec3()),
+            beta_r: p.beta_r_deg.to_radians() as f32,
+            albedo: zero,
+            beta_tt: p.beta_tt_deg.to_radians() as f32,
+            gamma_tt: p.gamma_tt_deg.to_radians() as f32,
+            pad: [0; 3],
+        },
+        MaterialDesc::Lambert { albedo } => MaterialGpu {
+            c_r: zero,
+            model: MATERIAL_LAMBERT,
+            c_tt: zero,
+            beta_r: 0.0,
+            albedo: f32s(albedo.as_vec3()),
+            beta_tt: 0.0,
+            gamma_tt: 0.0,
+            pad: [0; 3],
+        },
+    }
+}
+
+fn to_u32(n: usize, what: &str) -> Result<u32, FabricDataError> {
+    u32::try_from(n).map_err(|_| FabricDataError::Inconsistent(format!("{what} = {n} does not fit in 32 bits")))
+}
+
+impl FabricArrays {
+    /// Packs a bake set (its exemplars in pattern order) for the GPU.
+    pub fn pack(exemplars: &[&Baked], pattern: &PatternMap) -> Result<Self, FabricDataError> {
+        let first = exemplars.first().ok_or(FabricDataError::Empty)?;
+        let settings = &first.settings;
+        let sh_order = first.transfer.iirtf.sh_order;
+        let sh_count = (sh_order + 1) * (sh_order + 1);
+        let dims = first.visibility.ssdf.dims;
+        let components = first.visibility.ssdf.component_count;
+        let sos_count = first.visibility.sum_of_sg.count;
+        let theta_count = settings.cs_theta_count;
+        let mut out = Self {
+            header: FabricHeaderGpu::zeroed_header(),
+            exemplars: Vec::new(),
+            pattern: pattern.exemplar_of_block.iter().map(|&e| u32::from(e)).collect(),
+            voxels: Vec::new(),
+            segments: Vec::new(),
+            materials: Vec::new(),
+            pca_basis: Vec::new(),
+            pca_coefficients: Vec::new(),
+            sos_weights: Vec::new(),
+            iirtf: Vec::new(),
+            cs_table: Vec::new(),
+            cg_table: first.cg.values().to_vec(),
+            gn_table: Vec::new(),
+            iirtf_f16_max_rel_error: 0.0,
+        };
+        if pattern.exemplar_count() > exemplars.len() {
+            return Err(FabricDataError::Inconsistent(format!(
+                "the pattern names {} exemplars but the bake has {}",
+                pattern.exemplar_count(),
+                exemplars.len()
+            )));
+        }
+        let mut iirtf_values: Vec<f32> = Vec::new();
+        let mut z_range = [f32::INFINITY, f32::NEG_INFINITY];
+        let mut block_size = [0.0_f32; 2];
+        for (e, baked) in exemplars.iter().enumerate() {
+            let same = baked.transfer.iirtf.sh_order == sh_order
+                && baked.visibility.ssdf.dims == dims
+                && baked.visibility.ssdf.component_count == components
+                && baked.visibility.sum_of_sg.count == sos_count
+                && baked.settings.cs_theta_count == theta_count;
+            if !same {
+                return Err(FabricDataError::Inconsistent(format!(
+                    "exemplar {e} was baked with different settings from exemplar 0"
+                )));
+            }
+            let volume = &baked.volume.volume;
+            let cells = &baked.transfer.cells;
+            let segment_count = baked.volume.segments.len();
+            let segment_offset = out.segments.len();
+            let cell_base = iirtf_values.len() / (3 * sh_count * sh_count);
+            let material_offset = out.materials.len();
+            let extent = volume.voxel_size * Vec3::from(volume.dims.map(|d| d as f32));
+            z_range = [z_range[0].min(volume.origin.z), z_range[1].max(volume.origin.z + extent.z)];
+            let block = cells.block_size_cm();
+            block_size = [block.x as f32, block.y as f32];
+            out.exemplars.push(ExemplarGpu {
+                volume_origin: f32s(volume.origin),
+                voxel_offset: to_u32(out.voxels.len(), "voxel offset")?,
+                voxel_size: f32s(volume.voxel_size),
+                periodic: u32::from(volume.periodic),
+                volume_dims: volume.dims,
+                segment_offset: to_u32(segment_offset, "segment offset")?,
+                period: [extent.x, extent.y],
+                pca_offset: to_u32(out.pca_basis.len(), "PCA offset")?,
+                segment_count: to_u32(segment_count, "segment count")?,
+            });
+            out.voxels.extend_from_slice(&volume.ids);
+            for k in 0..segment_count {
+                out.segments.push(SegmentGpu {
+                    direction: baked.volume.segments.direction[k],
+                    material: to_u32(material_offset, "material")? + baked.volume.segments.material[k],
+                    cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
+                    sos_rotation: baked.visibility.sum_of_sg.rotation(k),
+                    pad: [0; 2],
+                });
+            }
+            out.materials.extend(baked.materials.iter().map(material_gpu));
+            let ssdf = &baked.visibility.ssdf;
+            out.pca_basis.extend_from_slice(ssdf.mean());
+            out.pca_basis.extend_from_slice(ssdf.components());
+            out.pca_coefficients.extend_from_slice(ssdf.all_coefficients());
+            out.sos_weights.extend_from_slice(baked.visibility.sum_of_sg.all_weights());
+            for cell in &baked.transfer.iirtf.cells {
+                let largest = cell.matrix.iter().map(|c| c.abs().max_element()).fold(0.0, f64::max);
+                for channel in 0..3 {
+                    for entry in &cell.matrix {
+                        let value = entry[channel];
+                        iirtf_values.push(value as f32);
+                        if largest > 0.0 && value.abs() >= 1e-3 * largest {
+                            let rounded = f64::from(f16_round_trip(value as f32));
+                            let rel = (rounded - value).abs() / value.abs();
+                            out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
+                        }
+                    }
+                }
+            }
+            for (m, table) in baked.cs_tables.iter().enumerate() {
+                match table {
+                    Some(t) => {
+                        if t.sh_order() != sh_order || t.theta_count() != theta_count {
+                            return Err(FabricDataError::Inconsistent(format!(
+                                "exemplar {e} material {m}: C_S table has order {} x {} rows, expected {sh_order} x {theta_count}",
+                                t.sh_order(),
+                                t.theta_count()
+                            )));
+                        }
+                        for c in t.coefficients() {
+                            out.cs_table.extend(c.as_vec3().to_array());
+                        }
+                    }
+                    None => out.cs_table.extend(std::iter::repeat_n(0.0, theta_count * sh_count * 3)),
+                }
+            }
+            out.gn_table.extend_from_slice(baked.gn.data());
+        }
+        out.iirtf = pack_f16_pairs(&iirtf_values);
+        out.header = FabricHeaderGpu {
+            exemplar_count: to_u32(exemplars.len(), "exemplars")?,
+            sh_order: to_u32(sh_order, "SH order")?,
+            sh_count: to_u32(sh_count, "SH count")?,
+            svf_resolution: to_u32(settings.svf_resolution, "SVF resolution")?,
+            pca_components: to_u32(components, "PCA components")?,
+            sos_count: to_u32(sos_count, "sum-of-SG count")?,
+            sos_sharpness: first.visibility.sum_of_sg.sharpness as f32,
+            cs_theta_count: to_u32(theta_count, "C_S rows")?,
+            cg_points: to_u32(first.cg.points(), "C_G points")?,
+            gn_intervals: to_u32(twill_precompute::bake::tables::GN_INTERVALS, "Gn intervals")?,
+            pattern_width: pattern.width,
+            pattern_height: pattern.height,
+            block_size,
+            z_range,
+        };
+        Ok(out)
+    }
+
+    /// Every buffer with its label and contents, in binding order (1 ..= 12).
+    #[must_use]
+    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 12] {
+        [
+            ("exemplars", bytemuck::cast_slice(&self.exemplars)),
+            ("pattern", bytemuck::cast_slice(&self.pattern)),
+            ("voxels", bytemuck::cast_slice(&self.voxels)),
+            ("segments", bytemuck::cast_slice(&self.segments)),
+            ("materials", bytemuck::cast_slice(&self.materials)),
+            ("pca_basis", bytemuck::cast_slice(&self.pca_basis)),
+            ("pca_coefficients", bytemuck::cast_slice(&self.pca_coefficients)),
+            ("sos_weights", bytemuck::cast_slice(&self.sos_weights)),
+            ("iirtf", bytemuck::cast_slice(&self.iirtf)),
+            ("cs_table", bytemuck::cast_slice(&self.cs_table)),
+            ("cg_table", bytemuck::cast_slice(&self.cg_table)),
+            ("gn_table", bytemuck::cast_slice(&self.gn_table)),
+        ]
+    }
+
+    /// Total bytes of all buffers.
+    #[must_use]
+    pub fn total_bytes(&self) -> u64 {
+        self.storage_buffers().iter().map(|(_, b)| b.len() as u64).sum::<u64>() + size_of::<FabricHeaderGpu>() as u64
+    }
+}
+
+impl FabricHeaderGpu {
+    fn zeroed_header() -> Self {
+        bytemuck::Zeroable::zeroed()
+    }
+}
+
+/// f32 → f16 bits, round to nearest even (what `pack2x16float` does on the GPU; subnormal
+/// halves flush toward zero below 2⁻²⁴).
+#[must_use]
+pub fn f32_to_f16_bits(x: f32) -> u16 {
+    let bits = x.to_bits();
+    let sign = ((bits >> 16) & 0x8000) as u16;
+    let exponent = ((bits >> 23) & 0xff) as i32;
+    let mantissa = bits & 0x007f_ffff;
+    if exponent == 0xff {
+        return sign | 0x7c00 | if mantissa != 0 { 0x200 } else { 0 };
+    }
+    let e = exponent - 127 + 15;
+    if e >= 0x1f {
+        return sign | 0x7c00;
+    }
+    if e <= 0 {
+        if e < -10 {
+            return sign;
+        }
+        let m = mantissa | 0x0080_0000;
+        let shift = (14 - e) as u32;
+        let half = 1u32 << (shift - 1);
+        let rounded = (m + half - 1 + ((m >> shift) & 1)) >> shift;
+        return sign | rounded as u16;
+    }
+    let rounded = mantissa + 0x0fff + ((mantissa >> 13) & 1);
+    if rounded & 0x0080_0000 != 0 {
+        let e = e + 1;
+        if e >= 0x1f {
+            return sign | 0x7c00;
+        }
+        return sign | ((e as u16) << 10);
+    }
+    sign | ((e as u16) << 10) | (rounded >> 13) as u16
+}
+
+/// f16 bits → f32 (exact).
+#[must_use]
+pub fn f16_bits_to_f32(h: u16) -> f32 {
+    let sign = u32::from(h & 0x8000) << 16;
+    let exponent = u32::from((h >> 10) & 0x1f);
+    let mantissa = u32::from(h & 0x3ff);
+    let bits = match (exponent, mantissa) {
+        (0, 0) => sign,
+        (0, m) => {
+            // Subnormal: normalize.
+            let shift = m.leading_zeros() - 21;
+            let m = (m << shift) & 0x3ff;
+            sign | ((127 - 15 + 1 - shift) << 23) | (m << 13)
+        }
+        (0x1f, m) => sign | 0x7f80_0000 | (m << 13),
+        (e, m) => sign | ((e + 127 - 15) << 23) | (m << 13),
+    };
+    f32::from_bits(bits)
+}
+
+fn f16_round_trip(x: f32) -> f32 {
+    f16_bits_to_f32(f32_to_f16_bits(x))
+}
+
+/// Packs f32 values as f16 pairs, first value in the low half (`unpack2x16float(w).x`).
+#[must_use]
+pub fn pack_f16_pairs(values: &[f32]) -> Vec<u32> {
+    values
+        .chunks(2)
+        .map(|pair| {
+            let lo = u32::from(f32_to_f16_bits(pair[0]));
+            let hi = pair.get(1).map_or(0, |&v| u32::from(f32_to_f16_bits(v)));
+            lo | (hi << 16)
+        })
+        .collect()
+}
+
+/// The fabric's buffers and bind group on a device.
+pub struct FabricData {
+    pub arrays: FabricArrays,
+    pub layout: wgpu::BindGroupLayout,
+    pub bind_group: wgpu::BindGroup,
+    /// Bytes of GPU memory the buffers take.
+    pub gpu_bytes: u64,
+}
+
+/// The layout of bind group 1 (a uniform and twelve read-only storage buffers, visible to
+/// fragment and compute stages).
+#[must_use]
+pub fn fabric_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
+    let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
+    let mut entries = vec![wgpu::BindGroupLayoutEntry {
+        binding: 0,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }];
+    for binding in 1..=12 {
+        entries.push(wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        });
+    }
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("twill.fabric.bind_group_layout"),
+        entries: &entries,
+    })
+}
+
+impl FabricData {
+    /// Packs and uploads a bake set.
+    pub fn upload(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        exemplars: &[&Baked],
+        pattern: &PatternMap,
+    ) -> Result<Self, FabricDataError> {
+        let arrays = FabricArrays::pack(exemplars, pattern)?;
+        let limit = u64::from(device.limits().max_storage_buffer_binding_size);
+        for (name, bytes) in arrays.storage_buffers() {
+            if bytes.len() as u64 > limit {
+                return Err(FabricDataError::TooLarge { buffer: name, bytes: bytes.len() as u64, limit });
+            }
+        }
+        let layout = fabric_bind_group_layout(device);
+        let header = make_buffer(
+            device,
+            queue,
+            "twill.fabric.header",
+            bytemuck::bytes_of(&arrays.header),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let buffers: Vec<wgpu::Buffer> = arrays
+            .storage_buffers()
+            .iter()
+            .map(|(name, bytes)| {
+                make_buffer(device, queue, &format!("twill.fabric.{name}"), bytes, wgpu::BufferUsages::STORAGE)
+            })
+            .collect();
+        let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: header.as_entire_binding() }];
+        for (i, buffer) in buffers.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: buffer.as_entire_binding() });
+        }
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.fabric.bind_group"),
+            layout: &layout,
+            entries: &entries,
+        });
+        let gpu_bytes = header.size() + buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
+        Ok(Self { arrays, layout, bind_group, gpu_bytes })
+    }
+}
+
+/// A buffer holding `bytes` (at least 16 bytes, padded to a multiple of 4, so empty arrays
+/// still bind).
+pub fn make_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    label: &str,
+    bytes: &[u8],
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    let size = (bytes.len() as u64).max(16).next_multiple_of(16);
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: usage | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    if !bytes.is_empty() {
+        let mut padded = bytes.to_vec();
+        padded.resize(bytes.len().next_multiple_of(4), 0);
+        queue.write_buffer(&buffer, 0, &padded);
+    }
+    buffer
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f16_round_trip_matches_ieee_half() {
+        for &(x, bits) in &[
+            (0.0_f32, 0x0000_u16),
+            (1.0, 0x3c00),
+            (-2.0, 0xc000),
+            (65504.0, 0x7bff),
+            (1e6, 0x7c00),
+            (6.103_515_6e-5, 0x0400),
+            (5.960_464_5e-8, 0x0001),
+            (0.333_333_34, 0x3555),
+        ] {
+            assert_eq!(f32_to_f16_bits(x), bits, "{x}");
+            if bits != 0x7c00 && bits != 0x3555 {
+                assert_eq!(f16_bits_to_f32(bits), x, "{bits:#x}");
+            }
+        }
+        // Relative error of normal halves is at most 2^-11.
+        for i in 0..10_000 {
+            let x = 1e-4_f32 * 1.001_f32.powi(i);
+            let r = f16_round_trip(x);
+            assert!(((r - x) / x).abs() <= 1.0 / 2048.0 + 1e-7, "{x} -> {r}");
+        }
+    }
+}
