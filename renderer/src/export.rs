@@ -61,6 +61,13 @@ pub fn write_image(path: &Path, image: &Image, display: Display) -> Result<(), E
     }
 }
 
+/// Writes an already tone-mapped RGBA8 image (the GPU's display image) as an RGB PNG,
+/// atomically.
+pub fn write_display_png(path: &Path, width: u32, height: u32, rgba: &[[u8; 4]]) -> Result<(), ExportError> {
+    let bytes: Vec<u8> = rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
+    write_rgb8_png(path, width, height, &bytes).map_err(|source| ExportError::Io { path: path.into(), source })
+}
+
 /// Maps linear radiance to an 8-bit sRGB value per channel.
 #[must_use]
 pub fn display_srgb8(radiance: Rgb, display: Display) -> [u8; 3] {
@@ -86,13 +93,17 @@ fn write_png(path: &Path, image: &Image, display: Display) -> io::Result<()> {
     for &p in &image.pixels {
         bytes.extend_from_slice(&display_srgb8(p, display));
     }
+    write_rgb8_png(path, image.width as u32, image.height as u32, &bytes)
+}
+
+fn write_rgb8_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
     write_atomically(path, |w| {
-        let mut encoder = png::Encoder::new(w, image.width as u32, image.height as u32);
+        let mut encoder = png::Encoder::new(w, width, height);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
         encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
         let mut writer = encoder.write_header().map_err(io::Error::other)?;
-        writer.write_image_data(&bytes).map_err(io::Error::other)?;
+        writer.write_image_data(rgb).map_err(io::Error::other)?;
         writer.finish().map_err(io::Error::other)
     })
 }

@@ -9,4 +9,5 @@
 pub mod export;
 pub mod fabric_data;
 pub mod gpu;
+pub mod plan;
 pub mod shaders;

@@ -9,9 +9,27 @@ pub const SPECIAL: &str = include_str!("../../shaders/shared/special.wgsl");
 /// and `twill_precompute::sg`. Needs [`SPECIAL`] before it.
 pub const SG: &str = include_str!("../../shaders/shared/sg.wgsl");
 
+/// The baked fabric's bind group 1 (`FabricHeader`, `ExemplarGpu`, ..., `voxel_segment`):
+/// twin of `crate::fabric_data`.
+pub const FABRIC_DATA: &str = include_str!("../../shaders/shared/fabric_data.wgsl");
+
+/// Eye rays through the shell into the G-buffer (paper 5.1).
+pub const GBUFFER: &str = include_str!("../../shaders/gbuffer.wgsl");
+/// Shadow maps and the top-surface position texture.
+pub const SHELL_SURFACE: &str = include_str!("../../shaders/shell_surface.wgsl");
+/// Shell-space visibility by PCF / PCSS.
+pub const VISIBILITY: &str = include_str!("../../shaders/visibility.wgsl");
+/// Separable Gaussian blur of the visibility by sigma_glo.
+pub const BLUR: &str = include_str!("../../shaders/blur.wgsl");
+/// Deferred shading: single and multiple scattering per pixel.
+pub const SHADE: &str = include_str!("../../shaders/shade.wgsl");
+/// Exposure, tone curve and sRGB encoding.
+pub const TONEMAP: &str = include_str!("../../shaders/tonemap.wgsl");
+
 /// Every shared module, with its file name (for validation and error messages), in an order
 /// where each needs only those before it.
-pub const SHARED: &[(&str, &str)] = &[("shared/special.wgsl", SPECIAL), ("shared/sg.wgsl", SG)];
+pub const SHARED: &[(&str, &str)] =
+    &[("shared/special.wgsl", SPECIAL), ("shared/sg.wgsl", SG), ("shared/fabric_data.wgsl", FABRIC_DATA)];
 
 /// The shared modules concatenated in dependency order (what a pass shader is appended to).
 #[must_use]

@@ -1,0 +1,150 @@
+// Deferred shading (paper 5.2, 5.3): one invocation per pixel reads the G-buffer, moves the
+// view and light directions into the hit tetrahedron's flat-fabric frame, and adds single and
+// multiple scattering from every light to the accumulation buffer. Which terms and which
+// local-visibility paths exist is fixed by override constants from the frame plan, so a path
+// the scene does not need is not even compiled. Needs shared/fabric_data.wgsl, shared/sh.wgsl
+// and shared/shading.wgsl before it, and the TetraGpu struct of gbuffer.wgsl (repeated here).
+// Twin structs: renderer/src/frame.rs (ShadeUniformsGpu, LightGpu).
+
+override ENABLE_SINGLE: bool = true;
+override ENABLE_MULTIPLE: bool = true;
+override ENABLE_SSDF_SIGN: bool = true;
+override ENABLE_SUM_OF_SG: bool = true;
+override ENABLE_SSDF_ERF: bool = true;
+override ENABLE_GLOBAL_VISIBILITY: bool = true;
+
+const LIGHT_DIRECTIONAL: u32 = 0u;
+const LIGHT_SG: u32 = 1u;
+
+struct LightGpu {
+    // Unit direction toward the light (world).
+    direction: vec3<f32>,
+    kind: u32,
+    // Irradiance (directional) or intensity (SG), linear RGB.
+    color: vec3<f32>,
+    sharpness: f32,
+    // Shadow/visibility layer, or -1 when the light is unoccluded.
+    layer: i32,
+    // Weights of the sum-of-SGs and erf-SSDF paths (they add to 1).
+    w_sum_of_sg: f32,
+    w_ssdf_erf: f32,
+    _pad: f32,
+}
+
+struct ShadeUniforms {
+    // x: lights, y: image width, z: image height, w: unused.
+    counts: vec4<u32>,
+    // Eye position (w = 1) or viewing direction (w = 0).
+    eye: vec4<f32>,
+    // (u_min, v_min, u_max - u_min, v_max - v_min) of the shell, cm.
+    uv_rect: vec4<f32>,
+    // x: fabric slab thickness in cm.
+    fabric: vec4<f32>,
+}
+
+struct TetraGpu {
+    uvw_from_world: array<vec4<f32>, 3>,
+    planes: array<vec4<f32>, 4>,
+}
+
+@group(0) @binding(0) var<uniform> shade: ShadeUniforms;
+@group(0) @binding(1) var<storage, read> lights: array<LightGpu>;
+@group(0) @binding(2) var<storage, read> tetras: array<TetraGpu>;
+@group(0) @binding(3) var gbuffer_position: texture_2d<f32>;
+@group(0) @binding(4) var gbuffer_ids: texture_2d<u32>;
+@group(0) @binding(5) var visibility_sharp: texture_2d_array<f32>;
+@group(0) @binding(6) var visibility_blurred: texture_2d_array<f32>;
+@group(0) @binding(7) var<storage, read_write> accumulation: array<vec4<f32>>;
+
+// Bilinear lookup of a (V * coverage, coverage) texture at shell coordinates uv (cm): V
+// averaged over covered texels, 1 where nothing is covered.
+fn shell_visibility(tex: texture_2d_array<f32>, layer: i32, uv: vec2<f32>) -> f32 {
+    let size = vec2<f32>(textureDimensions(tex));
+    let st = (uv - shade.uv_rect.xy) / shade.uv_rect.zw * size - 0.5;
+    let base = floor(st);
+    let f = st - base;
+    var sum = vec2<f32>(0.0);
+    for (var j = 0; j < 2; j++) {
+        for (var i = 0; i < 2; i++) {
+            let p = clamp(vec2<i32>(base) + vec2<i32>(i, j), vec2<i32>(0), vec2<i32>(size) - 1);
+            let w = select(1.0 - f.x, f.x, i == 1) * select(1.0 - f.y, f.y, j == 1);
+            sum += w * textureLoad(tex, p, layer, 0).xy;
+        }
+    }
+    if (sum.y <= 1e-6) {
+        return 1.0;
+    }
+    return clamp(sum.x / sum.y, 0.0, 1.0);
+}
+
+@compute @workgroup_size(8, 8)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let width = shade.counts.y;
+    let height = shade.counts.z;
+    if (id.x >= width || id.y >= height) {
+        return;
+    }
+    let pixel = vec2<i32>(id.xy);
+    let ids = textureLoad(gbuffer_ids, pixel, 0);
+    if (ids.w == 0u) {
+        return;
+    }
+    let hit = textureLoad(gbuffer_position, pixel, 0).xyz;
+    let segment = ids.x;
+    let tetra = tetras[ids.y];
+    // Flat-fabric frame of this tetrahedron: fabric vectors are (du, dv, dw * thickness).
+    let m = tetra.uvw_from_world;
+    let h = shade.fabric.x;
+    let uvw = vec3<f32>(dot(m[0], vec4<f32>(hit, 1.0)), dot(m[1], vec4<f32>(hit, 1.0)), dot(m[2], vec4<f32>(hit, 1.0)));
+    var to_eye = -shade.eye.xyz;
+    if (shade.eye.w > 0.5) {
+        to_eye = shade.eye.xyz - hit;
+    }
+    let wo = normalize(vec3<f32>(dot(m[0].xyz, to_eye), dot(m[1].xyz, to_eye), h * dot(m[2].xyz, to_eye)));
+
+    var radiance = vec3<f32>(0.0);
+    var c_in: array<vec3<f32>, 49>;
+    let order = fabric.sh_order;
+    for (var j = 0u; j < 49u; j++) {
+        c_in[j] = vec3<f32>(0.0);
+    }
+    for (var i = 0u; i < shade.counts.x; i++) {
+        let light = lights[i];
+        let d = light.direction;
+        let dir = normalize(vec3<f32>(dot(m[0].xyz, d), dot(m[1].xyz, d), h * dot(m[2].xyz, d)));
+        var v_sharp = 1.0;
+        var v_blurred = 1.0;
+        if (ENABLE_GLOBAL_VISIBILITY && light.layer >= 0) {
+            v_sharp = shell_visibility(visibility_sharp, light.layer, uvw.xy);
+            v_blurred = shell_visibility(visibility_blurred, light.layer, uvw.xy);
+        }
+        if (ENABLE_SINGLE && v_sharp > 0.0) {
+            var single = vec3<f32>(0.0);
+            if (light.kind == LIGHT_DIRECTIONAL) {
+                if (ENABLE_SSDF_SIGN) {
+                    single = shade_single_directional(segment, wo, dir);
+                }
+            } else {
+                if (ENABLE_SUM_OF_SG && light.w_sum_of_sg > 0.0) {
+                    single += light.w_sum_of_sg * shade_single_sg_sum_of_sg(segment, wo, dir, light.sharpness);
+                }
+                if (ENABLE_SSDF_ERF && light.w_ssdf_erf > 0.0) {
+                    single += light.w_ssdf_erf * shade_single_sg_ssdf_erf(segment, wo, dir, light.sharpness);
+                }
+            }
+            radiance += v_sharp * light.color * single;
+        }
+        if (ENABLE_MULTIPLE && v_blurred > 0.0) {
+            var sharpness = -1.0;
+            if (light.kind == LIGHT_SG) {
+                sharpness = light.sharpness;
+            }
+            light_sh_accumulate(order, dir, sharpness, v_blurred * light.color, &c_in);
+        }
+    }
+    if (ENABLE_MULTIPLE) {
+        radiance += shade_multiple(segment, wo, &c_in);
+    }
+    let index = id.y * width + id.x;
+    accumulation[index] += vec4<f32>(radiance, 1.0);
+}
