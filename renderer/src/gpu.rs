@@ -68,6 +68,18 @@ impl Gpu {
         expression: &str,
         inputs: &[[f32; 4]],
     ) -> Result<Vec<[f32; 4]>, GpuError> {
+        self.evaluate_with_fabric(library, expression, inputs, None)
+    }
+
+    /// As [`Gpu::evaluate`], with a baked fabric bound as group 1 (for functions that read
+    /// bake data: `library` must then include `shaders::FABRIC_DATA`).
+    pub fn evaluate_with_fabric(
+        &self,
+        library: &str,
+        expression: &str,
+        inputs: &[[f32; 4]],
+        fabric: Option<&crate::fabric_data::FabricData>,
+    ) -> Result<Vec<[f32; 4]>, GpuError> {
         const WORKGROUP: u32 = 64;
         let mut source = String::from(library);
         let _ = write!(
@@ -88,9 +100,27 @@ impl Gpu {
             label: Some("twill.evaluate.shader"),
             source: wgpu::ShaderSource::Wgsl(source.into()),
         });
+        let io_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("twill.evaluate.bind_group_layout"),
+            entries: &[0, 1].map(|binding| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: binding == 0 },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            }),
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("twill.evaluate.pipeline_layout"),
+            bind_group_layouts: &[Some(&io_layout), fabric.map(|f| &f.layout)],
+            immediate_size: 0,
+        });
         let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("twill.evaluate.pipeline"),
-            layout: None,
+            layout: Some(&layout),
             module: &module,
             entry_point: Some("main"),
             compilation_options: wgpu::PipelineCompilationOptions::default(),
@@ -125,7 +155,7 @@ impl Gpu {
         });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("twill.evaluate.bind_group"),
-            layout: &pipeline.get_bind_group_layout(0),
+            layout: &io_layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: input_buffer.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: output_buffer.as_entire_binding() },
@@ -141,6 +171,9 @@ impl Gpu {
             });
             pass.set_pipeline(&pipeline);
             pass.set_bind_group(0, &bind_group, &[]);
+            if let Some(f) = fabric {
+                pass.set_bind_group(1, &f.bind_group, &[]);
+            }
             let groups = (count as u32).div_ceil(WORKGROUP);
             pass.dispatch_workgroups(groups.min(1024), groups.div_ceil(1024), 1);
         }
