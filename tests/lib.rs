@@ -41,3 +41,82 @@ pub fn lambert_cylinder_mean_radiance(rho: f64, e: f64, alpha: f64) -> f64 {
 pub fn tilted_from_z(alpha: f64) -> DVec3 {
     DVec3::new(0.0, alpha.sin(), alpha.cos())
 }
+
+/// Where golden images live (`tests/goldens/NAME.png`).
+#[must_use]
+pub fn golden_path(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("goldens").join(format!("{name}.png"))
+}
+
+/// Golden-image metric: the RMSE of 8-bit sRGB channel values over the image must be at most
+/// `GOLDEN_MAX_RMSE`, and at most `GOLDEN_MAX_OUTLIERS` of the pixels may differ by more than
+/// `GOLDEN_OUTLIER_LEVEL` in any channel (a few fiber-edge pixels flip between drivers).
+pub const GOLDEN_MAX_RMSE: f64 = 3.0;
+pub const GOLDEN_OUTLIER_LEVEL: u8 = 32;
+pub const GOLDEN_MAX_OUTLIERS: f64 = 0.01;
+
+fn read_rgb_png(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>), String> {
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
+    let info = reader.next_frame(&mut buf).map_err(|e| format!("{}: {e}", path.display()))?;
+    if info.color_type != png::ColorType::Rgb || info.bit_depth != png::BitDepth::Eight {
+        return Err(format!("{}: expected 8-bit RGB, got {:?} {:?}", path.display(), info.color_type, info.bit_depth));
+    }
+    buf.truncate(info.buffer_size());
+    Ok((info.width, info.height, buf))
+}
+
+fn write_rgb_png(path: &std::path::Path, width: u32, height: u32, rgb: &[u8]) {
+    let file = std::fs::File::create(path).expect("create image");
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("write image");
+}
+
+/// Compares an RGBA8 image with the golden `name` (see the metric above). On failure writes
+/// `target/golden-diffs/NAME.actual.png` and `NAME.diff.png` (absolute difference, x4) and
+/// returns the reason. A missing golden fails; `TWILL_BLESS=1` writes it instead.
+pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]) -> Result<String, String> {
+    let actual: Vec<u8> = rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
+    let path = golden_path(name);
+    let diff_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/golden-diffs");
+    if std::env::var("TWILL_BLESS").is_ok_and(|v| v == "1") {
+        std::fs::create_dir_all(path.parent().expect("goldens folder")).expect("create goldens folder");
+        write_rgb_png(&path, width, height, &actual);
+        return Ok(format!("{name}: golden written (TWILL_BLESS=1)"));
+    }
+    let fail = |reason: String, golden: Option<&[u8]>| {
+        std::fs::create_dir_all(&diff_dir).expect("create diff folder");
+        write_rgb_png(&diff_dir.join(format!("{name}.actual.png")), width, height, &actual);
+        if let Some(g) = golden {
+            let diff: Vec<u8> = g.iter().zip(&actual).map(|(a, b)| a.abs_diff(*b).saturating_mul(4)).collect();
+            write_rgb_png(&diff_dir.join(format!("{name}.diff.png")), width, height, &diff);
+        }
+        Err(format!("{name}: {reason}; wrote {}/{name}.*.png", diff_dir.display()))
+    };
+    let (gw, gh, golden) = match read_rgb_png(&path) {
+        Ok(g) => g,
+        Err(e) => return fail(format!("missing or unreadable golden ({e}); run with TWILL_BLESS=1 to create it"), None),
+    };
+    if (gw, gh) != (width, height) {
+        return fail(format!("golden is {gw}x{gh}, image is {width}x{height}"), None);
+    }
+    let n = golden.len() as f64;
+    let sq: f64 = golden.iter().zip(&actual).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum();
+    let rmse = (sq / n).sqrt();
+    let outliers = golden
+        .chunks_exact(3)
+        .zip(actual.chunks_exact(3))
+        .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| x.abs_diff(*y) > GOLDEN_OUTLIER_LEVEL))
+        .count() as f64
+        / (n / 3.0);
+    let summary = format!("RMSE {rmse:.3} (max {GOLDEN_MAX_RMSE}), outliers {:.3}% (max {:.1}%)", 100.0 * outliers, 100.0 * GOLDEN_MAX_OUTLIERS);
+    if rmse > GOLDEN_MAX_RMSE || outliers > GOLDEN_MAX_OUTLIERS {
+        return fail(summary, Some(&golden));
+    }
+    Ok(format!("{name}: {summary}"))
+}

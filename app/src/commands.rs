@@ -15,7 +15,14 @@ use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
 use twill_precompute::scene::SceneFile;
-use twill_renderer::export::{Display, write_image};
+use glam::Vec3;
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::{Baked, read_bake};
+use twill_precompute::image::Image;
+use twill_renderer::export::{Display, write_display_png, write_image};
+use twill_renderer::frame::describe_timings;
+use twill_renderer::headless::{SceneRenderer, frame_settings};
+use twill_renderer::plan::Components;
 
 pub fn fabric_presets() {
     for preset in presets::fabric_presets() {
@@ -129,6 +136,116 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
 }
 
 /// Options of `twill bake`.
+#[allow(clippy::struct_excessive_bools)]
+pub struct RenderOptions {
+    pub scene: Option<PathBuf>,
+    pub output: PathBuf,
+    pub size: Option<(usize, usize)>,
+    pub spp: Option<u32>,
+    pub quality: Quality,
+    pub bake: Option<PathBuf>,
+    pub cache: Option<PathBuf>,
+    pub no_cache: bool,
+    pub only: Option<Components>,
+    pub exposure: Option<f64>,
+    pub volume_samples: Option<u32>,
+    pub print_plan: bool,
+    pub timings: bool,
+}
+
+fn open_cache(explicit: Option<&Path>, no_cache: bool) -> Result<Option<Cache>> {
+    if no_cache {
+        return Ok(None);
+    }
+    match explicit.map(Path::to_path_buf).or_else(default_cache_dir) {
+        Some(dir) => Ok(Some(Cache::new(&dir)?)),
+        None => Ok(None),
+    }
+}
+
+pub fn render(options: &RenderOptions) -> Result<()> {
+    let mut file = SceneFile::load_or_default(options.scene.as_deref())?;
+    if let Some((w, h)) = options.size {
+        (file.render.width, file.render.height) = (w, h);
+    }
+    if let Some(spp) = options.spp {
+        file.render.spp = spp;
+    }
+    if let Some(exposure) = options.exposure {
+        file.render.exposure = exposure;
+    }
+    if let Some(n) = options.volume_samples {
+        file.gpu.volume_samples = n;
+    }
+    let scene = file.build()?;
+    let settings = frame_settings(&scene, options.only.unwrap_or_default());
+
+    let started = Instant::now();
+    let (exemplars, pattern) = match &options.bake {
+        Some(path) => {
+            let loaded = read_bake(path)?;
+            (loaded.exemplars, loaded.pattern)
+        }
+        None => {
+            let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
+            let inputs = BakeInputs {
+                exemplar: &scene.exemplar,
+                materials: &scene.material_descs,
+                settings: options.quality.settings(),
+            };
+            let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
+                .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+            (vec![outcome.baked], PatternMap::uniform(0))
+        }
+    };
+    let bake_seconds = started.elapsed().as_secs_f64();
+    let refs: Vec<&Baked> = exemplars.iter().collect();
+    let mut session = SceneRenderer::new(&scene, &refs, &pattern)?;
+    let plan = session.renderer.plan(&scene.path_scene.lights, &settings);
+    if options.print_plan {
+        print!("{plan}");
+    }
+    let started = Instant::now();
+    let frame = session.render(&scene, &settings)?;
+    let render_seconds = started.elapsed().as_secs_f64();
+
+    let ext = options.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if ext.as_deref() == Some("png") {
+        write_display_png(&options.output, frame.width, frame.height, &frame.display)?;
+    } else {
+        let image = Image {
+            width: frame.width as usize,
+            height: frame.height as usize,
+            pixels: frame.radiance.iter().map(|p| Vec3::from(*p).as_dvec3()).collect(),
+        };
+        write_image(&options.output, &image, Display { exposure: scene.render.exposure, ..Display::default() })?;
+    }
+    eprintln!(
+        "rendered {} on {} ({}x{}, {} spp) in {:.2} s (bake {:.2} s) -> {}",
+        file.path.display(),
+        session.renderer.adapter(),
+        frame.width,
+        frame.height,
+        settings.spp,
+        render_seconds,
+        bake_seconds,
+        options.output.display()
+    );
+    if options.timings {
+        match &frame.timings {
+            Some(timings) => print!("GPU time per pass:\n{}", describe_timings(timings)),
+            None => println!("GPU time per pass: the adapter has no timestamp queries"),
+        }
+        let fabric = &session.renderer.fabric().arrays;
+        println!(
+            "GPU memory: {:.1} MB resident (bake and shell; IIRTF stored as f16, largest relative rounding {:.1e})",
+            session.renderer.resident_bytes() as f64 / 1e6,
+            fabric.iirtf_f16_max_rel_error
+        );
+    }
+    Ok(())
+}
+
 pub struct BakeOptions {
     pub scene: Option<PathBuf>,
     pub quality: Quality,

@@ -28,6 +28,8 @@ enum Command {
     },
     /// Path-trace a fiber-level reference image of a scene.
     Reference(ReferenceArgs),
+    /// Render a scene on the GPU (headless: any Vulkan adapter, lavapipe included).
+    Render(RenderArgs),
     /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
     Bake(BakeArgs),
 }
@@ -131,6 +133,57 @@ struct ReferenceArgs {
     seed: Option<u64>,
 }
 
+#[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools)]
+struct RenderArgs {
+    /// Scene file (default: the built-in default scene).
+    scene: Option<PathBuf>,
+    /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long, value_parser = parse_size)]
+    size: Option<(usize, usize)>,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Bake quality when the fabric is baked for this render.
+    #[arg(long, value_enum, default_value = "interactive")]
+    quality: QualityArg,
+    /// Use this bake file instead of baking (it must be the scene's fabric).
+    #[arg(long, conflicts_with = "quality")]
+    bake: Option<PathBuf>,
+    /// Stage cache folder for baking (default as for `twill bake`).
+    #[arg(long, conflicts_with = "no_cache")]
+    cache: Option<PathBuf>,
+    /// Bake without the stage cache.
+    #[arg(long)]
+    no_cache: bool,
+    /// Render only one scattering component.
+    #[arg(long, value_enum)]
+    only: Option<Only>,
+    /// Exposure in stops for PNG output (default: the scene's).
+    #[arg(long, allow_hyphen_values = true)]
+    exposure: Option<f64>,
+    /// Volume samples per shell tetrahedron (default: the scene's [gpu] volume_samples).
+    #[arg(long)]
+    volume_samples: Option<u32>,
+    /// Print the frame plan (the passes this scene needs) before rendering.
+    #[arg(long)]
+    print_plan: bool,
+    /// Print GPU time per pass (timestamp queries) and GPU memory used.
+    #[arg(long)]
+    timings: bool,
+}
+
+fn quality_of(q: QualityArg) -> twill_precompute::bake::settings::Quality {
+    match q {
+        QualityArg::Draft => twill_precompute::bake::settings::Quality::Draft,
+        QualityArg::Interactive => twill_precompute::bake::settings::Quality::Interactive,
+        QualityArg::Paper => twill_precompute::bake::settings::Quality::Paper,
+    }
+}
+
 fn parse_size(text: &str) -> Result<(usize, usize), String> {
     let err = || format!("{text:?} is not a size: expected WIDTHxHEIGHT, e.g. 256x256, each 1..=16384");
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(err)?;
@@ -168,15 +221,29 @@ fn run(cli: Cli) -> Result<()> {
         },
         Command::Bake(args) => commands::bake(&commands::BakeOptions {
             scene: args.scene,
-            quality: match args.quality {
-                QualityArg::Draft => twill_precompute::bake::settings::Quality::Draft,
-                QualityArg::Interactive => twill_precompute::bake::settings::Quality::Interactive,
-                QualityArg::Paper => twill_precompute::bake::settings::Quality::Paper,
-            },
+            quality: quality_of(args.quality),
             output: args.output,
             cache: args.cache,
             no_cache: args.no_cache,
             overrides: args.overrides,
+        }),
+        Command::Render(args) => commands::render(&commands::RenderOptions {
+            scene: args.scene,
+            output: args.output,
+            size: args.size,
+            spp: args.spp,
+            quality: quality_of(args.quality),
+            bake: args.bake,
+            cache: args.cache,
+            no_cache: args.no_cache,
+            only: args.only.map(|o| match o {
+                Only::Single => twill_renderer::plan::Components::SingleOnly,
+                Only::Multiple => twill_renderer::plan::Components::MultipleOnly,
+            }),
+            exposure: args.exposure,
+            volume_samples: args.volume_samples,
+            print_plan: args.print_plan,
+            timings: args.timings,
         }),
         Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
             scene: args.scene,

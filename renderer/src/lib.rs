@@ -10,4 +10,7 @@ pub mod export;
 pub mod fabric_data;
 pub mod gpu;
 pub mod plan;
+pub mod frame;
+pub mod headless;
+pub mod shell;
 pub mod shaders;

@@ -1,0 +1,1335 @@
+//! The GPU frame: shell-mapped volume ray casting, SG single scattering, SH multiple
+//! scattering and shadow mapping (paper section 5), run pass by pass as the frame plan says.
+//!
+//! How it works: [`Renderer::new`] uploads the shell (tetrahedra with their world → shell
+//! affine maps and face planes, and the top and bottom surfaces) next to an uploaded bake
+//! ([`FabricData`]) and builds the fixed pipelines. [`Renderer::render`] plans the frame
+//! ([`FramePlan`]) and records, in order:
+//! 1. a depth-only shadow map per shadowing light (orthographic, fitted to the shell's bounding
+//!    sphere), into one layer of a depth array;
+//! 2. the top-surface position texture X[u, v], rasterizing the top surface in shell space;
+//! 3. the visibility V[u, v] per light (PCF or PCSS lookups at X), stored as
+//!    (V · coverage, coverage);
+//! 4. its Gaussian blur by σ_glo (separable, along u then v);
+//! 5. per sample: the G-buffer (front faces of every tetrahedron, volume samples per fragment,
+//!    jittered sub-pixel position and sample offset along the ray), then the shading pass,
+//!    which adds radiance to an accumulation buffer;
+//! 6. tone mapping with exposure into an 8-bit image.
+//! Passes 1–4 run once per frame (they do not depend on the pixel jitter), and only when the
+//! plan has shadow maps. The shading pipeline is specialized by override constants from the
+//! plan, so a local-visibility path no light needs is not compiled. With `TIMESTAMP_QUERY`
+//! each pass is timed on the GPU; [`Frame::timings`] sums them per pass.
+//!
+//! PCSS for SG lights needs a light size, which an SG does not have; we use the angle α at which
+//! the lobe falls to 1/e of its peak, `cos α = 1 − 1/λ` (α ≈ sqrt(2/λ) for sharp lobes; α = 90°
+//! for λ ≤ 1), and the penumbra a blocker at distance Δ casts is `2 Δ tan α`, capped at 60°.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+
+use glam::camera::rh::proj::directx::{orthographic, perspective};
+use glam::camera::rh::view::look_at_mat4;
+use glam::{DVec3, Mat4, Vec3};
+use twill_precompute::pathtrace::Light;
+use twill_precompute::scene::{CameraSection, GpuSection, ProjectionKind};
+
+use crate::fabric_data::{FabricData, make_buffer};
+use crate::gpu::Gpu;
+use crate::plan::{Components, FramePlan, GlobalVisibility, LocalVisibility, PlanInputs, PlanLight};
+use crate::shaders;
+use crate::shell::Shell;
+
+/// Most lights with a shadow map in one frame.
+pub const MAX_SHADOWED_LIGHTS: usize = 8;
+/// Most lights in one frame.
+pub const MAX_LIGHTS: usize = 64;
+/// Largest SG light angle used for PCSS penumbrae.
+const MAX_PCSS_ANGLE_DEG: f64 = 60.0;
+
+/// Why a frame could not be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("invalid render setting: {0}")]
+    Settings(String),
+    #[error(
+        "the adapter {adapter:?} cannot run the renderer: {what} is {have}, the renderer needs {need}"
+    )]
+    Limit { adapter: String, what: &'static str, have: u64, need: u64 },
+    #[error("GPU error in {label}: {message}")]
+    Gpu { label: String, message: String },
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+}
+
+/// Per-frame settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameSettings {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    /// Exposure in stops for the display image.
+    pub exposure: f64,
+    /// Filmic (true) or clamp (false) tone curve for the display image.
+    pub filmic: bool,
+    pub components: Components,
+    pub gpu: GpuSection,
+}
+
+/// Time one pass took, summed over the frame's samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PassTiming {
+    pub pass: String,
+    pub milliseconds: f64,
+}
+
+/// A rendered frame, read back.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    /// Linear radiance per pixel, row-major from the top-left.
+    pub radiance: Vec<[f32; 3]>,
+    /// Tone-mapped sRGB, RGBA8.
+    pub display: Vec<[u8; 4]>,
+    pub plan: FramePlan,
+    /// GPU time per pass, when the adapter has timestamp queries.
+    pub timings: Option<Vec<PassTiming>>,
+}
+
+/// Twin of `FrameUniforms` in shaders/gbuffer.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FrameUniformsGpu {
+    clip_from_world: [[f32; 4]; 4],
+    eye: [f32; 4],
+    jitter: [f32; 4],
+    fabric_z: [f32; 4],
+    viewport: [f32; 4],
+}
+const _: () = assert!(size_of::<FrameUniformsGpu>() == 128);
+
+/// Twin of `TetraGpu` in shaders/gbuffer.wgsl and shaders/shade.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TetraGpu {
+    uvw_from_world: [[f32; 4]; 3],
+    planes: [[f32; 4]; 4],
+}
+const _: () = assert!(size_of::<TetraGpu>() == 112);
+
+/// Twin of `SurfaceVertex` in shaders/shell_surface.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SurfaceVertexGpu {
+    position: [f32; 4],
+    uvw: [f32; 4],
+}
+
+/// Twin of `SurfaceUniforms` in shaders/shell_surface.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SurfaceUniformsGpu {
+    light_clip_from_world: [[[f32; 4]; 4]; MAX_SHADOWED_LIGHTS],
+    uv_rect: [f32; 4],
+}
+
+/// Twin of `VisibilityUniforms` in shaders/visibility.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct VisibilityUniformsGpu {
+    light_clip_from_world: [[[f32; 4]; 4]; MAX_SHADOWED_LIGHTS],
+    filters: [[f32; 4]; MAX_SHADOWED_LIGHTS],
+    info: [f32; 4],
+}
+
+/// Twin of `BlurUniforms` in shaders/blur.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BlurUniformsGpu {
+    axis: [f32; 4],
+}
+
+/// Twin of `LightGpu` in shaders/shade.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct LightGpu {
+    direction: [f32; 3],
+    kind: u32,
+    color: [f32; 3],
+    sharpness: f32,
+    layer: i32,
+    w_sum_of_sg: f32,
+    w_ssdf_erf: f32,
+    pad: f32,
+}
+const _: () = assert!(size_of::<LightGpu>() == 48);
+
+/// Twin of `ShadeUniforms` in shaders/shade.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ShadeUniformsGpu {
+    counts: [u32; 4],
+    eye: [f32; 4],
+    uv_rect: [f32; 4],
+    fabric: [f32; 4],
+}
+
+/// Twin of `ToneMapUniforms` in shaders/tonemap.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ToneMapUniformsGpu {
+    size: [u32; 4],
+    scale: [f32; 4],
+}
+
+/// The shell on the GPU.
+struct ShellGpu {
+    tetra_count: u32,
+    tetra_corners: wgpu::Buffer,
+    tetras: wgpu::Buffer,
+    surface_vertices: wgpu::Buffer,
+    /// Top-surface vertices come first in `surface_vertices`.
+    top_vertex_count: u32,
+    surface_vertex_count: u32,
+    uv_rect: [f32; 4],
+    bounds: (Vec3, Vec3),
+    flat_normal: Option<Vec3>,
+}
+
+/// Which terms the shading pipeline is compiled with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct ShadeVariant {
+    single: bool,
+    multiple: bool,
+    ssdf_sign: bool,
+    sum_of_sg: bool,
+    ssdf_erf: bool,
+    global_visibility: bool,
+}
+
+/// Shell-mapped fabric renderer on one device.
+pub struct Renderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: String,
+    fabric: FabricData,
+    shell: ShellGpu,
+    fabric_z: [f32; 2],
+    gbuffer_layout: wgpu::BindGroupLayout,
+    gbuffer_pipeline: wgpu::RenderPipeline,
+    shadow_pipeline: wgpu::RenderPipeline,
+    top_pipeline: wgpu::RenderPipeline,
+    visibility_pipeline: wgpu::ComputePipeline,
+    blur_pipeline: wgpu::ComputePipeline,
+    tonemap_pipeline: wgpu::ComputePipeline,
+    shade_layout: wgpu::BindGroupLayout,
+    shade_pipelines: HashMap<ShadeVariant, wgpu::ComputePipeline>,
+    timestamps: bool,
+}
+
+fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn storage_entry(binding: u32, visibility: wgpu::ShaderStages, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn texture_entry(
+    binding: u32,
+    sample_type: wgpu::TextureSampleType,
+    view_dimension: wgpu::TextureViewDimension,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture { sample_type, view_dimension, multisampled: false },
+        count: None,
+    }
+}
+
+/// The WGSL of a pass: the shared modules it needs, then its own file.
+fn pass_source(needs_fabric: bool, pass: &str) -> String {
+    let mut source = String::new();
+    if needs_fabric {
+        source.push_str(&shaders::shared_library());
+        source.push('\n');
+    }
+    source.push_str(pass);
+    source
+}
+
+fn shader_module(device: &wgpu::Device, label: &str, source: String) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    })
+}
+
+fn compute_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    module: &wgpu::ShaderModule,
+    layout: Option<&wgpu::PipelineLayout>,
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout,
+        module,
+        entry_point: Some("main"),
+        compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+        cache: None,
+    })
+}
+
+/// (world → uvw rows, face planes in uvw) of one tetrahedron.
+fn tetra_gpu(corners: &[crate::shell::ShellVertex; 4]) -> TetraGpu {
+    let (uvw_from_world, _) = Shell::tetra_affine(corners);
+    let rows = [uvw_from_world.row(0), uvw_from_world.row(1), uvw_from_world.row(2)];
+    let uvw: Vec<DVec3> = corners.iter().map(|c| c.uvw.as_dvec3()).collect();
+    let mut planes = [[0.0_f32; 4]; 4];
+    for (i, plane) in planes.iter_mut().enumerate() {
+        let others: Vec<DVec3> = (0..4).filter(|&k| k != i).map(|k| uvw[k]).collect();
+        let mut n = (others[1] - others[0]).cross(others[2] - others[0]);
+        if n.dot(uvw[i] - others[0]) < 0.0 {
+            n = -n;
+        }
+        let scale = 1.0 / n.length().max(1e-30);
+        let n = n * scale;
+        *plane = [n.x as f32, n.y as f32, n.z as f32, (-n.dot(others[0])) as f32];
+    }
+    TetraGpu { uvw_from_world: rows.map(|r| r.to_array()), planes }
+}
+
+fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> ShellGpu {
+    let corners: Vec<[f32; 4]> =
+        shell.tetrahedra.iter().flat_map(|t| t.iter().map(|v| v.position.extend(1.0).to_array())).collect();
+    let tetras: Vec<TetraGpu> = shell.tetrahedra.iter().map(tetra_gpu).collect();
+    let vertex = |v: &crate::shell::ShellVertex| SurfaceVertexGpu {
+        position: v.position.extend(1.0).to_array(),
+        uvw: v.uvw.extend(0.0).to_array(),
+    };
+    let mut surface: Vec<SurfaceVertexGpu> = shell.top_triangles.iter().flatten().map(vertex).collect();
+    let top_vertex_count = surface.len() as u32;
+    surface.extend(shell.bottom_triangles.iter().flatten().map(vertex));
+    let usage = wgpu::BufferUsages::STORAGE;
+    let uv_size = (shell.uv_max - shell.uv_min).max(glam::Vec2::splat(1e-6));
+    ShellGpu {
+        tetra_count: shell.tetrahedra.len() as u32,
+        tetra_corners: make_buffer(device, queue, "twill.shell.tetra_corners", bytemuck::cast_slice(&corners), usage),
+        tetras: make_buffer(device, queue, "twill.shell.tetras", bytemuck::cast_slice(&tetras), usage),
+        surface_vertices: make_buffer(
+            device,
+            queue,
+            "twill.shell.surface_vertices",
+            bytemuck::cast_slice(&surface),
+            usage,
+        ),
+        top_vertex_count,
+        surface_vertex_count: surface.len() as u32,
+        uv_rect: [shell.uv_min.x, shell.uv_min.y, uv_size.x, uv_size.y],
+        bounds: (shell.bounds_min, shell.bounds_max),
+        flat_normal: if shell.is_flat { shell.flat_normal } else { None },
+    }
+}
+
+/// The renderer needs this many storage buffers in one shader stage (shading pass).
+const STORAGE_BUFFERS_NEEDED: u32 = 15;
+
+impl Renderer {
+    /// Uploads the shell and builds the pipelines. `fabric` must come from the same device.
+    pub fn new(gpu: &Gpu, fabric: FabricData, shell: &Shell) -> Result<Self, RenderError> {
+        let device = gpu.device.clone();
+        let queue = gpu.queue.clone();
+        let limits = device.limits();
+        if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS_NEEDED {
+            return Err(RenderError::Limit {
+                adapter: gpu.adapter_info.name.clone(),
+                what: "max_storage_buffers_per_shader_stage",
+                have: u64::from(limits.max_storage_buffers_per_shader_stage),
+                need: u64::from(STORAGE_BUFFERS_NEEDED),
+            });
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let shell_gpu = upload_shell(&device, &queue, shell);
+        let header = fabric.arrays.header;
+        let fabric_z = [header.z_range[0], header.z_range[1] - header.z_range[0]];
+
+        let fragment = wgpu::ShaderStages::VERTEX_FRAGMENT;
+        let gbuffer_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("twill.gbuffer.bind_group_layout"),
+            entries: &[uniform_entry(0, fragment), storage_entry(1, fragment, true), storage_entry(2, fragment, true)],
+        });
+        let gbuffer_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("twill.gbuffer.pipeline_layout"),
+            bind_group_layouts: &[Some(&gbuffer_layout), Some(&fabric.layout)],
+            immediate_size: 0,
+        });
+        let gbuffer_module = shader_module(&device, "twill.gbuffer.shader", pass_source(true, shaders::GBUFFER));
+        let gbuffer_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("twill.gbuffer.pipeline"),
+            layout: Some(&gbuffer_pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &gbuffer_module,
+                entry_point: Some("vs_main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                front_face: wgpu::FrontFace::Ccw,
+                cull_mode: Some(wgpu::Face::Back),
+                ..Default::default()
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: wgpu::TextureFormat::Depth32Float,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: wgpu::StencilState::default(),
+                bias: wgpu::DepthBiasState::default(),
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &gbuffer_module,
+                entry_point: Some("fs_main"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                targets: &[
+                    Some(wgpu::TextureFormat::Rgba32Float.into()),
+                    Some(wgpu::TextureFormat::Rgba32Uint.into()),
+                ],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+
+        let surface_module = shader_module(&device, "twill.shell_surface.shader", pass_source(false, shaders::SHELL_SURFACE));
+        let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("twill.shadow.pipeline"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &surface_module,
+                entry_point: Some("vs_shadow"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: wgpu::TextureFormat::Depth32Float,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: wgpu::StencilState::default(),
+                bias: wgpu::DepthBiasState::default(),
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: None,
+            multiview_mask: None,
+            cache: None,
+        });
+        let top_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("twill.top_surface.pipeline"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &surface_module,
+                entry_point: Some("vs_top"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &surface_module,
+                entry_point: Some("fs_top"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                targets: &[Some(wgpu::TextureFormat::Rgba32Float.into())],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let visibility_module = shader_module(&device, "twill.visibility.shader", pass_source(false, shaders::VISIBILITY));
+        let visibility_pipeline = compute_pipeline(&device, "twill.visibility.pipeline", &visibility_module, None, &[]);
+        let blur_module = shader_module(&device, "twill.blur.shader", pass_source(false, shaders::BLUR));
+        let blur_pipeline = compute_pipeline(&device, "twill.blur.pipeline", &blur_module, None, &[]);
+        let tonemap_module = shader_module(&device, "twill.tonemap.shader", pass_source(false, shaders::TONEMAP));
+        let tonemap_pipeline = compute_pipeline(&device, "twill.tonemap.pipeline", &tonemap_module, None, &[]);
+
+        let compute = wgpu::ShaderStages::COMPUTE;
+        let float = wgpu::TextureSampleType::Float { filterable: false };
+        let array = wgpu::TextureViewDimension::D2Array;
+        let plain = wgpu::TextureViewDimension::D2;
+        let shade_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("twill.shade.bind_group_layout"),
+            entries: &[
+                uniform_entry(0, compute),
+                storage_entry(1, compute, true),
+                storage_entry(2, compute, true),
+                texture_entry(3, float, plain),
+                texture_entry(4, wgpu::TextureSampleType::Uint, plain),
+                texture_entry(5, float, array),
+                texture_entry(6, float, array),
+                storage_entry(7, compute, false),
+            ],
+        });
+        if let Some(error) = pollster::block_on(scope.pop()) {
+            return Err(RenderError::Gpu { label: "pipeline setup".into(), message: error.to_string() });
+        }
+        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        Ok(Self {
+            device,
+            queue,
+            adapter: gpu.describe(),
+            fabric,
+            shell: shell_gpu,
+            fabric_z,
+            gbuffer_layout,
+            gbuffer_pipeline,
+            shadow_pipeline,
+            top_pipeline,
+            visibility_pipeline,
+            blur_pipeline,
+            tonemap_pipeline,
+            shade_layout,
+            shade_pipelines: HashMap::new(),
+            timestamps,
+        })
+    }
+
+    /// The adapter this renderer runs on, in words.
+    #[must_use]
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// Bytes of GPU memory held by the bake and the shell (not counting per-frame targets).
+    #[must_use]
+    pub fn resident_bytes(&self) -> u64 {
+        self.fabric.gpu_bytes
+            + self.shell.tetra_corners.size()
+            + self.shell.tetras.size()
+            + self.shell.surface_vertices.size()
+    }
+
+    /// The uploaded fabric.
+    #[must_use]
+    pub fn fabric(&self) -> &FabricData {
+        &self.fabric
+    }
+
+    /// Plans a frame for these lights and settings.
+    #[must_use]
+    pub fn plan(&self, lights: &[Light], settings: &FrameSettings) -> FramePlan {
+        plan_frame(lights, settings, self.shell.flat_normal)
+    }
+
+    fn shade_pipeline(&mut self, variant: ShadeVariant) -> &wgpu::ComputePipeline {
+        let device = &self.device;
+        let (shade_layout, fabric_layout) = (&self.shade_layout, &self.fabric.layout);
+        self.shade_pipelines.entry(variant).or_insert_with(|| {
+            let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("twill.shade.pipeline_layout"),
+                bind_group_layouts: &[Some(shade_layout), Some(fabric_layout)],
+                immediate_size: 0,
+            });
+            let module = shader_module(device, "twill.shade.shader", pass_source(true, shaders::SHADE));
+            let flag = |b: bool| if b { 1.0 } else { 0.0 };
+            let constants = [
+                ("ENABLE_SINGLE", flag(variant.single)),
+                ("ENABLE_MULTIPLE", flag(variant.multiple)),
+                ("ENABLE_SSDF_SIGN", flag(variant.ssdf_sign)),
+                ("ENABLE_SUM_OF_SG", flag(variant.sum_of_sg)),
+                ("ENABLE_SSDF_ERF", flag(variant.ssdf_erf)),
+                ("ENABLE_GLOBAL_VISIBILITY", flag(variant.global_visibility)),
+            ];
+            compute_pipeline(device, "twill.shade.pipeline", &module, Some(&layout), &constants)
+        })
+    }
+
+    /// Renders one frame and reads it back.
+    #[allow(clippy::too_many_lines)]
+    pub fn render(
+        &mut self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+    ) -> Result<Frame, RenderError> {
+        validate(settings, lights)?;
+        let plan = self.plan(lights, settings);
+        let (width, height) = (settings.width, settings.height);
+        let device = self.device.clone();
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+
+        let variant = ShadeVariant {
+            single: plan.single,
+            multiple: plan.multiple,
+            ssdf_sign: plan.uses(LocalVisibility::SsdfSign),
+            sum_of_sg: plan.uses(LocalVisibility::SumOfSg),
+            ssdf_erf: plan.uses(LocalVisibility::SsdfErf),
+            global_visibility: plan.shadow_maps,
+        };
+        self.shade_pipeline(variant);
+        let shade_pipeline = &self.shade_pipelines[&variant];
+
+        // Queries: two per pass instance.
+        let pass_instances = plan.shadow_layers() as usize
+            + if plan.shadow_maps { 2 } else { 0 }
+            + if plan.blur { 2 } else { 0 }
+            + 2 * settings.spp as usize
+            + 1;
+        let queries = self.timestamps.then(|| {
+            device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("twill.frame.timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: (2 * pass_instances) as u32,
+            })
+        });
+        let mut query_names: Vec<String> = Vec::new();
+        let mut next_query = |name: &str| -> Option<u32> {
+            queries.as_ref()?;
+            query_names.push(name.to_owned());
+            Some(2 * (query_names.len() as u32 - 1))
+        };
+
+        let mut encoder =
+            device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("twill.frame.encoder") });
+
+        // Shell-space visibility (once per frame).
+        let layers = plan.shadow_layers().max(1);
+        let vis_size = settings.gpu.visibility_texture_size;
+        let vis_texture = |label: &str, usage: wgpu::TextureUsages| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width: vis_size, height: vis_size, depth_or_array_layers: layers },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rg32Float,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let (vis_sharp, vis_blurred) = if plan.shadow_maps {
+            let storage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING;
+            let sharp = vis_texture("twill.visibility.sharp", storage);
+            let light_matrices = self.light_matrices(lights, &plan);
+            self.encode_shadow_maps(
+                &mut encoder,
+                &plan,
+                lights,
+                &light_matrices,
+                settings,
+                &sharp,
+                &mut next_query,
+                queries.as_ref(),
+            );
+            let blurred = if plan.blur {
+                let blurred = vis_texture("twill.visibility.blurred", storage);
+                self.encode_blur(&mut encoder, &sharp, &blurred, settings, &mut next_query, queries.as_ref());
+                blurred
+            } else {
+                sharp.clone()
+            };
+            (sharp, blurred)
+        } else {
+            let t = vis_texture("twill.visibility.none", wgpu::TextureUsages::TEXTURE_BINDING);
+            (t.clone(), t)
+        };
+
+        // Frame targets.
+        let target = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let position = target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach);
+        let ids = target("twill.gbuffer.ids", wgpu::TextureFormat::Rgba32Uint, attach);
+        let depth = target("twill.gbuffer.depth", wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let display = target(
+            "twill.display",
+            wgpu::TextureFormat::Rgba8Unorm,
+            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let pixels = u64::from(width) * u64::from(height);
+        let accumulation = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("twill.accumulation"),
+            size: pixels * 16,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        encoder.clear_buffer(&accumulation, 0, None);
+
+        // Camera and lights.
+        let aspect = width as f32 / height as f32;
+        let (clip_from_world, eye) = camera_matrices(camera, aspect, self.shell.bounds);
+        let frame_buffer = |jitter: [f32; 4]| {
+            let uniforms = FrameUniformsGpu {
+                clip_from_world: clip_from_world.to_cols_array_2d(),
+                eye,
+                jitter,
+                fabric_z: [self.fabric_z[0], self.fabric_z[1], plan.volume_samples as f32, 0.0],
+                viewport: [width as f32, height as f32, 0.0, 0.0],
+            };
+            make_buffer(&device, &self.queue, "twill.gbuffer.uniforms", bytemuck::bytes_of(&uniforms), wgpu::BufferUsages::UNIFORM)
+        };
+        let lights_gpu = self.lights_gpu(lights, &plan);
+        let lights_buffer = make_buffer(&device, &self.queue, "twill.shade.lights", bytemuck::cast_slice(&lights_gpu), wgpu::BufferUsages::STORAGE);
+        let shade_uniforms = ShadeUniformsGpu {
+            counts: [lights_gpu.len() as u32, width, height, 0],
+            eye,
+            uv_rect: self.shell.uv_rect,
+            fabric: [self.fabric_z[1], 0.0, 0.0, 0.0],
+        };
+        let shade_buffer = make_buffer(&device, &self.queue, "twill.shade.uniforms", bytemuck::bytes_of(&shade_uniforms), wgpu::BufferUsages::UNIFORM);
+        let view = |t: &wgpu::Texture| t.create_view(&wgpu::TextureViewDescriptor::default());
+        let array_view = |t: &wgpu::Texture| {
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            })
+        };
+        let shade_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.shade.bind_group"),
+            layout: &self.shade_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: shade_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: lights_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: self.shell.tetras.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&view(&position)) },
+                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&view(&ids)) },
+                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&array_view(&vis_sharp)) },
+                wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::TextureView(&array_view(&vis_blurred)) },
+                wgpu::BindGroupEntry { binding: 7, resource: accumulation.as_entire_binding() },
+            ],
+        });
+
+        let (position_view, ids_view, depth_view) = (view(&position), view(&ids), view(&depth));
+        for sample in 0..settings.spp {
+            let (jx, jy) = (halton(sample + 1, 2), halton(sample + 1, 3));
+            let jitter = if settings.spp == 1 {
+                [0.0, 0.0, 0.5, 0.0]
+            } else {
+                [
+                    (2.0 * jx - 1.0) / width as f32,
+                    -(2.0 * jy - 1.0) / height as f32,
+                    (0.5 + sample as f32 * 0.618_034).fract(),
+                    0.0,
+                ]
+            };
+            let uniforms = frame_buffer(jitter);
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("twill.gbuffer.bind_group"),
+                layout: &self.gbuffer_layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: uniforms.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: self.shell.tetra_corners.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.shell.tetras.as_entire_binding() },
+                ],
+            });
+            let query = next_query("eye rays (G-buffer)");
+            {
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("twill.gbuffer.pass"),
+                    color_attachments: &[
+                        Some(wgpu::RenderPassColorAttachment {
+                            view: &position_view,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store },
+                        }),
+                        Some(wgpu::RenderPassColorAttachment {
+                            view: &ids_view,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store },
+                        }),
+                    ],
+                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                        view: &depth_view,
+                        depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Store }),
+                        stencil_ops: None,
+                    }),
+                    timestamp_writes: render_timestamps(queries.as_ref(), query),
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                pass.set_pipeline(&self.gbuffer_pipeline);
+                pass.set_bind_group(0, &group, &[]);
+                pass.set_bind_group(1, &self.fabric.bind_group, &[]);
+                pass.draw(0..self.shell.tetra_count * 12, 0..1);
+            }
+            let query = next_query("shading");
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("twill.shade.pass"),
+                    timestamp_writes: compute_timestamps(queries.as_ref(), query),
+                });
+                pass.set_pipeline(shade_pipeline);
+                pass.set_bind_group(0, &shade_group, &[]);
+                pass.set_bind_group(1, &self.fabric.bind_group, &[]);
+                pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+            }
+        }
+
+        // Tone mapping.
+        let tone = ToneMapUniformsGpu {
+            size: [width, height, u32::from(settings.filmic), 0],
+            scale: [(settings.exposure.exp2() / f64::from(settings.spp)) as f32, 0.0, 0.0, 0.0],
+        };
+        let tone_buffer = make_buffer(&device, &self.queue, "twill.tonemap.uniforms", bytemuck::bytes_of(&tone), wgpu::BufferUsages::UNIFORM);
+        let tone_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.tonemap.bind_group"),
+            layout: &self.tonemap_pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: tone_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: accumulation.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view(&display)) },
+            ],
+        });
+        let query = next_query("tone map");
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("twill.tonemap.pass"),
+                timestamp_writes: compute_timestamps(queries.as_ref(), query),
+            });
+            pass.set_pipeline(&self.tonemap_pipeline);
+            pass.set_bind_group(0, &tone_group, &[]);
+            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
+        }
+
+        // Readback.
+        let radiance_readback = readback_buffer(&device, "twill.readback.radiance", pixels * 16);
+        encoder.copy_buffer_to_buffer(&accumulation, 0, &radiance_readback, 0, pixels * 16);
+        let row_bytes = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let display_readback = readback_buffer(&device, "twill.readback.display", u64::from(row_bytes) * u64::from(height));
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo { texture: &display, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &display_readback,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: Some(height) },
+            },
+            wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        );
+        let query_count = 2 * query_names.len() as u32;
+        let timing_readback = queries.as_ref().map(|set| {
+            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("twill.timestamps.resolve"),
+                size: u64::from(query_count) * 8,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            encoder.resolve_query_set(set, 0..query_count, &resolve, 0);
+            let readback = readback_buffer(&device, "twill.readback.timestamps", u64::from(query_count) * 8);
+            encoder.copy_buffer_to_buffer(&resolve, 0, &readback, 0, u64::from(query_count) * 8);
+            readback
+        });
+        self.queue.submit([encoder.finish()]);
+        if let Some(error) = pollster::block_on(scope.pop()) {
+            return Err(RenderError::Gpu { label: "frame".into(), message: error.to_string() });
+        }
+
+        let accumulated: Vec<[f32; 4]> = read_buffer(&device, &radiance_readback)?;
+        let inv = 1.0 / settings.spp as f32;
+        let radiance = accumulated.iter().map(|p| [p[0] * inv, p[1] * inv, p[2] * inv]).collect();
+        let display_bytes: Vec<u8> = read_buffer(&device, &display_readback)?;
+        let mut display_pixels = Vec::with_capacity(pixels as usize);
+        for row in display_bytes.chunks_exact(row_bytes as usize) {
+            display_pixels.extend(row[..(width * 4) as usize].chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
+        }
+        let timings = match timing_readback {
+            Some(buffer) => {
+                let ticks: Vec<u64> = read_buffer(&device, &buffer)?;
+                let period_ns = f64::from(self.queue.get_timestamp_period());
+                let mut sums: Vec<PassTiming> = Vec::new();
+                for (i, name) in query_names.iter().enumerate() {
+                    let ms = ticks[2 * i + 1].saturating_sub(ticks[2 * i]) as f64 * period_ns * 1e-6;
+                    match sums.iter_mut().find(|t| &t.pass == name) {
+                        Some(t) => t.milliseconds += ms,
+                        None => sums.push(PassTiming { pass: name.clone(), milliseconds: ms }),
+                    }
+                }
+                Some(sums)
+            }
+            None => None,
+        };
+        Ok(Frame { width, height, radiance, display: display_pixels, plan, timings })
+    }
+
+    /// Orthographic light frusta fitted to the shell's bounding sphere.
+    fn light_matrices(&self, lights: &[Light], plan: &FramePlan) -> Vec<(Mat4, f32, f32)> {
+        let (lo, hi) = self.shell.bounds;
+        let centre = 0.5 * (lo + hi);
+        let radius = (0.5 * (hi - lo).length()).max(1e-3) * 1.05;
+        plan.lights
+            .iter()
+            .filter(|l| l.shadow_layer.is_some())
+            .map(|l| {
+                let dir = light_direction(&lights[l.light]).as_vec3();
+                let up = if dir.z.abs() < 0.9 { Vec3::Z } else { Vec3::X };
+                let view = look_at_mat4(centre + dir * 2.0 * radius, centre, up);
+                let proj = orthographic(-radius, radius, -radius, radius, 0.0, 4.0 * radius);
+                (proj * view, 2.0 * radius, 4.0 * radius)
+            })
+            .collect()
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn encode_shadow_maps(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        plan: &FramePlan,
+        lights: &[Light],
+        matrices: &[(Mat4, f32, f32)],
+        settings: &FrameSettings,
+        visibility: &wgpu::Texture,
+        next_query: &mut dyn FnMut(&str) -> Option<u32>,
+        queries: Option<&wgpu::QuerySet>,
+    ) {
+        let device = &self.device;
+        let size = settings.gpu.shadow_map_size;
+        let layers = plan.shadow_layers();
+        let shadow = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("twill.shadow_maps"),
+            size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: layers },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Depth32Float,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let mut surface = SurfaceUniformsGpu {
+            light_clip_from_world: [[[0.0; 4]; 4]; MAX_SHADOWED_LIGHTS],
+            uv_rect: self.shell.uv_rect,
+        };
+        let mut vis = VisibilityUniformsGpu {
+            light_clip_from_world: [[[0.0; 4]; 4]; MAX_SHADOWED_LIGHTS],
+            filters: [[0.0; 4]; MAX_SHADOWED_LIGHTS],
+            info: [layers as f32, size as f32, matrices.first().map_or(1.0, |m| m.2), 0.0],
+        };
+        let shadowed: Vec<_> = plan.lights.iter().filter(|l| l.shadow_layer.is_some()).collect();
+        for (k, (l, (matrix, width_cm, depth_cm))) in shadowed.iter().zip(matrices).enumerate() {
+            surface.light_clip_from_world[k] = matrix.to_cols_array_2d();
+            vis.light_clip_from_world[k] = matrix.to_cols_array_2d();
+            let texel_cm = f64::from(*width_cm) / f64::from(size);
+            let bias = settings.gpu.shadow_bias_texels * texel_cm / f64::from(*depth_cm);
+            let penumbra_per_cm = match lights[l.light] {
+                Light::Sg { sharpness, .. } => 2.0 * sg_light_angle(sharpness).tan() / texel_cm,
+                Light::Directional { .. } => 0.0,
+            };
+            let filter = if l.global == GlobalVisibility::Pcss { 2.0 } else { 1.0 };
+            vis.filters[k] =
+                [filter, settings.gpu.pcf_radius_texels as f32, penumbra_per_cm as f32, bias as f32];
+        }
+        let surface_buffer = make_buffer(device, &self.queue, "twill.shell_surface.uniforms", bytemuck::bytes_of(&surface), wgpu::BufferUsages::UNIFORM);
+        let shadow_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.shadow.bind_group"),
+            layout: &self.shadow_pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: surface_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.shell.surface_vertices.as_entire_binding() },
+            ],
+        });
+        for layer in 0..layers {
+            let layer_view = shadow.create_view(&wgpu::TextureViewDescriptor {
+                label: Some("twill.shadow_maps.layer"),
+                dimension: Some(wgpu::TextureViewDimension::D2),
+                base_array_layer: layer,
+                array_layer_count: Some(1),
+                ..Default::default()
+            });
+            let query = next_query("shadow maps");
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("twill.shadow.pass"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &layer_view,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Store }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: render_timestamps(queries, query),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.shadow_pipeline);
+            pass.set_bind_group(0, &shadow_group, &[]);
+            pass.draw(0..self.shell.surface_vertex_count, layer..layer + 1);
+        }
+
+        // X[u, v].
+        let vis_size = settings.gpu.visibility_texture_size;
+        let top = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("twill.top_surface"),
+            size: wgpu::Extent3d { width: vis_size, height: vis_size, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba32Float,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let top_view = top.create_view(&wgpu::TextureViewDescriptor::default());
+        let top_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.top_surface.bind_group"),
+            layout: &self.top_pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: surface_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: self.shell.surface_vertices.as_entire_binding() },
+            ],
+        });
+        {
+            let query = next_query("top surface X[u,v]");
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("twill.top_surface.pass"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &top_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT), store: wgpu::StoreOp::Store },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: render_timestamps(queries, query),
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.top_pipeline);
+            pass.set_bind_group(0, &top_group, &[]);
+            pass.draw(0..self.shell.top_vertex_count, 0..1);
+        }
+
+        // V[u, v].
+        let vis_buffer = make_buffer(device, &self.queue, "twill.visibility.uniforms", bytemuck::bytes_of(&vis), wgpu::BufferUsages::UNIFORM);
+        let shadow_view = shadow.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let vis_view = visibility.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let vis_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.visibility.bind_group"),
+            layout: &self.visibility_pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: vis_buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&top_view) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&shadow_view) },
+                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(&vis_view) },
+            ],
+        });
+        let query = next_query("visibility V[u,v]");
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("twill.visibility.pass"),
+            timestamp_writes: compute_timestamps(queries, query),
+        });
+        pass.set_pipeline(&self.visibility_pipeline);
+        pass.set_bind_group(0, &vis_group, &[]);
+        pass.dispatch_workgroups(vis_size.div_ceil(8), vis_size.div_ceil(8), 1);
+    }
+
+    fn encode_blur(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        sharp: &wgpu::Texture,
+        blurred: &wgpu::Texture,
+        settings: &FrameSettings,
+        next_query: &mut dyn FnMut(&str) -> Option<u32>,
+        queries: Option<&wgpu::QuerySet>,
+    ) {
+        let device = &self.device;
+        let size = settings.gpu.visibility_texture_size;
+        let layers = sharp.depth_or_array_layers();
+        let across = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("twill.visibility.blur_u"),
+            size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: layers },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rg32Float,
+            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let [du, dv] = [self.shell.uv_rect[2], self.shell.uv_rect[3]];
+        let array_view = |t: &wgpu::Texture| {
+            t.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            })
+        };
+        for (axis, extent, source, destination) in
+            [([1.0, 0.0], du, sharp, &across), ([0.0, 1.0], dv, &across, blurred)]
+        {
+            let sigma = (settings.gpu.sigma_glo_cm as f32 * size as f32 / extent).max(1e-3);
+            let radius = (3.0 * sigma).ceil().min(256.0);
+            let uniforms = BlurUniformsGpu { axis: [axis[0], axis[1], sigma, radius] };
+            let buffer = make_buffer(device, &self.queue, "twill.blur.uniforms", bytemuck::bytes_of(&uniforms), wgpu::BufferUsages::UNIFORM);
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("twill.blur.bind_group"),
+                layout: &self.blur_pipeline.get_bind_group_layout(0),
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&array_view(source)) },
+                    wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&array_view(destination)) },
+                ],
+            });
+            let query = next_query("blur sigma_glo");
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("twill.blur.pass"),
+                timestamp_writes: compute_timestamps(queries, query),
+            });
+            pass.set_pipeline(&self.blur_pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(size.div_ceil(8), size.div_ceil(8), layers);
+        }
+    }
+
+    fn lights_gpu(&self, lights: &[Light], plan: &FramePlan) -> Vec<LightGpu> {
+        plan.lights
+            .iter()
+            .map(|l| {
+                let layer = l.shadow_layer.map_or(-1, |k| k as i32);
+                match lights[l.light] {
+                    Light::Directional { to_light, irradiance } => LightGpu {
+                        direction: to_light.as_vec3().to_array(),
+                        kind: 0,
+                        color: irradiance.as_vec3().to_array(),
+                        sharpness: 0.0,
+                        layer,
+                        w_sum_of_sg: 0.0,
+                        w_ssdf_erf: 0.0,
+                        pad: 0.0,
+                    },
+                    Light::Sg { axis, sharpness, intensity } => {
+                        let (w_sum_of_sg, w_ssdf_erf) = sg_path_weights(sharpness);
+                        LightGpu {
+                            direction: axis.as_vec3().to_array(),
+                            kind: 1,
+                            color: intensity.as_vec3().to_array(),
+                            sharpness: sharpness as f32,
+                            layer,
+                            w_sum_of_sg: w_sum_of_sg as f32,
+                            w_ssdf_erf: w_ssdf_erf as f32,
+                            pad: 0.0,
+                        }
+                    }
+                }
+            })
+            .collect()
+    }
+}
+
+/// Weights of the sum-of-SGs and erf-SSDF paths for an SG light of sharpness λ (paper 5.2.2):
+/// (1, 0) for λ ≤ 100, (0, 1) for λ ≥ 200, linear in λ between.
+#[must_use]
+pub fn sg_path_weights(lambda: f64) -> (f64, f64) {
+    let b = ((lambda - crate::plan::SOS_ONLY_MAX_LAMBDA)
+        / (crate::plan::SSDF_ONLY_MIN_LAMBDA - crate::plan::SOS_ONLY_MAX_LAMBDA))
+        .clamp(0.0, 1.0);
+    (1.0 - b, b)
+}
+
+/// The angular radius used for an SG light's PCSS penumbra: `cos α = 1 − 1/λ`, capped.
+#[must_use]
+pub fn sg_light_angle(lambda: f64) -> f64 {
+    let alpha = if lambda <= 1.0 { std::f64::consts::FRAC_PI_2 } else { (1.0 - 1.0 / lambda).acos() };
+    alpha.min(MAX_PCSS_ANGLE_DEG.to_radians())
+}
+
+fn light_direction(light: &Light) -> DVec3 {
+    match *light {
+        Light::Directional { to_light, .. } => to_light,
+        Light::Sg { axis, .. } => axis,
+    }
+}
+
+/// Plans a frame (also usable without a device, e.g. for `--print-plan`).
+#[must_use]
+pub fn plan_frame(lights: &[Light], settings: &FrameSettings, flat_normal: Option<Vec3>) -> FramePlan {
+    let plan_lights: Vec<PlanLight> = lights
+        .iter()
+        .map(|l| match *l {
+            Light::Directional { to_light, .. } => PlanLight::Directional { to_light: to_light.to_array() },
+            Light::Sg { axis, sharpness, .. } => PlanLight::Sg { axis: axis.to_array(), sharpness },
+        })
+        .collect();
+    FramePlan::new(
+        &plan_lights,
+        &PlanInputs {
+            flat_normal: flat_normal.map(|n| n.as_dvec3().to_array()),
+            components: settings.components,
+            sigma_glo_cm: settings.gpu.sigma_glo_cm,
+            volume_samples: settings.gpu.volume_samples,
+            spp: settings.spp,
+        },
+    )
+}
+
+fn validate(settings: &FrameSettings, lights: &[Light]) -> Result<(), RenderError> {
+    let bad = |m: String| Err(RenderError::Settings(m));
+    if !(1..=16384).contains(&settings.width) || !(1..=16384).contains(&settings.height) {
+        return bad(format!("size {}x{}: each side must be in 1..=16384", settings.width, settings.height));
+    }
+    if !(1..=65536).contains(&settings.spp) {
+        return bad(format!("spp {}: must be in 1..=65536", settings.spp));
+    }
+    if lights.len() > MAX_LIGHTS {
+        return bad(format!("{} lights: at most {MAX_LIGHTS} are supported", lights.len()));
+    }
+    if !(-30.0..=30.0).contains(&settings.exposure) {
+        return bad(format!("exposure {}: must be in -30..=30 stops", settings.exposure));
+    }
+    settings.gpu.validate().map_err(|e| RenderError::Settings(e.to_string()))
+}
+
+/// Clip-from-world matrix (wgpu depth 0..1, near and far fitted around the shell) and the
+/// eye uniform (position with w = 1, or the viewing direction with w = 0).
+fn camera_matrices(camera: &CameraSection, aspect: f32, bounds: (Vec3, Vec3)) -> (Mat4, [f32; 4]) {
+    let eye = DVec3::from(camera.eye).as_vec3();
+    let target = DVec3::from(camera.target).as_vec3();
+    let up = DVec3::from(camera.up).as_vec3();
+    let forward = (target - eye).normalize();
+    let view = look_at_mat4(eye, target, up);
+    let (lo, hi) = bounds;
+    let mut near = f32::INFINITY;
+    let mut far = 0.0_f32;
+    for i in 0..8 {
+        let corner = Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        );
+        let d = (corner - eye).dot(forward);
+        near = near.min(d);
+        far = far.max(d);
+    }
+    let span = (hi - lo).length().max(1e-3);
+    let far = far.max(1e-3) + 0.01 * span;
+    match camera.projection {
+        ProjectionKind::Perspective => {
+            let near = (near - 0.01 * span).max(far * 1e-4);
+            let proj = perspective((camera.fov_y_deg as f32).to_radians(), aspect, near, far);
+            (proj * view, eye.extend(1.0).to_array())
+        }
+        ProjectionKind::Orthographic => {
+            let half_h = 0.5 * camera.height_cm as f32;
+            let half_w = half_h * aspect;
+            let near = near - 0.01 * span;
+            let proj = orthographic(-half_w, half_w, -half_h, half_h, near, far);
+            (proj * view, forward.extend(0.0).to_array())
+        }
+    }
+}
+
+/// Radical inverse of `index` in `base` (Halton sequence), in [0, 1).
+fn halton(mut index: u32, base: u32) -> f32 {
+    let mut result = 0.0_f32;
+    let mut f = 1.0_f32;
+    while index > 0 {
+        f /= base as f32;
+        result += f * (index % base) as f32;
+        index /= base;
+    }
+    result
+}
+
+fn render_timestamps(queries: Option<&wgpu::QuerySet>, index: Option<u32>) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
+    let (set, i) = (queries?, index?);
+    Some(wgpu::RenderPassTimestampWrites { query_set: set, beginning_of_pass_write_index: Some(i), end_of_pass_write_index: Some(i + 1) })
+}
+
+fn compute_timestamps(queries: Option<&wgpu::QuerySet>, index: Option<u32>) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+    let (set, i) = (queries?, index?);
+    Some(wgpu::ComputePassTimestampWrites { query_set: set, beginning_of_pass_write_index: Some(i), end_of_pass_write_index: Some(i + 1) })
+}
+
+fn readback_buffer(device: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size.max(16),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+fn read_buffer<T: bytemuck::Pod>(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<T>, RenderError> {
+    let slice = buffer.slice(..);
+    let (sender, receiver) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |result| {
+        let _ = sender.send(result);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
+    receiver
+        .recv()
+        .map_err(|e| RenderError::Readback(e.to_string()))?
+        .map_err(|e| RenderError::Readback(e.to_string()))?;
+    let view = slice.get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
+    let out = bytemuck::cast_slice(&view).to_vec();
+    drop(view);
+    buffer.unmap();
+    Ok(out)
+}
+
+/// A one-paragraph summary of a frame's timings.
+#[must_use]
+pub fn describe_timings(timings: &[PassTiming]) -> String {
+    let mut text = String::new();
+    let total: f64 = timings.iter().map(|t| t.milliseconds).sum();
+    for t in timings {
+        let _ = writeln!(text, "  {:<28} {:>9.3} ms", t.pass, t.milliseconds);
+    }
+    let _ = writeln!(text, "  {:<28} {:>9.3} ms", "total (GPU)", total);
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sg_path_weights_blend_linearly_between_100_and_200() {
+        assert_eq!(sg_path_weights(50.0), (1.0, 0.0));
+        assert_eq!(sg_path_weights(100.0), (1.0, 0.0));
+        assert_eq!(sg_path_weights(150.0), (0.5, 0.5));
+        assert_eq!(sg_path_weights(200.0), (0.0, 1.0));
+        assert_eq!(sg_path_weights(1e5), (0.0, 1.0));
+    }
+
+    #[test]
+    fn sg_light_angle_shrinks_with_sharpness() {
+        assert!((sg_light_angle(1e4) - (2.0_f64 / 1e4).sqrt()).abs() < 1e-4);
+        assert!((sg_light_angle(0.5) - 60_f64.to_radians()).abs() < 1e-12);
+        assert!(sg_light_angle(100.0) < sg_light_angle(10.0));
+    }
+
+    #[test]
+    fn halton_points_are_in_the_unit_interval() {
+        assert_eq!(halton(1, 2), 0.5);
+        assert_eq!(halton(2, 2), 0.25);
+        assert!((halton(1, 3) - 1.0 / 3.0).abs() < 1e-7);
+    }
+}

@@ -1,0 +1,104 @@
+//! Rendering a scene without a window: the glue `twill render`, the tests and the benchmarks
+//! share.
+//!
+//! How it works: [`shell_for_scene`] turns the scene's `[mesh]` section into a shell whose
+//! depth spans the baked fabric's slab (the flat swatch of `[swatch]` when no mesh is given,
+//! placed so that world and flat-fabric coordinates coincide, as in the path tracer);
+//! [`frame_settings`] reads the scene's `[render]` and `[gpu]` sections; [`SceneRenderer`] opens
+//! a headless device, uploads the bake and the shell, and renders frames.
+
+use std::path::Path;
+
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::Baked;
+use twill_precompute::scene::Scene;
+
+use crate::fabric_data::{FabricArrays, FabricData, FabricDataError};
+use crate::frame::{Frame, FrameSettings, RenderError, Renderer};
+use crate::gpu::{Gpu, GpuError};
+use crate::plan::Components;
+use crate::shell::{BaseMesh, Shell, ShellError, ShellSpec};
+
+/// Why a scene could not be rendered headless.
+#[derive(Debug, thiserror::Error)]
+pub enum HeadlessError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Fabric(#[from] FabricDataError),
+    #[error(transparent)]
+    Shell(#[from] ShellError),
+    #[error(transparent)]
+    Render(#[from] RenderError),
+}
+
+/// The fabric slab `[z_min, z_max]` (cm) of a bake set.
+pub fn fabric_z_range(exemplars: &[&Baked], pattern: &PatternMap) -> Result<[f32; 2], FabricDataError> {
+    Ok(FabricArrays::pack(exemplars, pattern)?.header.z_range)
+}
+
+/// The shell of a scene's `[mesh]` (default: the flat swatch) around a fabric slab.
+pub fn shell_for_scene(scene: &Scene, z_range: [f32; 2]) -> Result<Shell, ShellError> {
+    let m = &scene.mesh;
+    let size = m.size_cm.unwrap_or(scene.swatch.size_cm);
+    let size = [size[0] as f32, size[1] as f32];
+    let mut mesh = match (&m.builtin, &m.path) {
+        (_, Some(path)) => BaseMesh::load(&resolve(&scene.base_dir, path))?,
+        (Some(name), None) => BaseMesh::builtin(name, size)?,
+        (None, None) => BaseMesh::builtin("swatch", size)?,
+    };
+    mesh.validate_and_repair()?;
+    let thickness = (z_range[1] - z_range[0]) * m.thickness_scale as f32;
+    let spec = ShellSpec { thickness_cm: thickness, cm_per_uv: m.cm_per_uv as f32, w_range_cm: z_range };
+    Shell::build(&mesh, &spec)
+}
+
+fn resolve(base: &Path, path: &Path) -> std::path::PathBuf {
+    if path.is_absolute() { path.to_path_buf() } else { base.join(path) }
+}
+
+/// Frame settings from a scene's `[render]` and `[gpu]` sections.
+#[must_use]
+pub fn frame_settings(scene: &Scene, components: Components) -> FrameSettings {
+    FrameSettings {
+        width: scene.render.width as u32,
+        height: scene.render.height as u32,
+        spp: scene.render.spp,
+        exposure: scene.render.exposure,
+        filmic: true,
+        components,
+        gpu: scene.gpu,
+    }
+}
+
+/// A device with a scene's bake and shell uploaded.
+pub struct SceneRenderer {
+    pub gpu: Gpu,
+    pub renderer: Renderer,
+}
+
+impl SceneRenderer {
+    /// Opens a headless device and uploads `exemplars` (in pattern order) and the scene's shell.
+    pub fn new(scene: &Scene, exemplars: &[&Baked], pattern: &PatternMap) -> Result<Self, HeadlessError> {
+        let gpu = Gpu::headless()?;
+        Self::with_gpu(gpu, scene, exemplars, pattern)
+    }
+
+    /// As [`SceneRenderer::new`] on a device already open.
+    pub fn with_gpu(
+        gpu: Gpu,
+        scene: &Scene,
+        exemplars: &[&Baked],
+        pattern: &PatternMap,
+    ) -> Result<Self, HeadlessError> {
+        let fabric = FabricData::upload(&gpu.device, &gpu.queue, exemplars, pattern)?;
+        let shell = shell_for_scene(scene, fabric.arrays.header.z_range)?;
+        let renderer = Renderer::new(&gpu, fabric, &shell)?;
+        Ok(Self { gpu, renderer })
+    }
+
+    /// Renders the scene's camera and lights.
+    pub fn render(&mut self, scene: &Scene, settings: &FrameSettings) -> Result<Frame, HeadlessError> {
+        Ok(self.renderer.render(&scene.camera, &scene.path_scene.lights, settings)?)
+    }
+}

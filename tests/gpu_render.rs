@@ -1,0 +1,185 @@
+//! The GPU renderer end to end on a real Vulkan adapter (lavapipe without a GPU): golden
+//! images, the frame plan as executed, the tone-map twin, and the method against the path
+//! tracer (paper Fig. 13 style). Without an adapter these tests fail unless
+//! `TWILL_ALLOW_NO_GPU=1` (then they print a loud SKIPPED line).
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use twill_precompute::bake::Cancel;
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::pathtrace::{self, Component};
+use twill_precompute::scene::{Scene, SceneFile};
+use twill_renderer::export::{Display, ToneCurve, display_srgb8};
+use twill_renderer::frame::Frame;
+use twill_renderer::gpu::Gpu;
+use twill_renderer::headless::{SceneRenderer, frame_settings};
+use twill_renderer::plan::Components;
+use twill_tests::compare_with_golden;
+
+fn gpu_or_skip(test: &str) -> Option<Gpu> {
+    match Gpu::headless() {
+        Ok(gpu) => Some(gpu),
+        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
+            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
+            None
+        }
+        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
+    }
+}
+
+const FABRIC: &str = "[fabric]\npreset = \"default\"\n";
+
+/// The default fabric's draft bake, shared by every test of this binary.
+fn default_bake() -> &'static Baked {
+    static BAKE: OnceLock<Baked> = OnceLock::new();
+    BAKE.get_or_init(|| {
+        let scene = scene(&format!("{FABRIC}{}", camera_above(0.0)), &[SUN]);
+        let inputs = BakeInputs {
+            exemplar: &scene.exemplar,
+            materials: &scene.material_descs,
+            settings: Quality::Draft.settings(),
+        };
+        bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake of the default fabric").baked
+    })
+}
+
+const SUN: &str = "[[lights]]\ntype = \"directional\"\ndirection = [-0.5, 0.3, 0.8]\nirradiance = [3.0, 2.9, 2.7]\n";
+
+fn camera_above(tilt: f64) -> String {
+    format!(
+        "[camera]\nprojection = \"perspective\"\neye = [0.0, {:.4}, {:.4}]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 1.0]\nfov_y_deg = 30.0\n",
+        -0.9 * tilt.sin(),
+        0.9 * tilt.cos()
+    )
+}
+
+fn scene(head: &str, lights: &[&str]) -> Scene {
+    let text = format!("{head}{}", lights.concat());
+    SceneFile::parse(&text, Path::new("gpu_render.toml")).expect("scene parses").build().expect("scene builds")
+}
+
+fn render(gpu: Gpu, scene: &Scene, size: u32, spp: u32, components: Components) -> (Frame, Gpu) {
+    let mut settings = frame_settings(scene, components);
+    (settings.width, settings.height, settings.spp) = (size, size, spp);
+    settings.gpu.visibility_texture_size = 256;
+    settings.gpu.shadow_map_size = 512;
+    let mut session = SceneRenderer::with_gpu(gpu, scene, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let frame = session.render(scene, &settings).expect("frame renders");
+    for (i, p) in frame.radiance.iter().enumerate() {
+        assert!(p.iter().all(|c| c.is_finite() && *c >= 0.0), "pixel {i} is {p:?}");
+    }
+    (frame, session.gpu)
+}
+
+fn pass_names(frame: &Frame) -> Vec<String> {
+    frame.timings.as_ref().expect("lavapipe has timestamp queries").iter().map(|t| t.pass.clone()).collect()
+}
+
+#[test]
+fn golden_images_and_the_plan_as_executed() {
+    let Some(gpu) = gpu_or_skip("golden_images_and_the_plan_as_executed") else { return };
+    let sg_fill = "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
+    let sg_sharp = "[[lights]]\ntype = \"sg\"\naxis = [0.4, 0.2, 0.9]\nsharpness = 300.0\nintensity = [3.0, 3.0, 3.0]\n";
+    let oblique = camera_above(0.6);
+    let cases: Vec<(&str, Scene)> = vec![
+        ("swatch_sun_and_sky", scene(&format!("{FABRIC}[swatch]\nsize_cm = [1.0, 1.0]\nground = true\n{oblique}"), &[SUN, sg_fill])),
+        ("swatch_sharp_sg", scene(&format!("{FABRIC}[swatch]\nsize_cm = [1.0, 1.0]\nground = true\n{oblique}"), &[sg_sharp])),
+        ("drape_sun_pcf", scene(&format!("{FABRIC}[mesh]\nbuiltin = \"drape\"\nsize_cm = [1.0, 1.0]\n{oblique}"), &[SUN])),
+        ("cushion_sg_pcss", scene(&format!("{FABRIC}[mesh]\nbuiltin = \"cushion\"\nsize_cm = [1.0, 1.0]\n{oblique}"), &[sg_sharp, sg_fill])),
+    ];
+    let mut gpu = gpu;
+    let mut failures = Vec::new();
+    for (name, scene) in &cases {
+        let (frame, back) = render(gpu, scene, 128, 4, Components::All);
+        gpu = back;
+        let passes = pass_names(&frame);
+        eprintln!("{name}: passes {passes:?}\n{}", frame.plan);
+        let shadowed = passes.iter().any(|p| p.starts_with("shadow"));
+        if name.starts_with("swatch") {
+            assert!(!shadowed && !passes.iter().any(|p| p.contains("visibility")), "{name}: a flat swatch lit from above ran {passes:?}");
+        } else {
+            assert!(shadowed && passes.iter().any(|p| p.contains("visibility")), "{name}: a curved shell ran no shadow pass: {passes:?}");
+        }
+        if *name == "drape_sun_pcf" {
+            let text = frame.plan.to_string();
+            assert!(text.contains("PCF") && !text.contains("PCSS") && !text.contains("SumOfSg"), "{text}");
+        }
+        let lit = frame.radiance.iter().filter(|p| p.iter().sum::<f32>() > 0.0).count();
+        assert!(lit > 128 * 128 / 4, "{name}: only {lit} pixels lit");
+        match compare_with_golden(name, frame.width, frame.height, &frame.display) {
+            Ok(summary) => eprintln!("{summary}"),
+            Err(reason) => failures.push(reason),
+        }
+    }
+    assert!(failures.is_empty(), "golden mismatches:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn the_tone_map_pass_matches_its_cpu_twin() {
+    let Some(gpu) = gpu_or_skip("the_tone_map_pass_matches_its_cpu_twin") else { return };
+    let scene = scene(&format!("{FABRIC}{}", camera_above(0.3)), &[SUN]);
+    let (frame, _) = render(gpu, &scene, 64, 2, Components::All);
+    let display = Display { exposure: scene.render.exposure, curve: ToneCurve::Filmic };
+    let mut worst = 0;
+    for (r, d) in frame.radiance.iter().zip(&frame.display) {
+        let cpu = display_srgb8(glam::Vec3::from(*r).as_dvec3(), display);
+        for c in 0..3 {
+            worst = worst.max(cpu[c].abs_diff(d[c]));
+        }
+    }
+    assert!(worst <= 1, "GPU tone map differs from export::display_srgb8 by {worst} levels");
+}
+
+/// Mean of a radiance image (all channels).
+fn mean(pixels: impl Iterator<Item = f64>) -> f64 {
+    let (mut s, mut n) = (0.0, 0.0);
+    for p in pixels {
+        s += p;
+        n += 1.0;
+    }
+    s / n
+}
+
+#[test]
+fn single_and_multiple_scattering_against_the_path_tracer() {
+    let Some(gpu) = gpu_or_skip("single_and_multiple_scattering_against_the_path_tracer") else { return };
+    let head = format!(
+        "{FABRIC}[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n[camera]\nprojection = \"orthographic\"\neye = [0.0, -0.3, 0.6]\ntarget = [0.0, 0.0, 0.0]\nheight_cm = 0.4\n[render]\nspp = 64\nmax_depth = 64\nseed = 7\n"
+    );
+    let scene = scene(&head, &[SUN]);
+    let size = 48;
+    let mut gpu = gpu;
+    for (components, component, tolerance) in
+        [(Components::SingleOnly, Component::Single, 0.2), (Components::MultipleOnly, Component::Multiple, 0.35)]
+    {
+        let (frame, back) = render(gpu, &scene, size, 16, components);
+        gpu = back;
+        let camera = scene_camera(&scene, size as usize);
+        let settings = scene_settings(component);
+        let film = pathtrace::render(&scene.path_scene, &camera, &settings, &|_| {});
+        let reference = film.mean();
+        let ours: Vec<f64> = frame.radiance.iter().flat_map(|p| p.map(f64::from)).collect();
+        let theirs: Vec<f64> = reference.pixels.iter().flat_map(|p| p.to_array()).collect();
+        let (m_ours, m_ref) = (mean(ours.iter().copied()), mean(theirs.iter().copied()));
+        let rmse = mean(ours.iter().zip(&theirs).map(|(a, b)| (a - b).powi(2))).sqrt();
+        let rel = (m_ours - m_ref) / m_ref;
+        eprintln!(
+            "{components:?}: mean GPU {m_ours:.5} vs path tracer {m_ref:.5}: relative error of the mean {:+.1}%, per-pixel RMSE {rmse:.5} ({:.1}% of the mean)",
+            100.0 * rel,
+            100.0 * rmse / m_ref
+        );
+        assert!(rel.abs() < tolerance, "{components:?}: relative error of the mean {rel:+.3} over {tolerance}");
+    }
+}
+
+fn scene_settings(component: Component) -> twill_precompute::pathtrace::RenderSettings {
+    twill_precompute::pathtrace::RenderSettings { spp: 64, max_depth: 64, component, seed: 7 }
+}
+
+fn scene_camera(scene: &Scene, size: usize) -> twill_precompute::pathtrace::Camera {
+    twill_precompute::scene::camera_from(&scene.camera, size, size).expect("camera")
+}
