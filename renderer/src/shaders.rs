@@ -25,11 +25,19 @@ pub const BLUR: &str = include_str!("../../shaders/blur.wgsl");
 pub const SHADE: &str = include_str!("../../shaders/shade.wgsl");
 /// Exposure, tone curve and sRGB encoding.
 pub const TONEMAP: &str = include_str!("../../shaders/tonemap.wgsl");
+/// `sh_eval_f32`, `sh_rotate_f32`, `sh_zonal_rotated_f32`: real spherical harmonics up to order
+/// 6, twins of `twill_precompute::sh` (`sh_eval`, `ShRotation`). Needs no other module.
+pub const SH: &str = include_str!("../../shaders/shared/sh.wgsl");
 
 /// Every shared module, with its file name (for validation and error messages), in an order
 /// where each needs only those before it.
 pub const SHARED: &[(&str, &str)] =
-    &[("shared/special.wgsl", SPECIAL), ("shared/sg.wgsl", SG), ("shared/fabric_data.wgsl", FABRIC_DATA)];
+    &[
+        ("shared/special.wgsl", SPECIAL),
+        ("shared/sg.wgsl", SG),
+        ("shared/sh.wgsl", SH),
+        ("shared/fabric_data.wgsl", FABRIC_DATA),
+    ];
 
 /// The shared modules concatenated in dependency order (what a pass shader is appended to).
 #[must_use]
