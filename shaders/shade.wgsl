@@ -91,6 +91,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let hit = textureLoad(gbuffer_position, pixel, 0).xyz;
     let segment = ids.x;
+    let e = ids.z;
     let tetra = tetras[ids.y];
     // Flat-fabric frame of this tetrahedron: fabric vectors are (du, dv, dw * thickness).
     let m = tetra.uvw_from_world;
@@ -122,14 +123,14 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             var single = vec3<f32>(0.0);
             if (light.kind == LIGHT_DIRECTIONAL) {
                 if (ENABLE_SSDF_SIGN) {
-                    single = shade_single_directional(segment, wo, dir);
+                    single = shade_single_directional(e, segment, wo, dir);
                 }
             } else {
                 if (ENABLE_SUM_OF_SG && light.w_sum_of_sg > 0.0) {
-                    single += light.w_sum_of_sg * shade_single_sg_sum_of_sg(segment, wo, dir, light.sharpness);
+                    single += light.w_sum_of_sg * shade_single_sg_sum_of_sg(e, segment, wo, dir, light.sharpness);
                 }
                 if (ENABLE_SSDF_ERF && light.w_ssdf_erf > 0.0) {
-                    single += light.w_ssdf_erf * shade_single_sg_ssdf_erf(segment, wo, dir, light.sharpness);
+                    single += light.w_ssdf_erf * shade_single_sg_ssdf_erf(e, segment, wo, dir, light.sharpness);
                 }
             }
             radiance += v_sharp * light.color * single;
@@ -143,7 +144,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
     }
     if (ENABLE_MULTIPLE) {
-        radiance += shade_multiple(segment, wo, &c_in);
+        radiance += shade_multiple(e, segment, wo, &c_in);
     }
     let index = id.y * width + id.x;
     accumulation[index] += vec4<f32>(radiance, 1.0);

@@ -13,6 +13,10 @@ pub const SG: &str = include_str!("../../shaders/shared/sg.wgsl");
 /// twin of `crate::fabric_data`.
 pub const FABRIC_DATA: &str = include_str!("../../shaders/shared/fabric_data.wgsl");
 
+/// Render-time shading from bake data (Γ, SSDF, sum-of-SGs, light SH, IIRTF): twins of
+/// `twill_precompute::shading`. Needs every module before it.
+pub const SHADING: &str = include_str!("../../shaders/shared/shading.wgsl");
+
 /// Eye rays through the shell into the G-buffer (paper 5.1).
 pub const GBUFFER: &str = include_str!("../../shaders/gbuffer.wgsl");
 /// Shadow maps and the top-surface position texture.
@@ -37,6 +41,7 @@ pub const SHARED: &[(&str, &str)] =
         ("shared/sg.wgsl", SG),
         ("shared/sh.wgsl", SH),
         ("shared/fabric_data.wgsl", FABRIC_DATA),
+        ("shared/shading.wgsl", SHADING),
     ];
 
 /// The shared modules concatenated in dependency order (what a pass shader is appended to).

@@ -1,0 +1,322 @@
+// Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
+// precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma; visibility.rs:
+// ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs: light_sh,
+// multiple_scattering_in_cell), compared on the GPU by renderer/tests/gpu_shading_parity.rs.
+// Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
+// global segment id. Needs special.wgsl, sg.wgsl, sh.wgsl and fabric_data.wgsl before it.
+
+const LOBE_R: u32 = 0u;
+const LOBE_TT: u32 = 1u;
+const HALF_PI: f32 = 1.5707963267948966;
+
+// Gn(mu) of a material's lobe by cubic Hermite interpolation (bake::tables::GnTable::eval).
+fn gn_eval(material: u32, lobe: u32, mu: f32) -> f32 {
+    let intervals = fabric.gn_intervals;
+    let base = (material * 2u + lobe) * 2u * (intervals + 1u);
+    let step = HALF_PI / f32(intervals);
+    let x = min(abs(mu), HALF_PI) / step;
+    let k = min(u32(x), intervals - 1u);
+    let t = x - f32(k);
+    let p0 = gn_table[base + 2u * k];
+    let d0 = gn_table[base + 2u * k + 1u] * step;
+    let p1 = gn_table[base + 2u * k + 2u];
+    let d1 = gn_table[base + 2u * k + 3u] * step;
+    let t2 = t * t;
+    let t3 = t2 * t;
+    return (2.0 * t3 - 3.0 * t2 + 1.0) * p0 + (t3 - 2.0 * t2 + t) * d0 + (-2.0 * t3 + 3.0 * t2) * p1 + (t3 - t2) * d1;
+}
+
+// The fiber model's constants of one material (shading::bcsdf::FiberConstants).
+struct FiberConstants {
+    c_r: vec3<f32>,
+    c_tt: vec3<f32>,
+    lambda_r: f32,
+    lambda_tt: f32,
+    kappa: f32,
+    i0e_kappa: f32,
+    material: u32,
+}
+
+fn fiber_constants(material: u32) -> FiberConstants {
+    let m = materials[material];
+    var f: FiberConstants;
+    f.c_r = m.c_r;
+    f.c_tt = m.c_tt;
+    f.lambda_r = 0.5 / (m.beta_r * m.beta_r);
+    f.lambda_tt = 0.5 / (m.beta_tt * m.beta_tt);
+    f.kappa = 1.0 / (m.gamma_tt * m.gamma_tt);
+    f.i0e_kappa = i0e_f32(f.kappa);
+    f.material = material;
+    return f;
+}
+
+fn fresnel(f: FiberConstants, cos_theta: f32) -> vec3<f32> {
+    let x = 1.0 - clamp(cos_theta, 0.0, 1.0);
+    let m = x * x * x * x * x;
+    return f.c_r + (vec3<f32>(1.0) - f.c_r) * m;
+}
+
+// Any unit vector perpendicular to t (sg::frame_from_z(t).0).
+fn perpendicular(z: vec3<f32>) -> vec3<f32> {
+    let sign = select(-1.0, 1.0, z.z >= 0.0);
+    let a = -1.0 / (sign + z.z);
+    return vec3<f32>(1.0 + sign * z.x * z.x * a, sign * z.x * z.y * a, -sign * z.x);
+}
+
+// S(wi, wo) cos(theta_i) (shading::bcsdf::fiber_eval_cos).
+fn fiber_eval_cos(f: FiberConstants, t: vec3<f32>, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
+    let si = dot(wi, t);
+    let pi_ = wi - si * t;
+    let ci = length(pi_);
+    let azi = select(perpendicular(t), pi_ / ci, ci > 1e-6);
+    let so = dot(wo, t);
+    let po = wo - so * t;
+    let co = length(po);
+    let azo = select(perpendicular(t), po / co, co > 1e-6);
+    let theta_i = atan2(si, ci);
+    let theta_o = atan2(so, co);
+    let sum = theta_i + theta_o;
+    let m_r = sqrt(f.lambda_r / PI) * exp(-f.lambda_r * sum * sum) / gn_eval(f.material, LOBE_R, -theta_i);
+    let m_tt = sqrt(f.lambda_tt / PI) * exp(-f.lambda_tt * sum * sum) / gn_eval(f.material, LOBE_TT, -theta_i);
+    let s = azi + azo;
+    let one_plus_cos = 0.5 * dot(s, s);
+    let n_tt = exp(-f.kappa * one_plus_cos) / (2.0 * PI * f.i0e_kappa);
+    let fr = fresnel(f, ci);
+    return (fr * (m_r / (2.0 * PI)) + (vec3<f32>(1.0) - fr) * f.c_tt * (m_tt * n_tt)) * ci;
+}
+
+// The omega_o-space of a fiber (bake::cs_table::OmegaOSpace): rows t, b, c.
+struct OmegaOSpace {
+    t: vec3<f32>,
+    b: vec3<f32>,
+    c: vec3<f32>,
+    theta_o: f32,
+}
+
+fn omega_o_space(t: vec3<f32>, wo: vec3<f32>) -> OmegaOSpace {
+    let along = clamp(dot(wo, t), -1.0, 1.0);
+    let perp = wo - along * t;
+    let len = length(perp);
+    var s: OmegaOSpace;
+    s.t = t;
+    s.b = select(perpendicular(t), perp / len, len > 1e-6);
+    s.c = cross(t, s.b);
+    s.theta_o = atan2(along, len);
+    return s;
+}
+
+// Gaussian lobe of one BCSDF lobe times the SG's longitudinal profile (gamma.rs lobe_gaussian):
+// x = centre, y = weight.
+fn lobe_gaussian(lambda_lobe: f32, lambda: f32, theta_o: f32, theta_axis: f32) -> vec2<f32> {
+    let half = 0.5 * lambda;
+    let sharpness = lambda_lobe + half;
+    let centre = clamp((-lambda_lobe * theta_o + half * theta_axis) / sharpness, -HALF_PI, HALF_PI);
+    let sum = theta_o + theta_axis;
+    let log_a = -(lambda_lobe * half / sharpness) * sum * sum;
+    let s = sqrt(sharpness);
+    let e = 0.5 * sqrt(PI / sharpness) * (erf_f32(s * (HALF_PI - centre)) + erf_f32(s * (HALF_PI + centre)));
+    return vec2<f32>(centre, exp(log_a) * e);
+}
+
+// Gamma(xi, lambda, wo): the convolution of an unnormalized SG with S cos(theta_i) (gamma.rs).
+fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let local = vec3<f32>(dot(space.t, xi), dot(space.b, xi), dot(space.c, xi));
+    let b = local.y;
+    let c = local.z;
+    let h = sqrt(b * b + c * c);
+    var h_plus_b = 0.0;
+    var h_minus_b = 0.0;
+    if (b >= 0.0) {
+        h_plus_b = h + b;
+        h_minus_b = select(0.0, c * c / h_plus_b, h_plus_b > 0.0);
+    } else {
+        h_minus_b = h - b;
+        h_plus_b = c * c / h_minus_b;
+    }
+    let theta_axis = atan2(local.x, h);
+
+    let r = lobe_gaussian(f.lambda_r, lambda, space.theta_o, theta_axis);
+    let cos_r = max(cos(r.x), 0.0);
+    let b_r = cos_r * cos_r * sqrt(f.lambda_r / PI) / gn_eval(f.material, LOBE_R, -r.x) * i0e_f32(lambda * cos_r * h);
+
+    let tt = lobe_gaussian(f.lambda_tt, lambda, space.theta_o, theta_axis);
+    let cos_tt = max(cos(tt.x), 0.0);
+    let a = lambda * cos_tt * h;
+    let scale = 2.0 * f.kappa * lambda * cos_tt;
+    let lambda_m = sqrt((a - f.kappa) * (a - f.kappa) + scale * h_minus_b);
+    let deficit = -scale * h_plus_b / (lambda_m + a + f.kappa);
+    let azimuthal = i0e_f32(lambda_m) * exp(deficit) / f.i0e_kappa;
+    let b_tt = cos_tt * cos_tt * sqrt(f.lambda_tt / PI) / gn_eval(f.material, LOBE_TT, -tt.x) * azimuthal;
+
+    return fresnel(f, cos_r) * (r.y * b_r) + (vec3<f32>(1.0) - fresnel(f, cos_tt)) * f.c_tt * (tt.y * b_tt);
+}
+
+// One pixel of a segment's PCA-reconstructed SSDF.
+fn ssdf_pixel(e: u32, segment: u32, pixel: u32) -> f32 {
+    let base = exemplars[e].pca_offset;
+    let dims = fabric.svf_resolution * fabric.svf_resolution;
+    let k = fabric.pca_components;
+    var d = pca_basis[base + pixel];
+    for (var c = 0u; c < k; c++) {
+        d += pca_coefficients[segment * k + c] * pca_basis[base + (1u + c) * dims + pixel];
+    }
+    return d;
+}
+
+// The SSDF at a direction: bilinear over pixel centres, phi wrapping, theta clamped
+// (visibility.rs ssdf_lookup).
+fn ssdf_lookup(e: u32, segment: u32, dir: vec3<f32>) -> f32 {
+    let n = fabric.svf_resolution;
+    let nf = f32(n);
+    let theta = atan2(length(dir.xy), dir.z);
+    var phi = atan2(dir.y, dir.x);
+    if (phi < 0.0) {
+        phi += 2.0 * PI;
+    }
+    let u = clamp(theta * nf / PI - 0.5, 0.0, nf - 1.0);
+    let v = phi * nf / (2.0 * PI) - 0.5;
+    let r0 = min(u32(floor(u)), n - 2u);
+    let r1 = min(r0 + 1u, n - 1u);
+    let fu = u - f32(r0);
+    let v0 = floor(v);
+    let fv = v - v0;
+    let c0 = u32(wrap_i32(i32(v0), i32(n)));
+    let c1 = (c0 + 1u) % n;
+    let d00 = ssdf_pixel(e, segment, r0 * n + c0);
+    let d01 = ssdf_pixel(e, segment, r0 * n + c1);
+    let d10 = ssdf_pixel(e, segment, r1 * n + c0);
+    let d11 = ssdf_pixel(e, segment, r1 * n + c1);
+    return (1.0 - fu) * ((1.0 - fv) * d00 + fv * d01) + fu * ((1.0 - fv) * d10 + fv * d11);
+}
+
+// Single scattering of a unit-irradiance directional light (single.rs): the SSDF sign times
+// S cos(theta_d).
+fn shade_single_directional(e: u32, segment: u32, wo: vec3<f32>, wd: vec3<f32>) -> vec3<f32> {
+    if (ssdf_lookup(e, segment, wd) <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let s = segments[segment];
+    return fiber_eval_cos(fiber_constants(s.material), normalize(s.direction), wd, wo);
+}
+
+// Single scattering of a unit-intensity normalized SG light through the erf-smoothed SSDF.
+fn shade_single_sg_ssdf_erf(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * ssdf_lookup(e, segment, axis));
+    if (soft <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let s = segments[segment];
+    let space = omega_o_space(normalize(s.direction), wo);
+    return sg_bcsdf_gamma(fiber_constants(s.material), space, axis, lambda) * (soft / sg_mass_f32(lambda));
+}
+
+// Single scattering of a unit-intensity normalized SG light through the sum-of-SGs visibility
+// (visibility.rs sum_of_sg_path): each visibility SG times the light is one sharper SG.
+fn shade_single_sg_sum_of_sg(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let s = segments[segment];
+    let f = fiber_constants(s.material);
+    let space = omega_o_space(normalize(s.direction), wo);
+    let q_count = fabric.sos_count;
+    let lambda_svf = fabric.sos_sharpness;
+    let inv_mass = 1.0 / sg_mass_f32(lambda_svf);
+    let rot = vec2<f32>(cos(s.sos_rotation), sin(s.sos_rotation));
+    var total = vec3<f32>(0.0);
+    for (var q = 0u; q < q_count; q++) {
+        let w = sos_weights[segment * q_count + q];
+        if (w == 0.0) {
+            continue;
+        }
+        // Spherical Fibonacci axis q rotated about +z (fibonacci.rs, sum_of_sg.rs).
+        let z = 1.0 - f32(2u * q + 1u) / f32(q_count);
+        let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
+        let phi = 2.0 * PI * fract(f32(q) * 0.6180339887498949);
+        let base = vec2<f32>(r * cos(phi), r * sin(phi));
+        let sg_axis = vec3<f32>(rot.x * base.x - rot.y * base.y, rot.y * base.x + rot.x * base.y, z);
+        let p = lambda_svf * sg_axis + lambda * axis;
+        let sharpness = length(p);
+        let d = sg_axis - axis;
+        let loss = lambda_svf * lambda * dot(d, d) / (lambda_svf + lambda + sharpness);
+        let product_axis = select(sg_axis, p / sharpness, sharpness > 0.0);
+        total += sg_bcsdf_gamma(f, space, product_axis, sharpness) * (w * inv_mass * exp(-loss));
+    }
+    return total / sg_mass_f32(lambda);
+}
+
+// z_l(lambda) of the normalized SG from the C_G table (bake::tables::CgTable::lookup).
+fn cg_lookup(lambda: f32, l: u32) -> f32 {
+    let points = fabric.cg_points;
+    let width = arrayLength(&cg_table) / points;
+    let zero_limit = select(0.0, 0.28209479177387814, l == 0u);
+    let inf_limit = sqrt(f32(2u * l + 1u) / (4.0 * PI));
+    let lambda_min = 1e-4;
+    let lambda_max = 1e5;
+    if (!(lambda > lambda_min)) {
+        let t = select(0.0, lambda / lambda_min, lambda > 0.0);
+        return zero_limit + t * (cg_table[l] - zero_limit);
+    }
+    if (lambda >= lambda_max) {
+        let t = lambda_max / lambda;
+        return inf_limit + t * (cg_table[(points - 1u) * width + l] - inf_limit);
+    }
+    let x = (log(lambda) - log(lambda_min)) / (log(lambda_max) - log(lambda_min)) * f32(points - 1u);
+    let k = min(u32(max(x, 0.0)), points - 2u);
+    let t = clamp(x - f32(k), 0.0, 1.0);
+    let a = cg_table[k * width + l];
+    let b = cg_table[(k + 1u) * width + l];
+    return a + t * (b - a);
+}
+
+// Adds a light's SH coefficients (multiple.rs light_sh) times `weight` to `c`:
+// directional (sharpness < 0): Y_j(dir); SG: sqrt(4 pi / (2l + 1)) z_l Y_j(dir).
+fn light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+    var y: array<f32, 49>;
+    sh_eval_f32(order, dir, &y);
+    for (var l = 0u; l <= order; l++) {
+        var scale = 1.0;
+        if (sharpness >= 0.0) {
+            scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+        }
+        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+            (*c)[j] += weight * (scale * y[j]);
+        }
+    }
+}
+
+// Multiple scattering (multiple.rs multiple_scattering_in_cell): per channel,
+// C_S[theta_o] . (R_wo (A_cell c_in)).
+fn shade_multiple(e: u32, segment: u32, wo: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
+    let s = segments[segment];
+    let m = materials[s.material];
+    if (m.model != MATERIAL_FIBER) {
+        return vec3<f32>(0.0);
+    }
+    let order = fabric.sh_order;
+    let n = fabric.sh_count;
+    let space = omega_o_space(normalize(s.direction), wo);
+    let rotation = transpose(mat3x3<f32>(space.t, space.b, space.c));
+    // C_S row interpolation, linear in theta_o, clamped.
+    let rows = fabric.cs_theta_count;
+    let x = clamp((space.theta_o + HALF_PI) / PI * f32(rows - 1u), 0.0, f32(rows - 1u));
+    let k = min(u32(x), rows - 2u);
+    let ft = x - f32(k);
+    var out = vec3<f32>(0.0);
+    for (var ch = 0u; ch < 3u; ch++) {
+        var coeffs: array<f32, 49>;
+        for (var j1 = 0u; j1 < n; j1++) {
+            var sum = 0.0;
+            for (var j0 = 0u; j0 < n; j0++) {
+                sum += iirtf_entry(s.cell, ch, j0, j1) * (*c_in)[j0][ch];
+            }
+            coeffs[j1] = sum;
+        }
+        sh_rotate_f32(order, rotation, &coeffs);
+        var dot_cs = 0.0;
+        for (var j = 0u; j < n; j++) {
+            let a = cs_table[((s.material * rows + k) * n + j) * 3u + ch];
+            let b = cs_table[((s.material * rows + k + 1u) * n + j) * 3u + ch];
+            dot_cs += coeffs[j] * (a + ft * (b - a));
+        }
+        out[ch] = dot_cs;
+    }
+    return out;
+}
