@@ -24,6 +24,7 @@ pub mod raycast;
 pub mod scene;
 pub mod sg;
 pub mod sh;
+pub mod shading;
 pub mod special;
 #[cfg(test)]
 mod test_support;

@@ -1,0 +1,131 @@
+//! Multiple scattering at render time (paper 5.3): `C_S[θo] · (R_ωo · A_C · c_light)`.
+//!
+//! How it works:
+//! - [`light_sh`]: the light's radiance distribution in real SH (`sh.rs` basis, fabric space),
+//!   bands `0..=order`. A directional light of irradiance E toward ω_d is `E δ(ω − ω_d)`, so
+//!   `c_j = E Y_j(ω_d)`. A normalized SG light (axis ξ, sharpness λ, intensity I) is
+//!   `c_lm = I · z_l(λ) · sqrt(4π/(2l+1)) · Y_lm(ξ)` with `z_l(λ)` the zonal coefficients of
+//!   the normalized SG from `CgTable::lookup` (linear in ln λ between its samples, limits
+//!   outside): the addition theorem rotates the zonal vector about +z to ξ exactly (equal to
+//!   `ShRotation` of the zonal vector, tested).
+//! - The renderer sums `V̄_glo · light_sh(light)` over lights (V̄_glo the light's blurred global
+//!   visibility) into one `c_light` per segment.
+//! - [`multiple_scattering_in_cell`]: `c_T = A_C c_light` **per channel**:
+//!   `c_T[j1].ch = Σ_j0 A[j1·n + j0].ch · c_light[j0].ch` (the IIRTF's RGB entry multiplies the
+//!   same channel of the light; `bake::iirtf` stores `matrix[j1 · n + j0] = a_C[j0, j1]`). Then
+//!   each channel of c_T is rotated into the ωo-space of `bake::cs_table::OmegaOSpace::new(t,
+//!   ωo)` with `ShRotation::new(order, &world_to_local)` and dotted with the same channel of
+//!   `CsTable::lookup(θo)` (linear in θo between its rows). A cell that holds no segment has a
+//!   zero matrix (no paths were traced) and gives zero.
+//! - [`multiple_scattering`] looks up the segment's tangent, material and cell
+//!   (`CellGrid::cell_of_segment`) in a bake.
+
+use std::f64::consts::PI;
+
+use glam::DVec3;
+
+use super::{SegmentShading, ShadingError};
+use crate::Rgb;
+use crate::bake::cs_table::{CsTable, OmegaOSpace};
+use crate::bake::iirtf::CellTransfer;
+use crate::bake::pipeline::Baked;
+use crate::bake::tables::CgTable;
+use crate::pathtrace::Light;
+use crate::sh::{ShRotation, sh_count, sh_eval};
+
+/// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
+/// docs.
+///
+/// # Panics
+/// If `order` is above `cg.order()` for an SG light.
+#[must_use]
+pub fn light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
+    let n = sh_count(order);
+    let mut basis = vec![0.0; n];
+    match *light {
+        Light::Directional { to_light, irradiance } => {
+            sh_eval(order, to_light, &mut basis);
+            basis.iter().map(|&y| irradiance * y).collect()
+        }
+        Light::Sg { axis, sharpness, intensity } => {
+            assert!(order <= cg.order(), "light_sh: order {order} is above the C_G table's {}", cg.order());
+            sh_eval(order, axis, &mut basis);
+            let zonal = cg.lookup(sharpness);
+            let mut out = vec![Rgb::ZERO; n];
+            for (l, z) in zonal.iter().enumerate().take(order + 1) {
+                let scale = z * (4.0 * PI / (2 * l + 1) as f64).sqrt();
+                for j in l * l..(l + 1) * (l + 1) {
+                    out[j] = intensity * (scale * basis[j]);
+                }
+            }
+            out
+        }
+    }
+}
+
+/// `C_S[θo] · (R_ωo · A_C · c_light)` per channel for a segment of unit tangent `t` in the
+/// cell whose transfer is `transfer`, seen from unit `wo`; `cs` is the segment's material's
+/// table. `c_light` holds `(L+1)²` coefficients, L = `cs.sh_order()`.
+///
+/// # Panics
+/// If `c_light` or the transfer matrix do not match the table's SH order.
+#[must_use]
+pub fn multiple_scattering_in_cell(
+    cs: &CsTable,
+    transfer: &CellTransfer,
+    t: DVec3,
+    wo: DVec3,
+    c_light: &[Rgb],
+) -> Rgb {
+    let order = cs.sh_order();
+    let n = sh_count(order);
+    assert_eq!(c_light.len(), n, "multiple_scattering: c_light must have {n} coefficients");
+    if transfer.paths == 0 {
+        return Rgb::ZERO;
+    }
+    assert_eq!(transfer.matrix.len(), n * n, "multiple_scattering: transfer matrix order mismatch");
+    let transferred: Vec<Rgb> = transfer
+        .matrix
+        .chunks_exact(n)
+        .map(|row| row.iter().zip(c_light).map(|(a, c)| *a * *c).sum())
+        .collect();
+    let space = OmegaOSpace::new(t, wo);
+    let rotation = ShRotation::new(order, &space.world_to_local);
+    let c_s = cs.lookup(space.theta_o);
+    let (mut world, mut local) = (vec![0.0; n], vec![0.0; n]);
+    let mut out = Rgb::ZERO;
+    for ch in 0..3 {
+        for (w, c) in world.iter_mut().zip(&transferred) {
+            *w = c[ch];
+        }
+        rotation.apply(&world, &mut local);
+        out[ch] = local.iter().zip(&c_s).map(|(x, s)| x * s[ch]).sum();
+    }
+    out
+}
+
+/// Multiple scattering of `segment` of `baked` seen from unit `wo` (fabric space) under the
+/// summed, visibility-scaled light SH `c_light`; see the module docs. Zero-length segments
+/// give zero.
+pub fn multiple_scattering(
+    baked: &Baked,
+    segment: u32,
+    wo: DVec3,
+    c_light: &[Rgb],
+) -> Result<Rgb, ShadingError> {
+    let order = baked.transfer.iirtf.sh_order;
+    let expected = sh_count(order);
+    if c_light.len() != expected {
+        return Err(ShadingError::ShLength { got: c_light.len(), expected, order });
+    }
+    let Some(seg) = SegmentShading::of(baked, segment)? else {
+        return Ok(Rgb::ZERO);
+    };
+    let material = seg.fiber.material;
+    let Some(Some(cs)) = baked.cs_tables.get(material) else {
+        return Err(ShadingError::MissingCsTable { material });
+    };
+    let cell = baked.transfer.cells.cell_of_segment(segment);
+    let transfer = &baked.transfer.iirtf.cells[cell as usize];
+    Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, c_light))
+}

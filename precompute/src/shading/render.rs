@@ -1,0 +1,112 @@
+//! The whole shading of a segment ([`shade`]) and the CPU version of the paper's method for a
+//! flat swatch ([`render_flat`]).
+//!
+//! How it works: [`shade`] adds single scattering of every light (each scaled by its global
+//! visibility V_glo) and multiple scattering of the summed light SH (each light scaled by its
+//! blurred global visibility V̄_glo), as the [`Component`] asks. [`render_flat`] renders a
+//! scene's camera view: each pixel draws `spp` jittered samples from the same per-pixel random
+//! stream as the reference path tracer (`pathtrace::integrator::pixel_rng(seed, pixel)`, two
+//! uniforms per sample), casts the primary ray against the swatch's fibers (rays that miss
+//! see black; a ground plane, if any, is black and hides nothing above it) and shades the hit
+//! segment with ωo = −ray direction. A flat swatch lit from above has nothing casting
+//! macro-scale shadows on it, so V_glo = V̄_glo = 1 for every light. Rows are rendered in
+//! parallel; the image does not depend on the thread count.
+
+use glam::DVec3;
+use rand::Rng;
+use rayon::prelude::*;
+
+use super::ShadingError;
+use super::multiple::{light_sh, multiple_scattering};
+use super::single::single_scattering;
+use crate::Rgb;
+use crate::bake::pipeline::Baked;
+use crate::image::{Film, PixelRow};
+use crate::pathtrace::integrator::pixel_rng;
+use crate::pathtrace::{Component, Light};
+use crate::scene::{Scene, camera_from};
+use crate::sh::sh_count;
+
+/// Radiance leaving `segment` of `baked` toward unit `wo` (fabric space) under `lights`, each
+/// given as `(light, V_glo, V̄_glo)`: single scattering, multiple scattering or both.
+pub fn shade(
+    baked: &Baked,
+    segment: u32,
+    wo: DVec3,
+    lights: &[(Light, f64, f64)],
+    component: Component,
+) -> Result<Rgb, ShadingError> {
+    let mut total = Rgb::ZERO;
+    if component != Component::Multiple {
+        for (light, v_glo, _) in lights {
+            total += single_scattering(baked, segment, wo, light, *v_glo)?;
+        }
+    }
+    if component != Component::Single {
+        let order = baked.transfer.iirtf.sh_order;
+        let mut c_light = vec![Rgb::ZERO; sh_count(order)];
+        for (light, _, v_blurred) in lights {
+            if *v_blurred != 0.0 {
+                for (sum, c) in c_light.iter_mut().zip(light_sh(light, order, &baked.cg)) {
+                    *sum += c * *v_blurred;
+                }
+            }
+        }
+        total += multiple_scattering(baked, segment, wo, &c_light)?;
+    }
+    Ok(total)
+}
+
+/// Renders `scene` (its camera at its `[render]` size, its lights) with the paper's method from
+/// `baked`, which must be a bake of the scene's fabric; see the module docs.
+pub fn render_flat(
+    scene: &Scene,
+    baked: &Baked,
+    component: Component,
+    spp: u32,
+    seed: u64,
+) -> Result<Film, ShadingError> {
+    let baked_segments = baked.volume.segments.len();
+    if scene.exemplar.segment_count() != baked_segments {
+        return Err(ShadingError::SegmentCountMismatch {
+            scene: scene.exemplar.segment_count(),
+            baked: baked_segments,
+        });
+    }
+    let (width, height) = (scene.render.width, scene.render.height);
+    let camera = camera_from(&scene.camera, width, height)?;
+    let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
+    let fibers = &scene.path_scene.fibers;
+    let ground_z = scene.path_scene.ground_z;
+    let rows: Vec<PixelRow> = (0..height)
+        .into_par_iter()
+        .map(|y| -> Result<PixelRow, ShadingError> {
+            let mut row = PixelRow::new(width);
+            for x in 0..width {
+                let mut rng = pixel_rng(seed, (y * width + x) as u64);
+                for _ in 0..spp {
+                    let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+                    let (origin, dir) = camera.ray(px, py);
+                    // The ground (if any) lies below every fiber: only a ray that reaches it
+                    // first is cut short.
+                    let t_max = match ground_z {
+                        Some(z) if dir.z < 0.0 && origin.z > z => (origin.z - z) / -dir.z,
+                        _ => f64::INFINITY,
+                    };
+                    let value = match fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, None)
+                    {
+                        Some(hit) => shade(baked, hit.segment, -dir, &lights, component)?,
+                        None => Rgb::ZERO,
+                    };
+                    row.add(x, value);
+                }
+            }
+            Ok(row)
+        })
+        .collect::<Result<_, _>>()?;
+    let mut film = Film::new(width, height);
+    for (y, row) in rows.iter().enumerate() {
+        film.set_row(y, row);
+    }
+    Ok(film)
+}
