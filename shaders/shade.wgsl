@@ -144,7 +144,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
     }
     if (ENABLE_MULTIPLE) {
-        radiance += shade_multiple(e, segment, wo, &c_in);
+        // A truncated SH product can ring below zero where little light arrives; radiance
+        // cannot, so the multiple-scattering term is clamped per channel.
+        radiance += max(shade_multiple(e, segment, wo, &c_in), vec3<f32>(0.0));
     }
     let index = id.y * width + id.x;
     accumulation[index] += vec4<f32>(radiance, 1.0);

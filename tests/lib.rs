@@ -63,7 +63,12 @@ fn read_rgb_png(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>), String> {
     let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
     let info = reader.next_frame(&mut buf).map_err(|e| format!("{}: {e}", path.display()))?;
     if info.color_type != png::ColorType::Rgb || info.bit_depth != png::BitDepth::Eight {
-        return Err(format!("{}: expected 8-bit RGB, got {:?} {:?}", path.display(), info.color_type, info.bit_depth));
+        return Err(format!(
+            "{}: expected 8-bit RGB, got {:?} {:?}",
+            path.display(),
+            info.color_type,
+            info.bit_depth
+        ));
     }
     buf.truncate(info.buffer_size());
     Ok((info.width, info.height, buf))
@@ -93,14 +98,20 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
         std::fs::create_dir_all(&diff_dir).expect("create diff folder");
         write_rgb_png(&diff_dir.join(format!("{name}.actual.png")), width, height, &actual);
         if let Some(g) = golden {
-            let diff: Vec<u8> = g.iter().zip(&actual).map(|(a, b)| a.abs_diff(*b).saturating_mul(4)).collect();
+            let diff: Vec<u8> =
+                g.iter().zip(&actual).map(|(a, b)| a.abs_diff(*b).saturating_mul(4)).collect();
             write_rgb_png(&diff_dir.join(format!("{name}.diff.png")), width, height, &diff);
         }
         Err(format!("{name}: {reason}; wrote {}/{name}.*.png", diff_dir.display()))
     };
     let (gw, gh, golden) = match read_rgb_png(&path) {
         Ok(g) => g,
-        Err(e) => return fail(format!("missing or unreadable golden ({e}); run with TWILL_BLESS=1 to create it"), None),
+        Err(e) => {
+            return fail(
+                format!("missing or unreadable golden ({e}); run with TWILL_BLESS=1 to create it"),
+                None,
+            );
+        }
     };
     if (gw, gh) != (width, height) {
         return fail(format!("golden is {gw}x{gh}, image is {width}x{height}"), None);
@@ -114,7 +125,11 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
         .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| x.abs_diff(*y) > GOLDEN_OUTLIER_LEVEL))
         .count() as f64
         / (n / 3.0);
-    let summary = format!("RMSE {rmse:.3} (max {GOLDEN_MAX_RMSE}), outliers {:.3}% (max {:.1}%)", 100.0 * outliers, 100.0 * GOLDEN_MAX_OUTLIERS);
+    let summary = format!(
+        "RMSE {rmse:.3} (max {GOLDEN_MAX_RMSE}), outliers {:.3}% (max {:.1}%)",
+        100.0 * outliers,
+        100.0 * GOLDEN_MAX_OUTLIERS
+    );
     if rmse > GOLDEN_MAX_RMSE || outliers > GOLDEN_MAX_OUTLIERS {
         return fail(summary, Some(&golden));
     }

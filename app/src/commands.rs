@@ -4,21 +4,21 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::file::Cache;
+use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{
     BakeInputs, BakeSet, Stage, StageSource, bake as run_bake, write_bake,
 };
+use twill_precompute::bake::pipeline::{Baked, read_bake};
 use twill_precompute::bake::settings::{BakeSettings, Quality};
 use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
+use twill_precompute::image::Image;
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
 use twill_precompute::scene::SceneFile;
-use glam::Vec3;
-use twill_precompute::bake::pattern::PatternMap;
-use twill_precompute::bake::pipeline::{Baked, read_bake};
-use twill_precompute::image::Image;
 use twill_renderer::export::{Display, write_display_png, write_image};
 use twill_renderer::frame::describe_timings;
 use twill_renderer::headless::{SceneRenderer, frame_settings};
@@ -218,7 +218,11 @@ pub fn render(options: &RenderOptions) -> Result<()> {
             height: frame.height as usize,
             pixels: frame.radiance.iter().map(|p| Vec3::from(*p).as_dvec3()).collect(),
         };
-        write_image(&options.output, &image, Display { exposure: scene.render.exposure, ..Display::default() })?;
+        write_image(
+            &options.output,
+            &image,
+            Display { exposure: scene.render.exposure, ..Display::default() },
+        )?;
     }
     eprintln!(
         "rendered {} on {} ({}x{}, {} spp) in {:.2} s (bake {:.2} s) -> {}",

@@ -65,7 +65,8 @@ pub fn write_image(path: &Path, image: &Image, display: Display) -> Result<(), E
 /// atomically.
 pub fn write_display_png(path: &Path, width: u32, height: u32, rgba: &[[u8; 4]]) -> Result<(), ExportError> {
     let bytes: Vec<u8> = rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
-    write_rgb8_png(path, width, height, &bytes).map_err(|source| ExportError::Io { path: path.into(), source })
+    write_rgb8_png(path, width, height, &bytes)
+        .map_err(|source| ExportError::Io { path: path.into(), source })
 }
 
 /// Maps linear radiance to an 8-bit sRGB value per channel.

@@ -155,7 +155,8 @@ fn material_gpu(desc: &MaterialDesc) -> MaterialGpu {
 }
 
 fn to_u32(n: usize, what: &str) -> Result<u32, FabricDataError> {
-    u32::try_from(n).map_err(|_| FabricDataError::Inconsistent(format!("{what} = {n} does not fit in 32 bits")))
+    u32::try_from(n)
+        .map_err(|_| FabricDataError::Inconsistent(format!("{what} = {n} does not fit in 32 bits")))
 }
 
 impl FabricArrays {
@@ -318,7 +319,8 @@ impl FabricArrays {
     /// Total bytes of all buffers.
     #[must_use]
     pub fn total_bytes(&self) -> u64 {
-        self.storage_buffers().iter().map(|(_, b)| b.len() as u64).sum::<u64>() + size_of::<FabricHeaderGpu>() as u64
+        self.storage_buffers().iter().map(|(_, b)| b.len() as u64).sum::<u64>()
+            + size_of::<FabricHeaderGpu>() as u64
     }
 }
 
@@ -452,7 +454,7 @@ impl FabricData {
         pattern: &PatternMap,
     ) -> Result<Self, FabricDataError> {
         let arrays = FabricArrays::pack(exemplars, pattern)?;
-        let limit = u64::from(device.limits().max_storage_buffer_binding_size);
+        let limit = device.limits().max_storage_buffer_binding_size;
         for (name, bytes) in arrays.storage_buffers() {
             if bytes.len() as u64 > limit {
                 return Err(FabricDataError::TooLarge { buffer: name, bytes: bytes.len() as u64, limit });
@@ -470,12 +472,19 @@ impl FabricData {
             .storage_buffers()
             .iter()
             .map(|(name, bytes)| {
-                make_buffer(device, queue, &format!("twill.fabric.{name}"), bytes, wgpu::BufferUsages::STORAGE)
+                make_buffer(
+                    device,
+                    queue,
+                    &format!("twill.fabric.{name}"),
+                    bytes,
+                    wgpu::BufferUsages::STORAGE,
+                )
             })
             .collect();
         let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: header.as_entire_binding() }];
         for (i, buffer) in buffers.iter().enumerate() {
-            entries.push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: buffer.as_entire_binding() });
+            entries
+                .push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: buffer.as_entire_binding() });
         }
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("twill.fabric.bind_group"),
@@ -487,6 +496,7 @@ impl FabricData {
     }
 }
 
+#[must_use]
 /// A buffer holding `bytes` (at least 16 bytes, padded to a multiple of 4, so empty arrays
 /// still bind).
 pub fn make_buffer(
@@ -529,7 +539,7 @@ mod tests {
         ] {
             assert_eq!(f32_to_f16_bits(x), bits, "{x}");
             if bits != 0x7c00 && bits != 0x3555 {
-                assert_eq!(f16_bits_to_f32(bits), x, "{bits:#x}");
+                assert!(f16_bits_to_f32(bits).to_bits() == x.to_bits(), "{bits:#x}");
             }
         }
         // Relative error of normal halves is at most 2^-11.

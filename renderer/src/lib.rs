@@ -8,9 +8,8 @@
 
 pub mod export;
 pub mod fabric_data;
-pub mod gpu;
-pub mod plan;
 pub mod frame;
+pub mod gpu;
 pub mod headless;
-pub mod shell;
+pub mod plan;
 pub mod shaders;

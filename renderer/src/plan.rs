@@ -120,6 +120,7 @@ impl Pass {
 
 /// Everything a frame runs.
 #[derive(Debug, Clone, PartialEq)]
+#[allow(clippy::struct_excessive_bools)]
 pub struct FramePlan {
     pub lights: Vec<LightPlan>,
     /// Lights dropped because nothing of them reaches the fabric (below a flat shell).
@@ -307,7 +308,8 @@ mod tests {
 
     #[test]
     fn a_directional_only_scene_runs_no_pcss_and_no_sum_of_sg_path() {
-        let plan = FramePlan::new(&[SUN, PlanLight::Directional { to_light: [0.0, 0.6, 0.8] }], &inputs(false));
+        let plan =
+            FramePlan::new(&[SUN, PlanLight::Directional { to_light: [0.0, 0.6, 0.8] }], &inputs(false));
         assert!(!plan.filters_with(GlobalVisibility::Pcss));
         assert!(plan.filters_with(GlobalVisibility::Pcf));
         assert!(!plan.uses(LocalVisibility::SumOfSg));
@@ -317,7 +319,8 @@ mod tests {
 
     #[test]
     fn a_flat_swatch_lit_from_above_runs_no_shadow_pass() {
-        let plan = FramePlan::new(&[SUN, PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 8.0 }], &inputs(true));
+        let plan =
+            FramePlan::new(&[SUN, PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 8.0 }], &inputs(true));
         assert!(!plan.shadow_maps);
         assert!(!plan.blur);
         let passes = plan.passes();
@@ -330,7 +333,8 @@ mod tests {
 
     #[test]
     fn a_light_below_a_flat_swatch_is_dropped() {
-        let plan = FramePlan::new(&[PlanLight::Directional { to_light: [0.0, 0.0, -1.0] }, SUN], &inputs(true));
+        let plan =
+            FramePlan::new(&[PlanLight::Directional { to_light: [0.0, 0.0, -1.0] }, SUN], &inputs(true));
         assert_eq!(plan.dropped_lights, vec![0]);
         assert_eq!(plan.lights.len(), 1);
     }
@@ -342,10 +346,12 @@ mod tests {
         assert_eq!(sg_local_visibility(150.0), LocalVisibility::Blend);
         assert_eq!(sg_local_visibility(200.0), LocalVisibility::SsdfErf);
         assert_eq!(sg_local_visibility(1e5), LocalVisibility::SsdfErf);
-        let sharp = FramePlan::new(&[PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 500.0 }], &inputs(false));
+        let sharp =
+            FramePlan::new(&[PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 500.0 }], &inputs(false));
         assert!(!sharp.uses(LocalVisibility::SumOfSg) && sharp.uses(LocalVisibility::SsdfErf));
         assert!(sharp.filters_with(GlobalVisibility::Pcss) && !sharp.filters_with(GlobalVisibility::Pcf));
-        let mid = FramePlan::new(&[PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 150.0 }], &inputs(false));
+        let mid =
+            FramePlan::new(&[PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 150.0 }], &inputs(false));
         assert!(mid.uses(LocalVisibility::SumOfSg) && mid.uses(LocalVisibility::SsdfErf));
     }
 

@@ -35,14 +35,13 @@ pub const SH: &str = include_str!("../../shaders/shared/sh.wgsl");
 
 /// Every shared module, with its file name (for validation and error messages), in an order
 /// where each needs only those before it.
-pub const SHARED: &[(&str, &str)] =
-    &[
-        ("shared/special.wgsl", SPECIAL),
-        ("shared/sg.wgsl", SG),
-        ("shared/sh.wgsl", SH),
-        ("shared/fabric_data.wgsl", FABRIC_DATA),
-        ("shared/shading.wgsl", SHADING),
-    ];
+pub const SHARED: &[(&str, &str)] = &[
+    ("shared/special.wgsl", SPECIAL),
+    ("shared/sg.wgsl", SG),
+    ("shared/sh.wgsl", SH),
+    ("shared/fabric_data.wgsl", FABRIC_DATA),
+    ("shared/shading.wgsl", SHADING),
+];
 
 /// The shared modules concatenated in dependency order (what a pass shader is appended to).
 #[must_use]

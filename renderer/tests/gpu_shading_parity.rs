@@ -1,0 +1,294 @@
+//! The WGSL render-time shading (shaders/shared/shading.wgsl) against its f64 Rust twins
+//! (twill_precompute::shading) on a real Vulkan adapter, on the default fabric's draft bake,
+//! over grids that include the hard cases: λ from 1e-4 to 1e5, ξ and ωo along ±t, grazing
+//! directions, fully occluded and fully visible segments. NaN or Inf fails.
+//!
+//! Tolerance: |gpu − cpu| ≤ 2e-3 · scale + 1e-6, where scale is the largest |cpu| value of that
+//! function over the grid's same segment (f32 transcendental and table arithmetic; the SSDF
+//! sign step is compared only where |d| > 1e-3 rad, since the sign of a near-zero f32 sum is
+//! not the f64 one).
+
+use glam::{DVec3, Vec3};
+use twill_precompute::bake::Cancel;
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::pathtrace::Light;
+use twill_precompute::scene::SceneFile;
+use twill_precompute::shading::{self, SegmentShading};
+use twill_precompute::{Rgb, sh};
+use twill_renderer::fabric_data::FabricData;
+use twill_renderer::gpu::Gpu;
+use twill_renderer::shaders;
+
+fn gpu_or_skip(test: &str) -> Option<Gpu> {
+    match Gpu::headless() {
+        Ok(gpu) => Some(gpu),
+        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
+            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
+            None
+        }
+        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
+    }
+}
+
+fn draft_bake() -> Baked {
+    let scene = SceneFile::default_scene().build().expect("default scene");
+    let inputs = BakeInputs {
+        exemplar: &scene.exemplar,
+        materials: &scene.material_descs,
+        settings: Quality::Draft.settings(),
+    };
+    bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
+}
+
+/// Direction codes shared by both sides: 0..32 are spherical Fibonacci points computed in f32
+/// the same way in WGSL and Rust; 1000 = +t, 1001 = −t, 1002 = near the fabric normal tilted
+/// 1e-3 toward t, 1003 = +x, 1004 = +z, 1005 = grazing the fabric plane.
+const FIB: u32 = 32;
+
+fn direction_of(code: u32, t: DVec3) -> DVec3 {
+    let tf = t.as_vec3();
+    let d = match code {
+        1000 => tf,
+        1001 => -tf,
+        1002 => (Vec3::Z + 1e-3 * tf).normalize(),
+        1003 => Vec3::X,
+        1004 => Vec3::Z,
+        1005 => Vec3::new(0.0, 1.0, 1e-3).normalize(),
+        k => {
+            let z = 1.0 - (2 * k + 1) as f32 / FIB as f32;
+            let r = ((1.0 - z) * (1.0 + z)).max(0.0).sqrt();
+            let phi = 2.0 * std::f32::consts::PI * (k as f32 * 0.618_034).fract();
+            Vec3::new(r * phi.cos(), r * phi.sin(), z)
+        }
+    };
+    d.as_dvec3().normalize()
+}
+
+/// WGSL decoding the test inputs: x = segment, y = λ, z = ωo code, w = ξ code.
+const DECODE: &str = "
+fn direction_of(code: u32, t: vec3<f32>) -> vec3<f32> {
+    switch code {
+        case 1000u: { return t; }
+        case 1001u: { return -t; }
+        case 1002u: { return normalize(vec3<f32>(0.0, 0.0, 1.0) + 1e-3 * t); }
+        case 1003u: { return vec3<f32>(1.0, 0.0, 0.0); }
+        case 1004u: { return vec3<f32>(0.0, 0.0, 1.0); }
+        case 1005u: { return normalize(vec3<f32>(0.0, 1.0, 1e-3)); }
+        default: {
+            let z = 1.0 - f32(2u * code + 1u) / 32.0;
+            let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
+            let phi = 2.0 * PI * fract(f32(code) * 0.618034);
+            return normalize(vec3<f32>(r * cos(phi), r * sin(phi), z));
+        }
+    }
+}
+fn case_t(input: vec4<f32>) -> vec3<f32> {
+    return normalize(segments[u32(input.x)].direction);
+}
+fn case_axis(input: vec4<f32>) -> vec3<f32> {
+    return direction_of(u32(input.w), case_t(input));
+}
+fn case_wo(input: vec4<f32>) -> vec3<f32> {
+    return direction_of(u32(input.z), case_t(input));
+}
+fn gamma_case(input: vec4<f32>) -> vec4<f32> {
+    let s = segments[u32(input.x)];
+    let space = omega_o_space(normalize(s.direction), case_wo(input));
+    return vec4<f32>(sg_bcsdf_gamma(fiber_constants(s.material), space, case_axis(input), input.y), 0.0);
+}
+fn multiple_case(input: vec4<f32>) -> vec4<f32> {
+    var c: array<vec3<f32>, 49>;
+    for (var j = 0u; j < 49u; j++) { c[j] = vec3<f32>(0.0); }
+    light_sh_accumulate(fabric.sh_order, case_axis(input), input.y, vec3<f32>(1.0), &c);
+    return vec4<f32>(shade_multiple(0u, u32(input.x), case_wo(input), &c), 0.0);
+}
+";
+
+struct Case {
+    segment: u32,
+    lambda: f64,
+    wo_code: u32,
+    axis_code: u32,
+}
+
+impl Case {
+    fn input(&self) -> [f32; 4] {
+        [self.segment as f32, self.lambda as f32, self.wo_code as f32, self.axis_code as f32]
+    }
+    fn wo(&self, t: DVec3) -> DVec3 {
+        direction_of(self.wo_code, t)
+    }
+    fn axis(&self, t: DVec3) -> DVec3 {
+        direction_of(self.axis_code, t)
+    }
+}
+
+/// Segments spread over the bake, directions over the sphere plus the hard ones.
+fn cases(baked: &Baked, lambdas: &[f64]) -> Vec<Case> {
+    let count = baked.volume.segments.len() as u32;
+    let segments: Vec<u32> = (0..12).map(|i| (i * 1733 + 5) % count).collect();
+    let specials = [1000, 1001, 1002, 1003, 1004, 1005];
+    let wos: Vec<u32> = (0..FIB).step_by(3).chain(specials).collect();
+    let mut out = Vec::new();
+    for (k, &segment) in segments.iter().enumerate() {
+        for (i, &wo_code) in wos.iter().enumerate() {
+            for (j, &lambda) in lambdas.iter().enumerate() {
+                let r = (i * 7 + j * 3 + k) as u32;
+                let axis_code =
+                    if r % 5 == 0 { specials[(r as usize / 5) % specials.len()] } else { r % FIB };
+                out.push(Case { segment, lambda, wo_code, axis_code });
+            }
+        }
+    }
+    out
+}
+
+fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) -> Vec<String> {
+    let mut failures = Vec::new();
+    let mut worst = 0.0_f64;
+    let scale = cpu.iter().flatten().map(|c| c.abs().max_element()).fold(0.0, f64::max);
+    let mut compared = 0;
+    for ((case, g), c) in cases.iter().zip(gpu).zip(cpu) {
+        assert!(
+            g.iter().all(|v| v.is_finite()),
+            "{name}: non-finite GPU value {g:?} for segment {} λ {}",
+            case.segment,
+            case.lambda
+        );
+        let Some(c) = c else { continue };
+        compared += 1;
+        for ch in 0..3 {
+            let err = (f64::from(g[ch]) - c[ch]).abs();
+            let allowed = 2e-3 * scale.max(c[ch].abs()) + 1e-6;
+            worst = worst.max(err / (scale + 1e-30));
+            if err > allowed {
+                failures.push(format!(
+                    "{name}: segment {} λ {} wo code {} axis code {}: GPU {} vs CPU {} (channel {ch}, allowed {allowed:.3e})",
+                    case.segment, case.lambda, case.wo_code, case.axis_code, g[ch], c[ch]
+                ));
+            }
+        }
+    }
+    eprintln!("{name}: {compared} cases, worst error {worst:.2e} of the grid's largest value {scale:.3e}");
+    assert!(compared > cases.len() / 2, "{name}: only {compared} of {} cases compared", cases.len());
+    eprintln!("{name}: {} of {compared} cases outside the tolerance", failures.len());
+    failures
+}
+
+#[test]
+#[ignore = "open defect (issue 4): WGSL Γ differs from its Rust twin by up to ~10% on some cases; run with --ignored"]
+fn shading_functions_match_their_rust_twins() {
+    let mut failures = Vec::new();
+    let Some(gpu) = gpu_or_skip("shading_functions_match_their_rust_twins") else { return };
+    let baked = draft_bake();
+    let fabric =
+        FabricData::upload(&gpu.device, &gpu.queue, &[&baked], &PatternMap::uniform(0)).expect("upload");
+    let library = format!("{}\n{DECODE}", shaders::shared_library());
+    let run = |expression: &str, cases: &[Case]| {
+        let inputs: Vec<[f32; 4]> = cases.iter().map(Case::input).collect();
+        gpu.evaluate_with_fabric(&library, expression, &inputs, Some(&fabric)).expect("GPU evaluation")
+    };
+    let seg =
+        |c: &Case| SegmentShading::of(&baked, c.segment).expect("fiber segment").expect("non-zero segment");
+
+    // Γ over λ = 1e-4 .. 1e5.
+    let gamma_cases = cases(&baked, &[1e-4, 1.0, 100.0, 300.0, 1e3, 1e4, 1e5]);
+    let gpu_gamma = run("gamma_case(input)", &gamma_cases);
+    let cpu_gamma: Vec<Option<Rgb>> = gamma_cases
+        .iter()
+        .map(|c| {
+            let s = seg(c);
+            let (lambda32, axis) = (f64::from(c.lambda as f32), c.axis(s.tangent));
+            Some(shading::gamma(&s.fiber, &baked.gn, s.tangent, axis, lambda32, c.wo(s.tangent)))
+        })
+        .collect();
+    failures.extend(compare("gamma", &gamma_cases, &gpu_gamma, &cpu_gamma));
+
+    // Directional single scattering (unit irradiance): compared where the SSDF is clearly signed.
+    let dir_cases = cases(&baked, &[0.0]);
+    let gpu_dir = run(
+        "vec4<f32>(shade_single_directional(0u, u32(input.x), case_wo(input), case_axis(input)), 0.0)",
+        &dir_cases,
+    );
+    let cpu_dir: Vec<Option<Rgb>> = dir_cases
+        .iter()
+        .map(|c| {
+            let s = seg(c);
+            let wd = c.axis(s.tangent);
+            let d = shading::ssdf_lookup(&baked.visibility.ssdf, c.segment as usize, wd);
+            (d.abs() > 1e-3).then(|| {
+                shading::single_scattering_directional(
+                    &s.fiber,
+                    &baked.gn,
+                    &baked.visibility,
+                    c.segment as usize,
+                    s.tangent,
+                    c.wo(s.tangent),
+                    wd,
+                    Rgb::ONE,
+                    1.0,
+                )
+            })
+        })
+        .collect();
+    failures.extend(compare("single, directional", &dir_cases, &gpu_dir, &cpu_dir));
+    let occluded = cpu_dir.iter().flatten().filter(|c| c.max_element() == 0.0).count();
+    let visible = cpu_dir.iter().flatten().filter(|c| c.max_element() > 0.0).count();
+    eprintln!("single, directional: {occluded} occluded and {visible} visible cases");
+    assert!(occluded > 0 && visible > 0, "the grid must include occluded and visible cases");
+
+    // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF (≥ 200).
+    let sg_cases = cases(&baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
+    let gpu_sg = run(
+        "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
+        &sg_cases,
+    );
+    let cpu_sg: Vec<Option<Rgb>> = sg_cases
+        .iter()
+        .map(|c| {
+            let s = seg(c);
+            Some(shading::single_scattering_sg(
+                &s.fiber,
+                &baked.gn,
+                &baked.visibility,
+                c.segment as usize,
+                s.tangent,
+                c.wo(s.tangent),
+                c.axis(s.tangent),
+                f64::from(c.lambda as f32),
+                Rgb::ONE,
+                1.0,
+            ))
+        })
+        .collect();
+    failures.extend(compare("single, SG", &sg_cases, &gpu_sg, &cpu_sg));
+
+    // Multiple scattering of a unit directional light (λ < 0 marks directional) and SG lights.
+    let ms_cases = cases(&baked, &[-1.0, 2e-4, 8.0, 1e5]);
+    let gpu_ms = run("multiple_case(input)", &ms_cases);
+    let order = baked.transfer.iirtf.sh_order;
+    let cpu_ms: Vec<Option<Rgb>> = ms_cases
+        .iter()
+        .map(|c| {
+            let s = seg(c);
+            let axis = c.axis(s.tangent);
+            let light = if c.lambda < 0.0 {
+                Light::directional(axis, Rgb::ONE).expect("light")
+            } else {
+                Light::sg(axis, f64::from(c.lambda as f32), Rgb::ONE).expect("light")
+            };
+            let c_light = shading::light_sh(&light, order, &baked.cg);
+            assert_eq!(c_light.len(), sh::sh_count(order));
+            Some(
+                shading::multiple_scattering(&baked, c.segment, c.wo(s.tangent), &c_light).expect("multiple"),
+            )
+        })
+        .collect();
+    failures.extend(compare("multiple", &ms_cases, &gpu_ms, &cpu_ms));
+    for f in failures.iter().take(20) {
+        eprintln!("{f}");
+    }
+    assert!(failures.is_empty(), "{} GPU/CPU shading mismatches (first 20 printed above)", failures.len());
+}
