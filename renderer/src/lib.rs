@@ -9,3 +9,4 @@
 pub mod export;
 pub mod gpu;
 pub mod shaders;
+pub mod shell;
