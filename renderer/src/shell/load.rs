@@ -94,7 +94,7 @@ impl BaseMesh {
                     part: format!(
                         "{} ({} of {} vertices have no vt)",
                         part(),
-                        count - m.texcoords.len() / 2,
+                        count.saturating_sub(m.texcoords.len() / 2),
                         count
                     ),
                 });

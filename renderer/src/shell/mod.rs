@@ -32,6 +32,7 @@ use std::collections::HashSet;
 
 use glam::{DMat3, DMat4, DVec3, Mat4, Vec2, Vec3};
 
+pub use builtin::{MAX_BUILTIN_SIDE_CM, MIN_BUILTIN_SIDE_CM};
 pub use error::ShellError;
 pub use mesh::{
     BaseMesh, DEGENERATE_SINE, MAX_COORDINATE_CM, MAX_DIAGONAL_CM, MIN_DIAGONAL_CM, RepairReport,
