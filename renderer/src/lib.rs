@@ -13,3 +13,4 @@ pub mod gpu;
 pub mod headless;
 pub mod plan;
 pub mod shaders;
+pub mod shell;
