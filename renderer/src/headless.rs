@@ -48,8 +48,9 @@ pub fn shell_for_scene(scene: &Scene, z_range: [f32; 2]) -> Result<Shell, ShellE
         (None, None) => BaseMesh::builtin("swatch", size)?,
     };
     mesh.validate_and_repair()?;
-    let thickness = (z_range[1] - z_range[0]) * m.thickness_scale as f32;
-    let spec = ShellSpec { thickness_cm: thickness, cm_per_uv: m.cm_per_uv as f32, w_range_cm: z_range };
+    let scale = m.thickness_scale as f32;
+    let w_range = [z_range[0] * scale, z_range[1] * scale];
+    let spec = ShellSpec::new(w_range, m.cm_per_uv as f32);
     Shell::build(&mesh, &spec)
 }
 
