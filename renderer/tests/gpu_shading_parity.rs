@@ -137,7 +137,7 @@ fn cases(baked: &Baked, lambdas: &[f64]) -> Vec<Case> {
             for (j, &lambda) in lambdas.iter().enumerate() {
                 let r = (i * 7 + j * 3 + k) as u32;
                 let axis_code =
-                    if r % 5 == 0 { specials[(r as usize / 5) % specials.len()] } else { r % FIB };
+                    if r.is_multiple_of(5) { specials[(r as usize / 5) % specials.len()] } else { r % FIB };
                 out.push(Case { segment, lambda, wo_code, axis_code });
             }
         }
