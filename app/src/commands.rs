@@ -181,22 +181,19 @@ pub fn render(options: &RenderOptions) -> Result<()> {
     let settings = frame_settings(&scene, options.only.unwrap_or_default());
 
     let started = Instant::now();
-    let (exemplars, pattern) = match &options.bake {
-        Some(path) => {
-            let loaded = read_bake(path)?;
-            (loaded.exemplars, loaded.pattern)
-        }
-        None => {
-            let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
-            let inputs = BakeInputs {
-                exemplar: &scene.exemplar,
-                materials: &scene.material_descs,
-                settings: options.quality.settings(),
-            };
-            let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
-                .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-            (vec![outcome.baked], PatternMap::uniform(0))
-        }
+    let (exemplars, pattern) = if let Some(path) = &options.bake {
+        let loaded = read_bake(path)?;
+        (loaded.exemplars, loaded.pattern)
+    } else {
+        let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
+        let inputs = BakeInputs {
+            exemplar: &scene.exemplar,
+            materials: &scene.material_descs,
+            settings: options.quality.settings(),
+        };
+        let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
+            .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+        (vec![outcome.baked], PatternMap::uniform(0))
     };
     let bake_seconds = started.elapsed().as_secs_f64();
     let refs: Vec<&Baked> = exemplars.iter().collect();
