@@ -4,9 +4,9 @@
 //! How it works: [`shade`] adds single scattering of every light (each scaled by its global
 //! visibility V_glo) and multiple scattering of the summed light SH (each light scaled by its
 //! blurred global visibility V̄_glo), as the [`Component`] asks. [`render_flat`] renders a
-//! scene's camera view: each pixel draws `spp` jittered samples from the same per-pixel random
-//! stream as the reference path tracer (`pathtrace::integrator::pixel_rng(seed, pixel)`, two
-//! uniforms per sample), casts the primary ray against the swatch's fibers (rays that miss
+//! scene's camera view: each pixel draws `spp` jittered film positions from its own random
+//! stream `pathtrace::integrator::pixel_rng(seed, pixel)` (two uniforms per sample, the
+//! camera's pixel convention), casts the primary ray against the swatch's fibers (rays that miss
 //! see black; a ground plane, if any, is black and hides nothing above it) and shades the hit
 //! segment with ωo = −ray direction. A flat swatch lit from above has nothing casting
 //! macro-scale shadows on it, so V_glo = V̄_glo = 1 for every light. Rows are rendered in

@@ -1,0 +1,275 @@
+//! The CPU version of the paper's method (`shading::render_flat`, from a draft bake) against
+//! the reference path tracer, on the default scene at 48 × 48, one light at a time:
+//! single scattering against `Component::Single`, multiple against `Component::Multiple`.
+//!
+//! The method approximates (16 × 16 visibility images compressed to 8 PCA components, 16
+//! sum-of-SG lobes, IIRTF cells of 4 mean free paths with 256 paths each, SH order 2), so the
+//! images are not expected to agree within noise. Each comparison prints the relative error of
+//! the image mean and the per-pixel RMSE (also relative to the reference mean) and asserts only
+//! the mean, against a tolerance set from the measured numbers (see each constant). NaN or Inf
+//! anywhere fails. Two ignored tests break the differences down (`--ignored --nocapture`).
+
+use std::sync::OnceLock;
+
+use twill_precompute::bake::Cancel;
+use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::image::{Comparison, Estimate, Film, compare};
+use twill_precompute::pathtrace::{Component, RenderSettings, render};
+use twill_precompute::scene::{LightSection, Scene, SceneFile, camera_from};
+use twill_precompute::shading::render_flat;
+
+const SIZE: usize = 48;
+/// Samples per pixel of the reference path tracer and of the CPU method.
+const REFERENCE_SPP: u32 = 64;
+const METHOD_SPP: u32 = 16;
+
+/// The default scene with only `light`, at `SIZE` × `SIZE`.
+fn scene_with(light: LightSection) -> Scene {
+    let mut file = SceneFile::default_scene();
+    file.lights = vec![light];
+    file.render.width = SIZE;
+    file.render.height = SIZE;
+    file.build().expect("the default scene builds")
+}
+
+/// A draft bake of the default scene's fabric (the same for every light), made once.
+fn baked() -> &'static Baked {
+    static BAKED: OnceLock<Baked> = OnceLock::new();
+    BAKED.get_or_init(|| {
+        let scene = scene_with(directional());
+        let inputs = BakeInputs {
+            exemplar: &scene.exemplar,
+            materials: &scene.material_descs,
+            settings: Quality::Draft.settings(),
+        };
+        bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
+    })
+}
+
+/// The default scene's key light: low, from the side.
+fn directional() -> LightSection {
+    LightSection::Directional { direction: [-0.6, 0.35, 0.5], irradiance: [3.3, 3.15, 2.85] }
+}
+
+/// The default scene's fill light, at sharpness `sharpness`.
+fn sg(sharpness: f64) -> LightSection {
+    LightSection::Sg { axis: [0.3, -0.6, 1.0], sharpness, intensity: [1.6, 1.7, 1.8] }
+}
+
+fn reference(scene: &Scene, component: Component) -> Film {
+    let camera = camera_from(&scene.camera, SIZE, SIZE).expect("camera");
+    let settings =
+        RenderSettings { spp: REFERENCE_SPP, max_depth: scene.render.max_depth, component, seed: 11 };
+    render(&scene.path_scene, &camera, &settings, &|_| {})
+}
+
+/// Renders one component both ways, prints the comparison and returns it.
+fn compare_component(label: &str, scene: &Scene, component: Component) -> Comparison {
+    let method = render_flat(scene, baked(), component, METHOD_SPP, 5).expect("render_flat");
+    let reference = reference(scene, component);
+    let (m_mean, m_var) = (method.mean(), method.variance_of_mean());
+    let (r_mean, r_var) = (reference.mean(), reference.variance_of_mean());
+    assert!(m_mean.is_finite() && m_var.is_finite(), "{label}: the method's image is not finite");
+    assert!(r_mean.is_finite() && r_var.is_finite(), "{label}: the reference is not finite");
+    let c = compare(
+        Estimate { mean: &m_mean, variance: Some(&m_var) },
+        Estimate { mean: &r_mean, variance: Some(&r_var) },
+    );
+    let reference_level = r_mean.mean().element_sum() / 3.0;
+    eprintln!(
+        "{label:<28} mean: method {:.5} reference {:.5} → relative error {:+.4} (± {:.4} noise); \
+         per-pixel RMSE {:.5} = {:.3} of the mean (noise alone {:.5})",
+        m_mean.mean().element_sum() / 3.0,
+        reference_level,
+        c.relative_error_of_mean,
+        c.relative_error_of_mean_std,
+        c.rmse,
+        c.rmse / reference_level,
+        c.expected_noise_rmse,
+    );
+    assert!(reference_level > 0.0, "{label}: the reference is black");
+    c
+}
+
+fn check(label: &str, light: LightSection, component: Component, tolerance: f64) {
+    let scene = scene_with(light);
+    let c = compare_component(label, &scene, component);
+    assert!(
+        c.relative_error_of_mean.abs() < tolerance,
+        "{label}: relative error of the mean {:+.4} exceeds {tolerance}",
+        c.relative_error_of_mean
+    );
+}
+
+/// Single scattering is 14–17% too dark on this scene (measured: directional −14.4%, SG λ = 8
+/// −17.3%, SG λ = 300 −16.3%), mostly because the paper's visibility is that of the segment
+/// midpoint, not of the lit surface (`diagnose_directional_single_scattering_visibility`). The
+/// tolerance leaves room for bake noise but fails on any factor-of-2 or π mistake.
+const SINGLE_TOLERANCE: f64 = 0.25;
+/// Multiple scattering from a draft bake is 26–30% too dark (measured: −29.5%, −26.2%, −26.3%)
+/// because its cells are 4 mean free paths wide; with the paper's 1ℓ cells the error drops to
+/// 1–6% (`diagnose_bake_quality`).
+const MULTIPLE_TOLERANCE: f64 = 0.4;
+
+#[test]
+fn directional_light_single_scattering() {
+    check("directional, single", directional(), Component::Single, SINGLE_TOLERANCE);
+}
+
+#[test]
+fn directional_light_multiple_scattering() {
+    check("directional, multiple", directional(), Component::Multiple, MULTIPLE_TOLERANCE);
+}
+
+#[test]
+fn soft_sg_light_single_scattering() {
+    check("SG λ = 8, single", sg(8.0), Component::Single, SINGLE_TOLERANCE);
+}
+
+#[test]
+fn soft_sg_light_multiple_scattering() {
+    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, MULTIPLE_TOLERANCE);
+}
+
+#[test]
+fn sharp_sg_light_single_scattering() {
+    check("SG λ = 300, single", sg(300.0), Component::Single, SINGLE_TOLERANCE);
+}
+
+#[test]
+fn sharp_sg_light_multiple_scattering() {
+    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, MULTIPLE_TOLERANCE);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Diagnostics (ignored): where the differences come from.
+
+use glam::DVec3;
+use rand::Rng;
+use twill_precompute::Rgb;
+use twill_precompute::bake::pca::compress;
+use twill_precompute::bake::settings::BakeSettings;
+use twill_precompute::bake::ssdf::ssdf_all;
+use twill_precompute::bake::svf::render_exemplar;
+use twill_precompute::image::Image;
+use twill_precompute::pathtrace::integrator::pixel_rng;
+use twill_precompute::raycast::Hit;
+use twill_precompute::shading::{SegmentShading, fiber_eval_cos, ssdf_lookup, ssdf_step_visibility};
+
+/// Mean image of `shade(hit, ωo)` over the scene's primary hits (black where rays miss).
+fn render_with(scene: &Scene, spp: u32, shade: impl Fn(&Hit, DVec3) -> Rgb) -> Image {
+    let camera = camera_from(&scene.camera, SIZE, SIZE).expect("camera");
+    let mut image = Image::new(SIZE, SIZE);
+    for y in 0..SIZE {
+        for x in 0..SIZE {
+            let mut rng = pixel_rng(5, (y * SIZE + x) as u64);
+            let mut sum = Rgb::ZERO;
+            for _ in 0..spp {
+                let (origin, dir) =
+                    camera.ray(x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+                let hit =
+                    scene.path_scene.fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, None);
+                sum += hit.map_or(Rgb::ZERO, |h| shade(&h, -dir));
+            }
+            image.set(x, y, sum / f64::from(spp));
+        }
+    }
+    image
+}
+
+fn relative_error_of_mean(test: &Image, reference: &Image) -> f64 {
+    test.mean().element_sum() / reference.mean().element_sum() - 1.0
+}
+
+/// Whether the directional light reaches a hit, by one of the visibility approximations.
+type VisibilityTest<'a> = dyn Fn(&Hit) -> bool + 'a;
+
+#[test]
+#[ignore = "diagnostic: prints where the single-scattering error of a directional light comes from"]
+fn diagnose_directional_single_scattering_visibility() {
+    let scene = scene_with(directional());
+    let baked = baked();
+    let reference = reference(&scene, Component::Single).mean();
+    let to_light = DVec3::new(-0.6, 0.35, 0.5).normalize();
+    let irradiance = Rgb::new(3.3, 3.15, 2.85);
+    let fibers = &scene.path_scene.fibers;
+    let segments = fibers.segments();
+    let n = baked.settings.svf_resolution;
+    let images = render_exemplar(&scene.exemplar, n, &Cancel::new(), &|_| {}).unwrap();
+    let ssdf = ssdf_all(&images, &Cancel::new()).unwrap();
+    let exact_ssdf = compress(&ssdf, n * n, n * n, 1, &Cancel::new()).unwrap();
+    let variants: Vec<(&str, Box<VisibilityTest>)> = vec![
+        (
+            "shadow ray from the hit point",
+            Box::new(|h: &Hit| {
+                !fibers.any_hit_f64(fibers.world_position_f64(h), to_light, f64::INFINITY, Some(h.fiber))
+            }),
+        ),
+        (
+            "shadow ray from the segment midpoint",
+            Box::new(|h: &Hit| {
+                let mid = segments[h.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(h.tile);
+                !fibers.any_hit_f64(mid, to_light, f64::INFINITY, Some(h.fiber))
+            }),
+        ),
+        ("visibility image, nearest pixel", Box::new(|h: &Hit| images.lookup(h.segment as usize, to_light))),
+        (
+            "exact SSDF, bilinear sign",
+            Box::new(|h: &Hit| {
+                ssdf_step_visibility(ssdf_lookup(&exact_ssdf, h.segment as usize, to_light)) > 0.0
+            }),
+        ),
+        (
+            "PCA SSDF (the method)",
+            Box::new(|h: &Hit| {
+                ssdf_step_visibility(ssdf_lookup(&baked.visibility.ssdf, h.segment as usize, to_light)) > 0.0
+            }),
+        ),
+    ];
+    for (name, visible) in &variants {
+        let image = render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {
+            let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
+            if !visible(hit) {
+                return Rgb::ZERO;
+            }
+            fiber_eval_cos(&seg.fiber, &baked.gn, seg.tangent, to_light, wo) * irradiance
+        });
+        eprintln!(
+            "directional single, {name:<38}: relative error of the mean {:+.4}",
+            relative_error_of_mean(&image, &reference)
+        );
+    }
+}
+
+#[test]
+#[ignore = "diagnostic: prints the six comparisons for bakes of higher quality (slow)"]
+fn diagnose_bake_quality() {
+    let base = scene_with(directional());
+    let draft = Quality::Draft.settings();
+    let variants = [
+        ("draft", draft),
+        ("draft, SH order 4", BakeSettings { sh_order: 4, ..draft }),
+        ("draft, 2ℓ cells", BakeSettings { cell_size_mfp: 2.0, ..draft }),
+        ("draft, 2ℓ cells, SH order 4", BakeSettings { cell_size_mfp: 2.0, sh_order: 4, ..draft }),
+        ("draft, 1ℓ cells, SH order 4", BakeSettings { cell_size_mfp: 1.0, sh_order: 4, ..draft }),
+        ("interactive", Quality::Interactive.settings()),
+    ];
+    for (name, settings) in variants {
+        let inputs = BakeInputs { exemplar: &base.exemplar, materials: &base.material_descs, settings };
+        let baked = bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked;
+        for (label, light) in
+            [("directional", directional()), ("SG λ = 8", sg(8.0)), ("SG λ = 300", sg(300.0))]
+        {
+            let scene = scene_with(light);
+            for component in [Component::Single, Component::Multiple] {
+                let method = render_flat(&scene, &baked, component, METHOD_SPP, 5).unwrap().mean();
+                let reference = reference(&scene, component).mean();
+                eprintln!(
+                    "{name:<28} {label:<12} {component:?}: relative error of the mean {:+.4}",
+                    relative_error_of_mean(&method, &reference)
+                );
+            }
+        }
+    }
+}
