@@ -166,16 +166,17 @@ fn sh_ivanic_band(
     }
 }
 
-// coeffs[l^2 .. (l + 1)^2] = band * coeffs[l^2 .. (l + 1)^2] (ShRotation::apply for one band).
-fn sh_apply_band(l: i32, band: ptr<function, array<f32, 169>>, coeffs: ptr<function, array<f32, 49>>) {
+// coeffs[l^2 .. (l + 1)^2] = band * coeffs[l^2 .. (l + 1)^2] (ShRotation::apply for one band),
+// for three functions at once (one per vector component).
+fn sh_apply_band(l: i32, band: ptr<function, array<f32, 169>>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
     let width = 2 * l + 1;
     let start = u32(l * l);
-    var input: array<f32, 13>;
+    var input: array<vec3<f32>, 13>;
     for (var k = 0; k < width; k++) {
         input[k] = (*coeffs)[start + u32(k)];
     }
     for (var row = 0; row < width; row++) {
-        var sum = 0.0;
+        var sum = vec3<f32>(0.0);
         for (var k = 0; k < width; k++) {
             sum += (*band)[u32(row * SH_BAND_STRIDE + k)] * input[k];
         }
@@ -183,12 +184,12 @@ fn sh_apply_band(l: i32, band: ptr<function, array<f32, 169>>, coeffs: ptr<funct
     }
 }
 
-// Rotates coeffs[0 .. (order + 1)^2] in place by the rotation `r` (the R of ShRotation::new,
-// column-major: see the top of this file), building each band's matrix by the same
-// Ivanic-Ruedenberg recurrence as ShRotation::new. Band 0 is left as it is. Cost: about
-// 10^4 flops and 1.6 KB of private memory per call at order 6 (for many directions under one
-// rotation, rotate once, not per invocation).
-fn sh_rotate_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<f32, 49>>) {
+// Rotates three coefficient vectors (one per component, e.g. RGB) in place by the rotation `r`
+// (the R of ShRotation::new, column-major: see the top of this file), building each band's
+// matrix once by the same Ivanic-Ruedenberg recurrence as ShRotation::new. Band 0 is left as it
+// is. Cost: about 10^4 flops for the bands and 1.6 KB of private memory per call at order 6
+// (for many directions under one rotation, rotate once, not per invocation).
+fn sh_rotate_rgb_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
     let top = i32(min(order, SH_MAX_ORDER));
     if (top == 0) {
         return;
@@ -212,6 +213,19 @@ fn sh_rotate_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<f32, 49
         prev = band;
         sh_ivanic_band(l, &band1, &prev, &band);
         sh_apply_band(l, &band, coeffs);
+    }
+}
+
+// Rotates one coefficient vector in place (sh_rotate_rgb_f32 on its first component).
+fn sh_rotate_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<f32, 49>>) {
+    let count = sh_count(min(order, SH_MAX_ORDER));
+    var wide: array<vec3<f32>, 49>;
+    for (var j = 0u; j < count; j++) {
+        wide[j] = vec3<f32>((*coeffs)[j], 0.0, 0.0);
+    }
+    sh_rotate_rgb_f32(order, r, &wide);
+    for (var j = 0u; j < count; j++) {
+        (*coeffs)[j] = wide[j].x;
     }
 }
 

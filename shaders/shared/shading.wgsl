@@ -299,24 +299,24 @@ fn shade_multiple(e: u32, segment: u32, wo: vec3<f32>, c_in: ptr<function, array
     let x = clamp((space.theta_o + HALF_PI) / PI * f32(rows - 1u), 0.0, f32(rows - 1u));
     let k = min(u32(x), rows - 2u);
     let ft = x - f32(k);
+    // c_T = A_cell c_in, channel by channel, then one rotation into omega_o-space for all three.
+    var coeffs: array<vec3<f32>, 49>;
+    for (var j1 = 0u; j1 < n; j1++) {
+        var sum = vec3<f32>(0.0);
+        for (var j0 = 0u; j0 < n; j0++) {
+            let a = vec3<f32>(iirtf_entry(s.cell, 0u, j0, j1), iirtf_entry(s.cell, 1u, j0, j1), iirtf_entry(s.cell, 2u, j0, j1));
+            sum += a * (*c_in)[j0];
+        }
+        coeffs[j1] = sum;
+    }
+    sh_rotate_rgb_f32(order, rotation, &coeffs);
     var out = vec3<f32>(0.0);
-    for (var ch = 0u; ch < 3u; ch++) {
-        var coeffs: array<f32, 49>;
-        for (var j1 = 0u; j1 < n; j1++) {
-            var sum = 0.0;
-            for (var j0 = 0u; j0 < n; j0++) {
-                sum += iirtf_entry(s.cell, ch, j0, j1) * (*c_in)[j0][ch];
-            }
-            coeffs[j1] = sum;
-        }
-        sh_rotate_f32(order, rotation, &coeffs);
-        var dot_cs = 0.0;
-        for (var j = 0u; j < n; j++) {
-            let a = cs_table[((s.material * rows + k) * n + j) * 3u + ch];
-            let b = cs_table[((s.material * rows + k + 1u) * n + j) * 3u + ch];
-            dot_cs += coeffs[j] * (a + ft * (b - a));
-        }
-        out[ch] = dot_cs;
+    for (var j = 0u; j < n; j++) {
+        let row0 = ((s.material * rows + k) * n + j) * 3u;
+        let row1 = ((s.material * rows + k + 1u) * n + j) * 3u;
+        let a = vec3<f32>(cs_table[row0], cs_table[row0 + 1u], cs_table[row0 + 2u]);
+        let b = vec3<f32>(cs_table[row1], cs_table[row1 + 1u], cs_table[row1 + 2u]);
+        out += coeffs[j] * (a + ft * (b - a));
     }
     return out;
 }
