@@ -24,6 +24,49 @@ use twill_renderer::frame::describe_timings;
 use twill_renderer::headless::{SceneRenderer, frame_settings};
 use twill_renderer::plan::Components;
 
+/// What every image-producing command takes: the scene, the output file and overrides of the
+/// scene's `[render]` section.
+#[derive(Debug, clap::Args)]
+pub struct ImageOptions {
+    /// Scene file (default: the built-in default scene).
+    pub scene: Option<PathBuf>,
+    /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(usize, usize)>,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Exposure in stops for PNG output (default: the scene's).
+    #[arg(long, allow_hyphen_values = true)]
+    pub exposure: Option<f64>,
+}
+
+impl ImageOptions {
+    /// Loads the scene (or the default one) with the size, spp and exposure overrides applied.
+    fn load_scene(&self) -> Result<SceneFile> {
+        let mut file = SceneFile::load_or_default(self.scene.as_deref())?;
+        let render = &mut file.render;
+        if let Some((w, h)) = self.size {
+            (render.width, render.height) = (w, h);
+        }
+        render.spp = self.spp.unwrap_or(render.spp);
+        render.exposure = self.exposure.unwrap_or(render.exposure);
+        Ok(file)
+    }
+}
+
+/// Parses `WIDTHxHEIGHT`, each side in 1..=16384.
+pub fn parse_size(text: &str) -> Result<(usize, usize), String> {
+    let err = || format!("{text:?} is not a size: expected WIDTHxHEIGHT, e.g. 256x256, each 1..=16384");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(err)?;
+    let w: usize = w.trim().parse().map_err(|_| err())?;
+    let h: usize = h.trim().parse().map_err(|_| err())?;
+    if (1..=16384).contains(&w) && (1..=16384).contains(&h) { Ok((w, h)) } else { Err(err()) }
+}
+
 pub fn fabric_presets() {
     for preset in presets::fabric_presets() {
         println!("{:<18} {}", preset.name, preset.description);
@@ -74,25 +117,16 @@ pub fn fabric_export(scene_path: Option<&Path>, hair: bool, output: &Path) -> Re
 
 /// Options of `twill reference` (command-line overrides of the scene's settings).
 pub struct ReferenceOptions {
-    pub scene: Option<PathBuf>,
-    pub output: PathBuf,
-    pub size: Option<(usize, usize)>,
-    pub spp: Option<u32>,
+    pub image: ImageOptions,
     pub max_depth: Option<u32>,
     pub only: Option<Component>,
-    pub exposure: Option<f64>,
     pub seed: Option<u64>,
 }
 
 pub fn reference(options: &ReferenceOptions) -> Result<()> {
-    let mut file = SceneFile::load_or_default(options.scene.as_deref())?;
+    let mut file = options.image.load_scene()?;
     let render = &mut file.render;
-    if let Some((w, h)) = options.size {
-        (render.width, render.height) = (w, h);
-    }
-    render.spp = options.spp.unwrap_or(render.spp);
     render.max_depth = options.max_depth.unwrap_or(render.max_depth);
-    render.exposure = options.exposure.unwrap_or(render.exposure);
     render.seed = options.seed.unwrap_or(render.seed);
     let scene = file.build()?;
     let camera = file.camera(file.render.width, file.render.height)?;
@@ -113,7 +147,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let image = film.mean();
     let variance = film.variance_of_mean();
     let display = Display { exposure: file.render.exposure, ..Display::default() };
-    write_image(&options.output, &image, display)?;
+    write_image(&options.image.output, &image, display)?;
     let mean = image.mean();
     let noise = (variance.pixels.iter().map(|v| v.element_sum() / 3.0).sum::<f64>()
         / variance.pixels.len() as f64)
@@ -121,7 +155,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     eprintln!(
         "wrote {} ({}x{}, {} spp, {:?}): mean radiance [{:.4}, {:.4}, {:.4}], per-pixel noise (std. error) {:.4}; \
          path tracing {:.2} s",
-        options.output.display(),
+        options.image.output.display(),
         camera.width(),
         camera.height(),
         settings.spp,
@@ -138,16 +172,12 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
 /// Options of `twill bake`.
 #[allow(clippy::struct_excessive_bools)]
 pub struct RenderOptions {
-    pub scene: Option<PathBuf>,
-    pub output: PathBuf,
-    pub size: Option<(usize, usize)>,
-    pub spp: Option<u32>,
+    pub image: ImageOptions,
     pub quality: Quality,
     pub bake: Option<PathBuf>,
     pub cache: Option<PathBuf>,
     pub no_cache: bool,
     pub only: Option<Components>,
-    pub exposure: Option<f64>,
     pub volume_samples: Option<u32>,
     pub print_plan: bool,
     pub timings: bool,
@@ -164,16 +194,7 @@ fn open_cache(explicit: Option<&Path>, no_cache: bool) -> Result<Option<Cache>> 
 }
 
 pub fn render(options: &RenderOptions) -> Result<()> {
-    let mut file = SceneFile::load_or_default(options.scene.as_deref())?;
-    if let Some((w, h)) = options.size {
-        (file.render.width, file.render.height) = (w, h);
-    }
-    if let Some(spp) = options.spp {
-        file.render.spp = spp;
-    }
-    if let Some(exposure) = options.exposure {
-        file.render.exposure = exposure;
-    }
+    let mut file = options.image.load_scene()?;
     if let Some(n) = options.volume_samples {
         file.gpu.volume_samples = n;
     }
@@ -206,9 +227,9 @@ pub fn render(options: &RenderOptions) -> Result<()> {
     let frame = session.render(&scene, &settings)?;
     let render_seconds = started.elapsed().as_secs_f64();
 
-    let ext = options.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let ext = options.image.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     if ext.as_deref() == Some("png") {
-        write_display_png(&options.output, frame.width, frame.height, &frame.display)?;
+        write_display_png(&options.image.output, frame.width, frame.height, &frame.display)?;
     } else {
         let image = Image {
             width: frame.width as usize,
@@ -216,7 +237,7 @@ pub fn render(options: &RenderOptions) -> Result<()> {
             pixels: frame.radiance.iter().map(|p| Vec3::from(*p).as_dvec3()).collect(),
         };
         write_image(
-            &options.output,
+            &options.image.output,
             &image,
             Display { exposure: scene.render.exposure, ..Display::default() },
         )?;
@@ -230,7 +251,7 @@ pub fn render(options: &RenderOptions) -> Result<()> {
         settings.spp,
         render_seconds,
         bake_seconds,
-        options.output.display()
+        options.image.output.display()
     );
     if options.timings {
         match &frame.timings {

@@ -108,26 +108,14 @@ enum Only {
 
 #[derive(Debug, clap::Args)]
 struct ReferenceArgs {
-    /// Scene file (default: the built-in default scene).
-    scene: Option<PathBuf>,
-    /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
-    #[arg(short, long)]
-    output: PathBuf,
-    /// Image size as WIDTHxHEIGHT (default: the scene's).
-    #[arg(long, value_parser = parse_size)]
-    size: Option<(usize, usize)>,
-    /// Samples per pixel (default: the scene's).
-    #[arg(long)]
-    spp: Option<u32>,
+    #[command(flatten)]
+    image: commands::ImageOptions,
     /// Maximum number of scattering events per path (default: the scene's).
     #[arg(long)]
     max_depth: Option<u32>,
     /// Render only one scattering component.
     #[arg(long, value_enum)]
     only: Option<Only>,
-    /// Exposure in stops for PNG output (default: the scene's).
-    #[arg(long, allow_hyphen_values = true)]
-    exposure: Option<f64>,
     /// Random seed (default: the scene's).
     #[arg(long)]
     seed: Option<u64>,
@@ -136,17 +124,8 @@ struct ReferenceArgs {
 #[derive(Debug, clap::Args)]
 #[allow(clippy::struct_excessive_bools)]
 struct RenderArgs {
-    /// Scene file (default: the built-in default scene).
-    scene: Option<PathBuf>,
-    /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
-    #[arg(short, long)]
-    output: PathBuf,
-    /// Image size as WIDTHxHEIGHT (default: the scene's).
-    #[arg(long, value_parser = parse_size)]
-    size: Option<(usize, usize)>,
-    /// Samples per pixel (default: the scene's).
-    #[arg(long)]
-    spp: Option<u32>,
+    #[command(flatten)]
+    image: commands::ImageOptions,
     /// Bake quality when the fabric is baked for this render.
     #[arg(long, value_enum, default_value = "interactive")]
     quality: QualityArg,
@@ -162,9 +141,6 @@ struct RenderArgs {
     /// Render only one scattering component.
     #[arg(long, value_enum)]
     only: Option<Only>,
-    /// Exposure in stops for PNG output (default: the scene's).
-    #[arg(long, allow_hyphen_values = true)]
-    exposure: Option<f64>,
     /// Volume samples per shell tetrahedron (default: the scene's [gpu] volume_samples).
     #[arg(long)]
     volume_samples: Option<u32>,
@@ -182,14 +158,6 @@ fn quality_of(q: QualityArg) -> twill_precompute::bake::settings::Quality {
         QualityArg::Interactive => twill_precompute::bake::settings::Quality::Interactive,
         QualityArg::Paper => twill_precompute::bake::settings::Quality::Paper,
     }
-}
-
-fn parse_size(text: &str) -> Result<(usize, usize), String> {
-    let err = || format!("{text:?} is not a size: expected WIDTHxHEIGHT, e.g. 256x256, each 1..=16384");
-    let (w, h) = text.split_once(['x', 'X']).ok_or_else(err)?;
-    let w: usize = w.trim().parse().map_err(|_| err())?;
-    let h: usize = h.trim().parse().map_err(|_| err())?;
-    if (1..=16384).contains(&w) && (1..=16384).contains(&h) { Ok((w, h)) } else { Err(err()) }
 }
 
 fn main() -> std::process::ExitCode {
@@ -228,10 +196,7 @@ fn run(cli: Cli) -> Result<()> {
             overrides: args.overrides,
         }),
         Command::Render(args) => commands::render(&commands::RenderOptions {
-            scene: args.scene,
-            output: args.output,
-            size: args.size,
-            spp: args.spp,
+            image: args.image,
             quality: quality_of(args.quality),
             bake: args.bake,
             cache: args.cache,
@@ -240,22 +205,17 @@ fn run(cli: Cli) -> Result<()> {
                 Only::Single => twill_renderer::plan::Components::SingleOnly,
                 Only::Multiple => twill_renderer::plan::Components::MultipleOnly,
             }),
-            exposure: args.exposure,
             volume_samples: args.volume_samples,
             print_plan: args.print_plan,
             timings: args.timings,
         }),
         Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
-            scene: args.scene,
-            output: args.output,
-            size: args.size,
-            spp: args.spp,
+            image: args.image,
             max_depth: args.max_depth,
             only: args.only.map(|o| match o {
                 Only::Single => twill_precompute::pathtrace::Component::Single,
                 Only::Multiple => twill_precompute::pathtrace::Component::Multiple,
             }),
-            exposure: args.exposure,
             seed: args.seed,
         }),
     }
@@ -267,10 +227,10 @@ mod tests {
 
     #[test]
     fn sizes_parse_and_bad_sizes_name_the_valid_form() {
-        assert_eq!(parse_size("256x128"), Ok((256, 128)));
-        assert!(parse_size("0x5").unwrap_err().contains("WIDTHxHEIGHT"));
-        assert!(parse_size("abc").is_err());
-        assert!(parse_size("20000x2").is_err());
+        assert_eq!(commands::parse_size("256x128"), Ok((256, 128)));
+        assert!(commands::parse_size("0x5").unwrap_err().contains("WIDTHxHEIGHT"));
+        assert!(commands::parse_size("abc").is_err());
+        assert!(commands::parse_size("20000x2").is_err());
     }
 
     #[test]
