@@ -19,17 +19,6 @@ use twill_renderer::headless::{SceneRenderer, frame_settings};
 use twill_renderer::plan::Components;
 use twill_tests::compare_with_golden;
 
-fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match Gpu::headless() {
-        Ok(gpu) => Some(gpu),
-        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
-            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
-            None
-        }
-        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
-    }
-}
-
 const FABRIC: &str = "[fabric]\npreset = \"default\"\n";
 
 /// The default fabric's draft bake, shared by every test of this binary.
@@ -85,7 +74,7 @@ fn pass_names(frame: &Frame) -> Vec<String> {
 
 #[test]
 fn golden_images_and_the_plan_as_executed() {
-    let Some(gpu) = gpu_or_skip("golden_images_and_the_plan_as_executed") else { return };
+    let Some(gpu) = Gpu::for_test("golden_images_and_the_plan_as_executed") else { return };
     let sg_fill =
         "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
     let sg_sharp =
@@ -150,7 +139,7 @@ fn golden_images_and_the_plan_as_executed() {
 
 #[test]
 fn the_tone_map_pass_matches_its_cpu_twin() {
-    let Some(gpu) = gpu_or_skip("the_tone_map_pass_matches_its_cpu_twin") else { return };
+    let Some(gpu) = Gpu::for_test("the_tone_map_pass_matches_its_cpu_twin") else { return };
     let scene = scene(&format!("{FABRIC}{}", camera_above(0.3)), &[SUN]);
     let (frame, _) = render(gpu, &scene, 64, 2, Components::All);
     let display = Display { exposure: scene.render.exposure, curve: ToneCurve::Filmic };
@@ -177,7 +166,7 @@ fn mean(pixels: impl Iterator<Item = f64>) -> f64 {
 #[test]
 #[ignore = "open defect (issue 4): GPU single scattering is ~42% brighter than the path tracer on this swatch; run with --ignored to measure"]
 fn single_and_multiple_scattering_against_the_path_tracer() {
-    let Some(gpu) = gpu_or_skip("single_and_multiple_scattering_against_the_path_tracer") else { return };
+    let Some(gpu) = Gpu::for_test("single_and_multiple_scattering_against_the_path_tracer") else { return };
     let head = format!(
         "{FABRIC}[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n[camera]\nprojection = \"orthographic\"\neye = [0.0, -0.3, 0.6]\ntarget = [0.0, 0.0, 0.0]\nheight_cm = 0.4\n[render]\nspp = 64\nmax_depth = 64\nseed = 7\n"
     );

@@ -7,6 +7,7 @@ use twill_precompute::fabric::fiber_io::exemplar_from_fibers;
 use twill_precompute::fabric::{BlockGrid, Exemplar, Fiber, Tiling};
 use twill_precompute::pathtrace::{Light, PathScene};
 use twill_precompute::raycast::{Extent, FiberScene};
+use twill_renderer::export::write_rgb8_png;
 
 /// One straight fiber along x, centred on the origin, `length` long, used as-is.
 #[must_use]
@@ -74,14 +75,6 @@ fn read_rgb_png(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>), String> {
     Ok((info.width, info.height, buf))
 }
 
-fn write_rgb_png(path: &std::path::Path, width: u32, height: u32, rgb: &[u8]) {
-    let file = std::fs::File::create(path).expect("create image");
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    encoder.write_header().and_then(|mut w| w.write_image_data(rgb)).expect("write image");
-}
-
 /// Compares an RGBA8 image with the golden `name` (see the metric above). On failure writes
 /// `target/golden-diffs/NAME.actual.png` and `NAME.diff.png` (absolute difference, x4) and
 /// returns the reason. A missing golden fails; `TWILL_BLESS=1` writes it instead.
@@ -91,16 +84,18 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
     let diff_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/golden-diffs");
     if std::env::var("TWILL_BLESS").is_ok_and(|v| v == "1") {
         std::fs::create_dir_all(path.parent().expect("goldens folder")).expect("create goldens folder");
-        write_rgb_png(&path, width, height, &actual);
+        write_rgb8_png(&path, width, height, &actual).expect("write the golden");
         return Ok(format!("{name}: golden written (TWILL_BLESS=1)"));
     }
     let fail = |reason: String, golden: Option<&[u8]>| {
         std::fs::create_dir_all(&diff_dir).expect("create diff folder");
-        write_rgb_png(&diff_dir.join(format!("{name}.actual.png")), width, height, &actual);
+        write_rgb8_png(&diff_dir.join(format!("{name}.actual.png")), width, height, &actual)
+            .expect("write the actual image");
         if let Some(g) = golden {
             let diff: Vec<u8> =
                 g.iter().zip(&actual).map(|(a, b)| a.abs_diff(*b).saturating_mul(4)).collect();
-            write_rgb_png(&diff_dir.join(format!("{name}.diff.png")), width, height, &diff);
+            write_rgb8_png(&diff_dir.join(format!("{name}.diff.png")), width, height, &diff)
+                .expect("write the difference image");
         }
         Err(format!("{name}: {reason}; wrote {}/{name}.*.png", diff_dir.display()))
     };

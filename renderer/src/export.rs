@@ -97,7 +97,8 @@ fn write_png(path: &Path, image: &Image, display: Display) -> io::Result<()> {
     write_rgb8_png(path, image.width as u32, image.height as u32, &bytes)
 }
 
-fn write_rgb8_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
+/// Writes 8-bit sRGB RGB bytes (row-major, top row first) as a PNG, atomically.
+pub fn write_rgb8_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
     write_atomically(path, |w| {
         let mut encoder = png::Encoder::new(w, width, height);
         encoder.set_color(png::ColorType::Rgb);

@@ -33,6 +33,7 @@ use glam::camera::rh::view::look_at_mat4;
 use glam::{DVec3, Mat4, Vec3};
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, GpuSection, ProjectionKind};
+use twill_precompute::shading::sg_path_weights;
 
 use crate::fabric_data::{FabricData, make_buffer};
 use crate::gpu::Gpu;
@@ -56,8 +57,8 @@ pub enum RenderError {
     Limit { adapter: String, what: &'static str, have: u64, need: u64 },
     #[error("GPU error in {label}: {message}")]
     Gpu { label: String, message: String },
-    #[error("GPU readback failed: {0}")]
-    Readback(String),
+    #[error(transparent)]
+    Readback(#[from] crate::gpu::GpuError),
 }
 
 /// Per-frame settings.
@@ -285,6 +286,34 @@ fn shader_module(device: &wgpu::Device, label: &str, source: String) -> wgpu::Sh
     device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
         source: wgpu::ShaderSource::Wgsl(source.into()),
+    })
+}
+
+/// A 2D texture (or array of `layers`) with one mip level and one sample.
+fn texture_2d(
+    device: &wgpu::Device,
+    label: &str,
+    [width, height, layers]: [u32; 3],
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width, height, depth_or_array_layers: layers },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// A view of every layer of a texture as a 2D array.
+fn array_view(texture: &wgpu::Texture) -> wgpu::TextureView {
+    texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
     })
 }
 
@@ -635,16 +664,7 @@ impl Renderer {
         let layers = plan.shadow_layers().max(1);
         let vis_size = settings.gpu.visibility_texture_size;
         let vis_texture = |label: &str, usage: wgpu::TextureUsages| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d { width: vis_size, height: vis_size, depth_or_array_layers: layers },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rg32Float,
-                usage,
-                view_formats: &[],
-            })
+            texture_2d(&device, label, [vis_size, vis_size, layers], wgpu::TextureFormat::Rg32Float, usage)
         };
         let (vis_sharp, vis_blurred) = if plan.shadow_maps {
             let storage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING;
@@ -675,16 +695,7 @@ impl Renderer {
 
         // Frame targets.
         let target = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage,
-                view_formats: &[],
-            })
+            texture_2d(&device, label, [width, height, 1], format, usage)
         };
         let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
         let position = target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach);
@@ -751,12 +762,6 @@ impl Renderer {
             wgpu::BufferUsages::UNIFORM,
         );
         let view = |t: &wgpu::Texture| t.create_view(&wgpu::TextureViewDescriptor::default());
-        let array_view = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            })
-        };
         let shade_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("twill.shade.bind_group"),
             layout: &self.shade_layout,
@@ -1001,16 +1006,13 @@ impl Renderer {
         let device = &self.device;
         let size = settings.gpu.shadow_map_size;
         let layers = plan.shadow_layers();
-        let shadow = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("twill.shadow_maps"),
-            size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: layers },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Depth32Float,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
+        let shadow = texture_2d(
+            device,
+            "twill.shadow_maps",
+            [size, size, layers],
+            wgpu::TextureFormat::Depth32Float,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
         let mut surface = SurfaceUniformsGpu {
             light_clip_from_world: [[[0.0; 4]; 4]; MAX_SHADOWED_LIGHTS],
             uv_rect: self.shell.uv_rect,
@@ -1083,16 +1085,13 @@ impl Renderer {
 
         // X[u, v].
         let vis_size = settings.gpu.visibility_texture_size;
-        let top = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("twill.top_surface"),
-            size: wgpu::Extent3d { width: vis_size, height: vis_size, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba32Float,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
+        let top = texture_2d(
+            device,
+            "twill.top_surface",
+            [vis_size, vis_size, 1],
+            wgpu::TextureFormat::Rgba32Float,
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
         let top_view = top.create_view(&wgpu::TextureViewDescriptor::default());
         let top_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("twill.top_surface.bind_group"),
@@ -1136,14 +1135,8 @@ impl Renderer {
             bytemuck::bytes_of(&vis),
             wgpu::BufferUsages::UNIFORM,
         );
-        let shadow_view = shadow.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
-        let vis_view = visibility.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let shadow_view = array_view(&shadow);
+        let vis_view = array_view(visibility);
         let vis_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("twill.visibility.bind_group"),
             layout: &self.visibility_pipeline.get_bind_group_layout(0),
@@ -1179,23 +1172,14 @@ impl Renderer {
         let device = &self.device;
         let size = settings.gpu.visibility_texture_size;
         let layers = sharp.depth_or_array_layers();
-        let across = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("twill.visibility.blur_u"),
-            size: wgpu::Extent3d { width: size, height: size, depth_or_array_layers: layers },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rg32Float,
-            usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
+        let across = texture_2d(
+            device,
+            "twill.visibility.blur_u",
+            [size, size, layers],
+            wgpu::TextureFormat::Rg32Float,
+            wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
         let [du, dv] = [self.shell.uv_rect[2], self.shell.uv_rect[3]];
-        let array_view = |t: &wgpu::Texture| {
-            t.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            })
-        };
         for (axis, extent, source, destination) in
             [([1.0, 0.0], du, sharp, &across), ([0.0, 1.0], dv, &across, blurred)]
         {
@@ -1268,16 +1252,6 @@ impl Renderer {
             })
             .collect()
     }
-}
-
-/// Weights of the sum-of-SGs and erf-SSDF paths for an SG light of sharpness λ (paper 5.2.2):
-/// (1, 0) for λ ≤ 100, (0, 1) for λ ≥ 200, linear in λ between.
-#[must_use]
-pub fn sg_path_weights(lambda: f64) -> (f64, f64) {
-    let b = ((lambda - crate::plan::SOS_ONLY_MAX_LAMBDA)
-        / (crate::plan::SSDF_ONLY_MIN_LAMBDA - crate::plan::SOS_ONLY_MAX_LAMBDA))
-        .clamp(0.0, 1.0);
-    (1.0 - b, b)
 }
 
 /// The angular radius used for an SG light's PCSS penumbra: `cos α = 1 − 1/λ`, capped.
@@ -1421,21 +1395,7 @@ fn read_buffer<T: bytemuck::Pod>(
     device: &wgpu::Device,
     buffer: &wgpu::Buffer,
 ) -> Result<Vec<T>, RenderError> {
-    let slice = buffer.slice(..);
-    let (sender, receiver) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |result| {
-        let _ = sender.send(result);
-    });
-    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
-    receiver
-        .recv()
-        .map_err(|e| RenderError::Readback(e.to_string()))?
-        .map_err(|e| RenderError::Readback(e.to_string()))?;
-    let view = slice.get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
-    let out = bytemuck::cast_slice(&view).to_vec();
-    drop(view);
-    buffer.unmap();
-    Ok(out)
+    Ok(crate::gpu::read_buffer(device, buffer)?)
 }
 
 /// A one-paragraph summary of a frame's timings.
@@ -1453,15 +1413,6 @@ pub fn describe_timings(timings: &[PassTiming]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn sg_path_weights_blend_linearly_between_100_and_200() {
-        assert_eq!(sg_path_weights(50.0), (1.0, 0.0));
-        assert_eq!(sg_path_weights(100.0), (1.0, 0.0));
-        assert_eq!(sg_path_weights(150.0), (0.5, 0.5));
-        assert_eq!(sg_path_weights(200.0), (0.0, 1.0));
-        assert_eq!(sg_path_weights(1e5), (0.0, 1.0));
-    }
 
     #[test]
     fn sg_light_angle_shrinks_with_sharpness() {

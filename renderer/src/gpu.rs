@@ -53,6 +53,28 @@ impl Gpu {
         Ok(Self { adapter_info, device, queue })
     }
 
+    /// The device for a GPU test named `test`: tests need an adapter and fail without one,
+    /// unless `TWILL_ALLOW_NO_GPU=1` is set, in which case this prints a loud SKIPPED line and
+    /// returns `None` (skipping is never silent). `scripts/test.sh` installs lavapipe, so CI
+    /// always has one.
+    ///
+    /// # Panics
+    /// When no adapter opens and `TWILL_ALLOW_NO_GPU` is not `1`.
+    #[must_use]
+    pub fn for_test(test: &str) -> Option<Self> {
+        match Self::headless() {
+            Ok(gpu) => {
+                eprintln!("{test}: running on {}", gpu.describe());
+                Some(gpu)
+            }
+            Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
+                eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
+                None
+            }
+            Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
+        }
+    }
+
     /// A one-line description of the adapter (name, type, driver).
     #[must_use]
     pub fn describe(&self) -> String {
@@ -180,21 +202,30 @@ impl Gpu {
         encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback, 0, bytes);
         self.queue.submit([encoder.finish()]);
 
-        let slice = readback.slice(..);
-        let (sender, receiver) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |result| {
-            let _ = sender.send(result);
-        });
-        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
-        receiver
-            .recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let view = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mut out: Vec<[f32; 4]> = bytemuck::cast_slice(&view).to_vec();
-        drop(view);
-        readback.unmap();
+        let mut out: Vec<[f32; 4]> = read_buffer(device, &readback)?;
         out.truncate(inputs.len());
         Ok(out)
     }
+}
+
+/// Maps a `MAP_READ` buffer, waits for the device and copies its contents out.
+pub fn read_buffer<T: bytemuck::Pod>(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+) -> Result<Vec<T>, GpuError> {
+    let slice = buffer.slice(..);
+    let (sender, receiver) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |result| {
+        let _ = sender.send(result);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+    receiver
+        .recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let view = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+    let out = bytemuck::cast_slice(&view).to_vec();
+    drop(view);
+    buffer.unmap();
+    Ok(out)
 }

@@ -13,7 +13,7 @@ use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::scene::Scene;
 
-use crate::fabric_data::{FabricArrays, FabricData, FabricDataError};
+use crate::fabric_data::{FabricData, FabricDataError};
 use crate::frame::{Frame, FrameSettings, RenderError, Renderer};
 use crate::gpu::{Gpu, GpuError};
 use crate::plan::Components;
@@ -30,11 +30,6 @@ pub enum HeadlessError {
     Shell(#[from] ShellError),
     #[error(transparent)]
     Render(#[from] RenderError),
-}
-
-/// The fabric slab `[z_min, z_max]` (cm) of a bake set.
-pub fn fabric_z_range(exemplars: &[&Baked], pattern: &PatternMap) -> Result<[f32; 2], FabricDataError> {
-    Ok(FabricArrays::pack(exemplars, pattern)?.header.z_range)
 }
 
 /// The shell of a scene's `[mesh]` (default: the flat swatch) around a fabric slab.

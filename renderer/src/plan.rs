@@ -18,14 +18,12 @@
 //! - which shading terms are compiled into the shading pipeline (single, multiple, each
 //!   visibility path), as WGSL override constants, so a skipped path costs nothing.
 //!
+//! The thresholds are the shading twins' (`twill_precompute::shading::sg_path_weights`).
 //! The plan prints as a list of passes (`twill render --print-plan`), and the tests assert it.
 
 use std::fmt;
 
-/// Sharpness at and below which SG lights use only the sum-of-SGs visibility.
-pub const SOS_ONLY_MAX_LAMBDA: f64 = 100.0;
-/// Sharpness at and above which SG lights use only the erf-smoothed SSDF.
-pub const SSDF_ONLY_MIN_LAMBDA: f64 = 200.0;
+use twill_precompute::shading::visibility::{SSDF_ONLY_ABOVE, SUM_OF_SG_ONLY_BELOW};
 
 /// A light as planning sees it (world space; `to_light` unit).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -141,9 +139,9 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// The local-visibility path for an SG light of sharpness `lambda`.
 #[must_use]
 pub fn sg_local_visibility(lambda: f64) -> LocalVisibility {
-    if lambda <= SOS_ONLY_MAX_LAMBDA {
+    if lambda <= SUM_OF_SG_ONLY_BELOW {
         LocalVisibility::SumOfSg
-    } else if lambda >= SSDF_ONLY_MIN_LAMBDA {
+    } else if lambda >= SSDF_ONLY_ABOVE {
         LocalVisibility::SsdfErf
     } else {
         LocalVisibility::Blend

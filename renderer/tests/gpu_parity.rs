@@ -11,20 +11,6 @@ use twill_precompute::special::{erf, erf_f32, erfc, erfc_f32, i0e, i0e_f32};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::shaders;
 
-fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match Gpu::headless() {
-        Ok(gpu) => {
-            eprintln!("{test}: running on {}", gpu.describe());
-            Some(gpu)
-        }
-        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
-            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
-            None
-        }
-        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
-    }
-}
-
 /// Arguments from -lim to lim (uniform), plus the hard cases given.
 fn grid(lim: f32, n: usize, hard: &[f32]) -> Vec<f32> {
     let mut xs: Vec<f32> = (0..n).map(|i| -lim + 2.0 * lim * i as f32 / (n - 1) as f32).collect();
@@ -34,7 +20,7 @@ fn grid(lim: f32, n: usize, hard: &[f32]) -> Vec<f32> {
 
 #[test]
 fn special_functions_match_their_rust_twins() {
-    let Some(gpu) = gpu_or_skip("special_functions_match_their_rust_twins") else { return };
+    let Some(gpu) = Gpu::for_test("special_functions_match_their_rust_twins") else { return };
     let hard =
         [0.0, -0.0, 1e-30, -1e-30, 1e-7, 0.4999999, 0.5, 3.75, 3.7500002, 9.0, 9.2, 20.0, 88.0, 1e4, 1e5];
     let xs = grid(12.0, 4001, &hard);
@@ -72,7 +58,9 @@ fn special_functions_match_their_rust_twins() {
 
 #[test]
 fn sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5() {
-    let Some(gpu) = gpu_or_skip("sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5") else { return };
+    let Some(gpu) = Gpu::for_test("sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5") else {
+        return;
+    };
     let half_pi = std::f32::consts::FRAC_PI_2;
     // Sharpness log-spaced over the whole supported range; angles include aligned directions,
     // grazing ones (exactly ±π/2) and opposite ones.

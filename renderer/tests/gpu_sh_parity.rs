@@ -116,20 +116,6 @@ fn sh_test_zonal(axis: vec3<f32>, packed: u32) -> vec4<f32> {
 }
 ";
 
-fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match Gpu::headless() {
-        Ok(gpu) => {
-            eprintln!("{test}: running on {}", gpu.describe());
-            Some(gpu)
-        }
-        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
-            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
-            None
-        }
-        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
-    }
-}
-
 fn library() -> String {
     format!("{}\n{WRAPPERS}", shaders::SH)
 }
@@ -306,7 +292,7 @@ fn rotations() -> Vec<(String, [f32; 3])> {
 
 #[test]
 fn sh_eval_matches_its_f64_original_for_orders_0_to_6() {
-    let Some(gpu) = gpu_or_skip("sh_eval_matches_its_f64_original_for_orders_0_to_6") else { return };
+    let Some(gpu) = Gpu::for_test("sh_eval_matches_its_f64_original_for_orders_0_to_6") else { return };
     let dirs = directions();
     assert!(dirs.len() >= 2000);
     let inputs = packed_inputs(&dirs);
@@ -326,7 +312,7 @@ fn sh_eval_matches_its_f64_original_for_orders_0_to_6() {
 
 #[test]
 fn sh_rotate_matches_sh_rotation_for_orders_0_to_6() {
-    let Some(gpu) = gpu_or_skip("sh_rotate_matches_sh_rotation_for_orders_0_to_6") else { return };
+    let Some(gpu) = Gpu::for_test("sh_rotate_matches_sh_rotation_for_orders_0_to_6") else { return };
     let named = rotations();
     assert!(named.len() >= 300);
     let vectors: Vec<[f32; 3]> = named.iter().map(|(_, w)| *w).collect();
@@ -350,7 +336,7 @@ fn sh_rotate_matches_sh_rotation_for_orders_0_to_6() {
 
 #[test]
 fn sh_zonal_rotated_matches_sh_rotation_of_the_zonal_coefficients() {
-    let Some(gpu) = gpu_or_skip("sh_zonal_rotated_matches_sh_rotation_of_the_zonal_coefficients") else {
+    let Some(gpu) = Gpu::for_test("sh_zonal_rotated_matches_sh_rotation_of_the_zonal_coefficients") else {
         return;
     };
     let axes = directions();

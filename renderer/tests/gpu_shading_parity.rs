@@ -21,17 +21,6 @@ use twill_renderer::fabric_data::FabricData;
 use twill_renderer::gpu::Gpu;
 use twill_renderer::shaders;
 
-fn gpu_or_skip(test: &str) -> Option<Gpu> {
-    match Gpu::headless() {
-        Ok(gpu) => Some(gpu),
-        Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
-            eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
-            None
-        }
-        Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),
-    }
-}
-
 fn draft_bake() -> Baked {
     let scene = SceneFile::default_scene().build().expect("default scene");
     let inputs = BakeInputs {
@@ -181,7 +170,7 @@ fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) ->
 #[ignore = "open defect (issue 4): WGSL Γ differs from its Rust twin by up to ~10% on some cases; run with --ignored"]
 fn shading_functions_match_their_rust_twins() {
     let mut failures = Vec::new();
-    let Some(gpu) = gpu_or_skip("shading_functions_match_their_rust_twins") else { return };
+    let Some(gpu) = Gpu::for_test("shading_functions_match_their_rust_twins") else { return };
     let baked = draft_bake();
     let fabric =
         FabricData::upload(&gpu.device, &gpu.queue, &[&baked], &PatternMap::uniform(0)).expect("upload");
