@@ -10,6 +10,7 @@ use twill_precompute::bake::Cancel;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
 use twill_precompute::bake::settings::Quality;
+use twill_precompute::image::{Estimate, Image, compare};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
@@ -153,57 +154,52 @@ fn the_tone_map_pass_matches_its_cpu_twin() {
     assert!(worst <= 1, "GPU tone map differs from export::display_srgb8 by {worst} levels");
 }
 
-/// Mean of a radiance image (all channels).
-fn mean(pixels: impl Iterator<Item = f64>) -> f64 {
-    let (mut s, mut n) = (0.0, 0.0);
-    for p in pixels {
-        s += p;
-        n += 1.0;
-    }
-    s / n
-}
-
+/// The GPU renderer against the path tracer on a flat swatch, single and multiple scattering
+/// separately (32x32, 64 spp both; draft bake). Measured 2026-11-21 on lavapipe: single
+/// scattering −4.9% (relative error of the mean), multiple −19.6%: the draft bake's multiple
+/// scattering is biased low by its coarse IIRTF cells (4 mean free paths; the CPU version of the
+/// method measures −26..−30% at draft, tests/shading_vs_reference.rs). The bound is that bias
+/// allowance plus three standard errors of the reference's mean.
 #[test]
-#[ignore = "open defect (issue 4): GPU single scattering is ~42% brighter than the path tracer on this swatch; run with --ignored to measure"]
 fn single_and_multiple_scattering_against_the_path_tracer() {
     let Some(gpu) = Gpu::for_test("single_and_multiple_scattering_against_the_path_tracer") else { return };
     let head = format!(
-        "{FABRIC}[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n[camera]\nprojection = \"orthographic\"\neye = [0.0, -0.3, 0.6]\ntarget = [0.0, 0.0, 0.0]\nheight_cm = 0.4\n[render]\nspp = 64\nmax_depth = 64\nseed = 7\n"
+        "{FABRIC}[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n[camera]\nprojection = \"orthographic\"\neye = [0.0, -0.3, 0.6]\ntarget = [0.0, 0.0, 0.0]\nheight_cm = 0.4\n"
     );
     let scene = scene(&head, &[SUN]);
     let size = 32;
     let mut gpu = gpu;
-    for (components, component, tolerance) in [
-        (Components::SingleOnly, Component::Single, 0.2),
-        (Components::MultipleOnly, Component::Multiple, 0.35),
-    ] {
-        let (frame, back) = render(gpu, &scene, size, 4, components);
+    for (components, component, allowed_bias) in
+        [(Components::SingleOnly, Component::Single, 0.10), (Components::MultipleOnly, Component::Multiple, 0.30)]
+    {
+        let (frame, back) = render(gpu, &scene, size, 64, components);
         gpu = back;
-        let camera = scene_camera(&scene, size as usize);
-        let settings = scene_settings(component);
+        let ours = Image {
+            width: size as usize,
+            height: size as usize,
+            pixels: frame.radiance.iter().map(|p| glam::DVec3::from_array(p.map(f64::from))).collect(),
+        };
+        let settings = pathtrace::RenderSettings { spp: 64, max_depth: 64, component, seed: 7 };
+        let camera = twill_precompute::scene::camera_from(&scene.camera, size as usize, size as usize)
+            .expect("camera");
         let film = pathtrace::render(&scene.path_scene, &camera, &settings, &|_| {});
-        let reference = film.mean();
-        let ours: Vec<f64> = frame.radiance.iter().flat_map(|p| p.map(f64::from)).collect();
-        let theirs: Vec<f64> = reference.pixels.iter().flat_map(glam::DVec3::to_array).collect();
-        let (m_ours, m_ref) = (mean(ours.iter().copied()), mean(theirs.iter().copied()));
-        let rmse = mean(ours.iter().zip(&theirs).map(|(a, b)| (a - b).powi(2))).sqrt();
-        let rel = (m_ours - m_ref) / m_ref;
-        eprintln!(
-            "{components:?}: mean GPU {m_ours:.5} vs path tracer {m_ref:.5}: relative error of the mean {:+.1}%, per-pixel RMSE {rmse:.5} ({:.1}% of the mean)",
-            100.0 * rel,
-            100.0 * rmse / m_ref
+        let (reference, variance) = (film.mean(), film.variance_of_mean());
+        let c = compare(
+            Estimate { mean: &ours, variance: None },
+            Estimate { mean: &reference, variance: Some(&variance) },
         );
+        eprintln!(
+            "{components:?}: relative error of the mean {:+.1}% (reference noise {:.1}%), per-pixel RMSE {:.5} (noise alone {:.5})",
+            100.0 * c.relative_error_of_mean,
+            100.0 * c.relative_error_of_mean_std,
+            c.rmse,
+            c.expected_noise_rmse
+        );
+        let bound = allowed_bias + 3.0 * c.relative_error_of_mean_std;
         assert!(
-            rel.abs() < tolerance,
-            "{components:?}: relative error of the mean {rel:+.3} over {tolerance}"
+            c.relative_error_of_mean.abs() < bound,
+            "{components:?}: relative error of the mean {:+.3} over {bound:.3}",
+            c.relative_error_of_mean
         );
     }
-}
-
-fn scene_settings(component: Component) -> twill_precompute::pathtrace::RenderSettings {
-    twill_precompute::pathtrace::RenderSettings { spp: 64, max_depth: 64, component, seed: 7 }
-}
-
-fn scene_camera(scene: &Scene, size: usize) -> twill_precompute::pathtrace::Camera {
-    twill_precompute::scene::camera_from(&scene.camera, size, size).expect("camera")
 }

@@ -9,7 +9,7 @@
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
 //! | C_G table | `sh_order` |
-//! | volume (voxels, segment table) | geometry (which includes each yarn's material slot), `voxels_per_segment` |
+//! | volume (voxels, segment table) | geometry (which includes each yarn's material slot), `voxels_per_fiber_diameter` |
 //!
 //! "Geometry" is the hash of the exemplar itself (every fiber point, radius, yarn, the tiling
 //! and blocks), so it does not matter how the fabric was described. Lights are no input at all:
@@ -38,7 +38,7 @@ use super::ssdf::ssdf_all;
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
 use super::svf::{SvfError, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
-use super::volume::{Occupancy, SegmentTable, VolumeError, VoxelVolume, rasterize};
+use super::volume::{SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
 use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
@@ -88,10 +88,10 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 1, 1, 1, 1, 1, 1];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 1, 1, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key).
-pub const BAKE_LAYOUT_VERSION: u32 = 1;
+pub const BAKE_LAYOUT_VERSION: u32 = 2;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -321,9 +321,8 @@ pub fn bake(
         stage_runner.run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.sh_order, CG_DEFAULT_POINTS)?))?;
 
     let volume = stage_runner.run(Stage::Volume, keys.volume, || {
-        let volume = rasterize(inputs.exemplar, s.voxels_per_segment, Occupancy::default(), cancel, &|f| {
-            progress(Stage::Volume, f);
-        })?;
+        let (vpd, occupancy) = fit_resolution(inputs.exemplar, s.voxels_per_fiber_diameter)?;
+        let volume = rasterize(inputs.exemplar, vpd, occupancy, cancel, &|f| progress(Stage::Volume, f))?;
         Ok(VolumeData { volume, segments: SegmentTable::new(inputs.exemplar) })
     })?;
 
@@ -621,7 +620,7 @@ impl StageKeys {
         let cs = key(Stage::CsTables).hash(&materials).usize(s.sh_order).usize(s.cs_theta_count).finish();
         let gn = key(Stage::GnTables).hash(&materials).finish();
         let cg = key(Stage::CgTable).usize(s.sh_order).usize(CG_DEFAULT_POINTS).finish();
-        let volume = key(Stage::Volume).hash(&geometry).f64(s.voxels_per_segment).finish();
+        let volume = key(Stage::Volume).hash(&geometry).f64(s.voxels_per_fiber_diameter).finish();
         Ok(Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume })
     }
 
@@ -685,7 +684,7 @@ mod tests {
             iirtf_paths_per_cell: 8,
             sh_order: 2,
             cs_theta_count: 8,
-            voxels_per_segment: 0.5,
+            voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 3,
         }

@@ -41,8 +41,9 @@ pub struct BakeSettings {
     pub sh_order: usize,
     /// Number of θo values in the C_S table, equally spaced over [-π/2, π/2].
     pub cs_theta_count: usize,
-    /// Voxels per mean segment length along each axis of the volume (>= 1).
-    pub voxels_per_segment: f64,
+    /// Voxels per mean fiber diameter along each axis of the eye-ray volume (lowered by the
+    /// bake if the volume would exceed 256³ voxels; see `bake::volume`).
+    pub voxels_per_fiber_diameter: f64,
     /// Rays cast to measure the mean free path.
     pub mfp_samples: usize,
     pub seed: u64,
@@ -72,7 +73,7 @@ impl Quality {
                 iirtf_paths_per_cell: 256,
                 sh_order: 2,
                 cs_theta_count: 64,
-                voxels_per_segment: 2.0,
+                voxels_per_fiber_diameter: 1.75,
                 mfp_samples: 4_000,
                 seed: 1,
             },
@@ -85,7 +86,7 @@ impl Quality {
                 iirtf_paths_per_cell: 600,
                 sh_order: 4,
                 cs_theta_count: 256,
-                voxels_per_segment: 4.0,
+                voxels_per_fiber_diameter: 2.0,
                 mfp_samples: 20_000,
                 seed: 1,
             },
@@ -98,7 +99,7 @@ impl Quality {
                 iirtf_paths_per_cell: 50_000,
                 sh_order: 5,
                 cs_theta_count: 512,
-                voxels_per_segment: 8.0,
+                voxels_per_fiber_diameter: 2.5,
                 mfp_samples: 100_000,
                 seed: 1,
             },
@@ -117,7 +118,12 @@ impl BakeSettings {
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
         check_count("sh_order", self.sh_order, 0, 8)?;
         check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;
-        check_range("voxels_per_segment", self.voxels_per_segment, 0.25, 16.0)?;
+        check_range(
+            "voxels_per_fiber_diameter",
+            self.voxels_per_fiber_diameter,
+            super::volume::MIN_VOXELS_PER_DIAMETER,
+            super::volume::MAX_VOXELS_PER_DIAMETER,
+        )?;
         check_count("mfp_samples", self.mfp_samples, 100, 100_000_000)?;
         Ok(())
     }

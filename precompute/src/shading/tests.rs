@@ -724,7 +724,7 @@ fn tiny_baked() -> &'static Baked {
             iirtf_paths_per_cell: 16,
             sh_order: 2,
             cs_theta_count: 16,
-            voxels_per_segment: 0.5,
+            voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 3,
         };
