@@ -169,9 +169,10 @@ fn single_and_multiple_scattering_against_the_path_tracer() {
     let scene = scene(&head, &[SUN]);
     let size = 32;
     let mut gpu = gpu;
-    for (components, component, allowed_bias) in
-        [(Components::SingleOnly, Component::Single, 0.10), (Components::MultipleOnly, Component::Multiple, 0.30)]
-    {
+    for (components, component, allowed_bias) in [
+        (Components::SingleOnly, Component::Single, 0.10),
+        (Components::MultipleOnly, Component::Multiple, 0.30),
+    ] {
         let (frame, back) = render(gpu, &scene, size, 64, components);
         gpu = back;
         let ours = Image {

@@ -389,3 +389,104 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
     );
     Ok(())
 }
+
+/// Bakes `scene`'s fabric at `quality` through the default stage cache (no progress bar).
+fn bake_scene(scene: &twill_precompute::scene::Scene, quality: Quality) -> Result<(Baked, f64)> {
+    let cache = open_cache(None, false)?;
+    let inputs = BakeInputs {
+        exemplar: &scene.exemplar,
+        materials: &scene.material_descs,
+        settings: quality.settings(),
+    };
+    let started = Instant::now();
+    let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
+        .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    Ok((outcome.baked, started.elapsed().as_secs_f64()))
+}
+
+/// `twill bench passes`: GPU time per pass, the median of `frames` frames after a warm-up.
+pub fn bench_passes(
+    scene: Option<&Path>,
+    (width, height): (usize, usize),
+    spp: u32,
+    quality: Quality,
+    frames: usize,
+) -> Result<()> {
+    anyhow::ensure!(frames >= 1, "--frames must be at least 1");
+    let file = SceneFile::load_or_default(scene)?;
+    let scene = file.build()?;
+    let (baked, bake_seconds) = bake_scene(&scene, quality)?;
+    let mut session = SceneRenderer::new(&scene, &[&baked], &PatternMap::uniform(0))?;
+    let mut settings = frame_settings(&scene, Components::All);
+    (settings.width, settings.height, settings.spp) = (width as u32, height as u32, spp);
+    let plan = session.renderer.plan(&scene.path_scene.lights, &settings);
+    session.render(&scene, &settings)?;
+    let mut per_pass: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut wall = Vec::with_capacity(frames);
+    for _ in 0..frames {
+        let started = Instant::now();
+        let frame = session.render(&scene, &settings)?;
+        wall.push(started.elapsed().as_secs_f64() * 1e3);
+        let timings = frame.timings.context("the adapter has no timestamp queries: no per-pass times")?;
+        for t in timings {
+            match per_pass.iter_mut().find(|(name, _)| *name == t.pass) {
+                Some((_, v)) => v.push(t.milliseconds),
+                None => per_pass.push((t.pass.clone(), vec![t.milliseconds])),
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    println!(
+        "{} on {}: {width}x{height}, {spp} spp, {quality:?} bake ({bake_seconds:.1} s), median of {frames} frames",
+        file.path.display(),
+        session.renderer.adapter(),
+    );
+    print!("{plan}");
+    println!("| pass | ms (median) |\n|---|---|");
+    let mut total = 0.0;
+    for (name, v) in &mut per_pass {
+        let m = median(v);
+        total += m;
+        println!("| {name} | {m:.1} |");
+    }
+    println!(
+        "| total (GPU) | {total:.1} |\n| wall time per frame (submit to readback) | {:.1} |",
+        median(&mut wall)
+    );
+    println!("GPU memory: {:.1} MB resident", session.renderer.resident_bytes() as f64 / 1e6);
+    Ok(())
+}
+
+/// `twill bench accuracy`: the Fig. 13 experiment on a flat swatch of the scene's fabric.
+pub fn bench_accuracy(
+    scene: Option<&Path>,
+    quality: Quality,
+    settings: &twill_renderer::accuracy::ExperimentSettings,
+) -> Result<()> {
+    let mut file = SceneFile::load_or_default(scene)?;
+    // A flat swatch over a black ground, large enough for grazing views of a 0.4 cm film.
+    file.mesh = twill_precompute::scene::MeshSection::default();
+    file.swatch.size_cm = [2.0, 2.0];
+    file.swatch.ground = true;
+    let mut scene = file.build()?;
+    let (baked, bake_seconds) = bake_scene(&scene, quality)?;
+    let gpu = twill_renderer::gpu::Gpu::headless()?;
+    let adapter = gpu.describe();
+    let bar = ProgressBar::new(settings.configurations as u64).with_style(
+        ProgressStyle::with_template("configurations [{bar:40}] {pos}/{len}, {elapsed} elapsed, eta {eta}")
+            .expect("the progress template is valid"),
+    );
+    let report = twill_renderer::accuracy::run(&mut scene, &baked, gpu, settings, &|done, _| {
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "{}, {quality:?} bake ({bake_seconds:.1} s, not counted in the speed-ups), on {adapter}",
+        file.path.display()
+    );
+    print!("{}", report.markdown());
+    Ok(())
+}

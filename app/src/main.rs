@@ -32,6 +32,60 @@ enum Command {
     Render(RenderArgs),
     /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
     Bake(BakeArgs),
+    /// Measure speed and accuracy (figures for docs/BENCHMARKS.md).
+    Bench {
+        #[command(subcommand)]
+        command: BenchCommand,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// GPU time per pass of a scene's frame: the median over several frames after a warm-up.
+    Passes {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Image size as WIDTHxHEIGHT.
+        #[arg(long, value_parser = commands::parse_size, default_value = "512x512")]
+        size: (usize, usize),
+        #[arg(long, default_value_t = 1)]
+        spp: u32,
+        /// Bake quality.
+        #[arg(long, value_enum, default_value = "draft")]
+        quality: QualityArg,
+        /// Frames measured (after one warm-up frame).
+        #[arg(long, default_value_t = 5)]
+        frames: usize,
+    },
+    /// The paper's Fig. 13 experiment on a flat swatch of the scene's fabric: RMSE of the
+    /// average intensity over many light/view configurations against path-traced references,
+    /// per method, and the path tracer's cost at equal error.
+    Accuracy {
+        /// Scene file whose fabric is used (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        #[arg(long, default_value_t = 50)]
+        configurations: usize,
+        /// Square image side in pixels.
+        #[arg(long, default_value_t = 32)]
+        size: usize,
+        #[arg(long, default_value_t = 256)]
+        reference_spp: u32,
+        /// Samples per pixel of the method's images.
+        #[arg(long, default_value_t = 16)]
+        spp: u32,
+        /// Volume samples per tetrahedron, one GPU run each.
+        #[arg(long, value_delimiter = ',', default_value = "32,64,128")]
+        volume_samples: Vec<u32>,
+        /// Path-tracer spp for the equal-error fit.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,4,8")]
+        ladder: Vec<u32>,
+        /// Bake quality.
+        #[arg(long, value_enum, default_value = "draft")]
+        quality: QualityArg,
+        /// Skip the CPU version of the method.
+        #[arg(long)]
+        no_cpu: bool,
+    },
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -209,6 +263,35 @@ fn run(cli: Cli) -> Result<()> {
             print_plan: args.print_plan,
             timings: args.timings,
         }),
+        Command::Bench { command } => match command {
+            BenchCommand::Passes { scene, size, spp, quality, frames } => {
+                commands::bench_passes(scene.as_deref(), size, spp, quality_of(quality), frames)
+            }
+            BenchCommand::Accuracy {
+                scene,
+                configurations,
+                size,
+                reference_spp,
+                spp,
+                volume_samples,
+                ladder,
+                quality,
+                no_cpu,
+            } => commands::bench_accuracy(
+                scene.as_deref(),
+                quality_of(quality),
+                &twill_renderer::accuracy::ExperimentSettings {
+                    configurations,
+                    size,
+                    reference_spp,
+                    method_spp: spp,
+                    volume_samples,
+                    cpu_method: !no_cpu,
+                    ladder_spp: ladder,
+                    max_depth: 64,
+                },
+            ),
+        },
         Command::Reference(args) => commands::reference(&commands::ReferenceOptions {
             image: args.image,
             max_depth: args.max_depth,

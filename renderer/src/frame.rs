@@ -791,7 +791,7 @@ impl Renderer {
 
         let (position_view, ids_view, depth_view) = (view(&position), view(&ids), view(&depth));
         for sample in 0..settings.spp {
-            let (jx, jy) = (halton(sample + 1, 2), halton(sample + 1, 3));
+            let (jx, jy) = (halton(sample + 1, 2) as f32, halton(sample + 1, 3) as f32);
             let jitter = if settings.spp == 1 {
                 [0.0, 0.0, 0.5, 0.0]
             } else {
@@ -1347,12 +1347,12 @@ fn camera_matrices(camera: &CameraSection, aspect: f32, bounds: (Vec3, Vec3)) ->
 }
 
 /// Radical inverse of `index` in `base` (Halton sequence), in [0, 1).
-fn halton(mut index: u32, base: u32) -> f32 {
-    let mut result = 0.0_f32;
-    let mut f = 1.0_f32;
+pub(crate) fn halton(mut index: u32, base: u32) -> f64 {
+    let mut result = 0.0;
+    let mut f = 1.0;
     while index > 0 {
-        f /= base as f32;
-        result += f * (index % base) as f32;
+        f /= f64::from(base);
+        result += f * f64::from(index % base);
         index /= base;
     }
     result

@@ -1,11 +1,14 @@
-//! twill-renderer: turning radiance into pictures.
+//! twill-renderer: the GPU renderer (paper section 5) and turning radiance into pictures.
 //!
-//! [`export`] holds tone mapping and the PNG/EXR writers used by every command that produces
-//! an image. [`gpu`] opens a headless wgpu device (a GPU, or lavapipe without one) and runs
-//! compute kernels; [`shaders`] holds the WGSL sources. The wgpu pipeline (shell-mapped volume
-//! ray casting, SG single scattering, SH multiple scattering, PCSS) joins it as one module per
-//! pass.
+//! [`frame`] runs a frame's passes (shadow maps, visibility, blur, eye rays into a G-buffer,
+//! deferred shading, tone map) as [`plan`] derives them from the scene, over the bake uploaded
+//! by [`fabric_data`] and the tetrahedral shell of [`shell`]; the WGSL is in [`shaders`].
+//! [`gpu`] opens a headless wgpu device (a GPU, or lavapipe without one), [`headless`] is the
+//! glue for rendering a scene file without a window, [`export`] holds tone mapping and the
+//! PNG/EXR writers, and [`accuracy`] measures the method against the path tracer (Fig. 13 and
+//! the speed-up at equal error).
 
+pub mod accuracy;
 pub mod export;
 pub mod fabric_data;
 pub mod frame;
