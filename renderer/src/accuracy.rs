@@ -413,6 +413,28 @@ impl Report {
                 x.speedup
             );
         }
+        if let Some(m) = self.methods.first() {
+            let _ = writeln!(out, "\nLargest differences of {} (image average, mean of R, G, B):\n", m.name);
+            let _ = writeln!(out, "| configuration | view θ | light | light θ | reference | method | relative |\n|---|---|---|---|---|---|---|");
+            let mut order: Vec<usize> = (0..m.average.len()).collect();
+            let diff = |i: usize| (m.average[i] - self.reference.average[i]).element_sum().abs();
+            order.sort_by(|&a, &b| diff(b).total_cmp(&diff(a)));
+            for &i in order.iter().take(5) {
+                let c = &self.configurations[i];
+                let (kind, dir) = match c.light {
+                    Light::Directional { to_light, .. } => ("directional".to_owned(), to_light),
+                    Light::Sg { axis, sharpness, .. } => (format!("SG, λ = {sharpness:.1}"), axis),
+                };
+                let (r, o) = (self.reference.average[i].element_sum() / 3.0, m.average[i].element_sum() / 3.0);
+                let _ = writeln!(
+                    out,
+                    "| {i} | {:.0}° | {kind} | {:.0}° | {r:.4} | {o:.4} | {:+.1}% |",
+                    c.view.z.acos().to_degrees(),
+                    dir.z.acos().to_degrees(),
+                    100.0 * (o / r - 1.0)
+                );
+            }
+        }
         let _ = writeln!(
             out,
             "\nReference: {:.1} ms per image at {} spp; path tracer {:.3} ms per spp per image.",
