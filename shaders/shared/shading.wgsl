@@ -8,6 +8,9 @@
 const LOBE_R: u32 = 0u;
 const LOBE_TT: u32 = 1u;
 const HALF_PI: f32 = 1.5707963267948966;
+// |w - (w.t) t| at or below which w lies along +-t and has no azimuth: perpendicular(t) is used
+// (bake::cs_table::AZIMUTH_MIN_PERP; f32 rounding alone leaves up to ~2e-7).
+const AZIMUTH_MIN_PERP: f32 = 1e-6;
 
 // Gn(mu) of a material's lobe by cubic Hermite interpolation (bake::tables::GnTable::eval).
 fn gn_eval(material: u32, lobe: u32, mu: f32) -> f32 {
@@ -68,11 +71,11 @@ fn fiber_eval_cos(f: FiberConstants, t: vec3<f32>, wi: vec3<f32>, wo: vec3<f32>)
     let si = dot(wi, t);
     let pi_ = wi - si * t;
     let ci = length(pi_);
-    let azi = select(perpendicular(t), pi_ / ci, ci > 1e-6);
+    let azi = select(perpendicular(t), pi_ / ci, ci > AZIMUTH_MIN_PERP);
     let so = dot(wo, t);
     let po = wo - so * t;
     let co = length(po);
-    let azo = select(perpendicular(t), po / co, co > 1e-6);
+    let azo = select(perpendicular(t), po / co, co > AZIMUTH_MIN_PERP);
     let theta_i = atan2(si, ci);
     let theta_o = atan2(so, co);
     let sum = theta_i + theta_o;
@@ -99,7 +102,7 @@ fn omega_o_space(t: vec3<f32>, wo: vec3<f32>) -> OmegaOSpace {
     let len = length(perp);
     var s: OmegaOSpace;
     s.t = t;
-    s.b = select(perpendicular(t), perp / len, len > 1e-6);
+    s.b = select(perpendicular(t), perp / len, len > AZIMUTH_MIN_PERP);
     s.c = cross(t, s.b);
     s.theta_o = atan2(along, len);
     return s;
