@@ -15,7 +15,8 @@
 //! `û = ω⊥/|ω⊥|`, which has no cancellation at the TT peak (φo − φi = π). A direction within
 //! `|ω⊥| ≤ 1e-6` of ±t (`bake::cs_table::AZIMUTH_MIN_PERP`, above f32 rounding) has no usable
 //! azimuth; it gets `û = sg::frame_from_z(t).0`, the same axis `bake::cs_table::OmegaOSpace`
-//! uses (and `FiberFrame`'s φ = 0).
+//! uses (and `FiberFrame`'s φ = 0). The WGSL computes the same `ω⊥` as `(t × ω) × t`, which
+//! does not cancel in f32 near ±t (in f64 `ω − s t` is accurate enough).
 
 use std::f64::consts::PI;
 
