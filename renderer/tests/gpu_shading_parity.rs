@@ -4,9 +4,10 @@
 //! directions, fully occluded and fully visible segments. NaN or Inf fails.
 //!
 //! Tolerance: |gpu − cpu| ≤ 2e-3 · scale + 1e-6, where scale is the largest |cpu| value of that
-//! function over the grid's same segment (f32 transcendental and table arithmetic; the SSDF
-//! sign step is compared only where |d| > 1e-3 rad, since the sign of a near-zero f32 sum is
-//! not the f64 one).
+//! function over the grid (f32 transcendental and table arithmetic, and the GPU's f16 copy of
+//! the IIRTF, which alone accounts for the multiple-scattering differences: 2e-4 of scale
+//! measured, 1e-6 against a CPU fed the same f16-rounded matrix; the SSDF sign step is compared
+//! only where |d| > 1e-3 rad, since the sign of a near-zero f32 sum is not the f64 one).
 
 use glam::{DVec3, Vec3};
 use twill_precompute::bake::Cancel;
@@ -32,15 +33,21 @@ fn draft_bake() -> Baked {
 }
 
 /// Direction codes shared by both sides: 0..32 are spherical Fibonacci points computed in f32
-/// the same way in WGSL and Rust; 1000 = +t, 1001 = −t, 1002 = near the fabric normal tilted
+/// the same way in WGSL and Rust; 1000 = +t, 1001 = −t (each side's own unit tangent, exactly),
+/// 1002 = near the fabric normal tilted
 /// 1e-3 toward t, 1003 = +x, 1004 = +z, 1005 = grazing the fabric plane.
 const FIB: u32 = 32;
 
 fn direction_of(code: u32, t: DVec3) -> DVec3 {
+    // ±t is the tangent itself, as in the WGSL (`return t;`), not t rounded through f32: that
+    // lies up to 3.4e-8 off the f64 tangent, where S cos θi (∝ |ω⊥|/Gn(±π/2)) is already 3e-4.
+    match code {
+        1000 => return t,
+        1001 => return -t,
+        _ => {}
+    }
     let tf = t.as_vec3();
     let d = match code {
-        1000 => tf,
-        1001 => -tf,
         1002 => (Vec3::Z + 1e-3 * tf).normalize(),
         1003 => Vec3::X,
         1004 => Vec3::Z,
@@ -167,7 +174,6 @@ fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) ->
 }
 
 #[test]
-#[ignore = "open defect (issue 4): WGSL Γ differs from its Rust twin by up to ~10% on some cases; run with --ignored"]
 fn shading_functions_match_their_rust_twins() {
     let mut failures = Vec::new();
     let Some(gpu) = Gpu::for_test("shading_functions_match_their_rust_twins") else { return };
