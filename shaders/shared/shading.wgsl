@@ -183,6 +183,11 @@ fn ssdf_lookup(e: u32, segment: u32, dir: vec3<f32>) -> f32 {
     let nf = f32(n);
     let theta = atan2(length(dir.xy), dir.z);
     var phi = atan2(dir.y, dir.x);
+    if (dir.x == 0.0 && dir.y == 0.0) {
+        // At the poles WGSL leaves atan2(0, 0) undefined (lavapipe gives +-3 pi / 4, another
+        // pair of columns); take the twin's IEEE f64 value: pi for x = -0, else +-0.
+        phi = select(0.0, PI, (bitcast<u32>(dir.x) & 0x80000000u) != 0u);
+    }
     if (phi < 0.0) {
         phi += 2.0 * PI;
     }
