@@ -1,18 +1,27 @@
 //! The WGSL render-time shading (shaders/shared/shading.wgsl) against its f64 Rust twins
-//! (twill_precompute::shading) on a real Vulkan adapter, on the default fabric's draft bake,
-//! over grids that include the hard cases: λ from 1e-4 to 1e5, ξ and ωo along ±t, grazing
-//! directions, fully occluded and fully visible segments. NaN or Inf fails.
+//! (twill_precompute::shading) on a real Vulkan adapter, on draft bakes of the default fabric
+//! with its own materials and with the narrowest lobes the model allows on the warp
+//! (β_R = β_TT = γ_TT = 0.5°), over grids that include the hard cases: λ from 1e-4 to 1e5, ξ and
+//! ωo along ±t, grazing directions, fully occluded and fully visible segments. NaN or Inf
+//! fails.
 //!
 //! Tolerance: |gpu − cpu| ≤ 2e-3 · scale + 1e-6, where scale is the largest |cpu| value of that
-//! function over the grid's same segment (f32 transcendental and table arithmetic; the SSDF
-//! sign step is compared only where |d| > 1e-3 rad, since the sign of a near-zero f32 sum is
-//! not the f64 one).
+//! function over the grid's same segment. It covers f32 transcendental and table arithmetic;
+//! the GPU's f16 copy of the IIRTF, which alone accounts for the multiple-scattering
+//! differences (up to 3.4e-4 of scale measured, under 5e-6 against a CPU fed the same
+//! f16-rounded matrix); and the far tails of the 0.5° lobes (up to 7.9e-4 measured), where
+//! exp(−λ(θi + θo)²) with λ = 1/(2β²) ≈ 6566 multiplies f32 angle rounding by 2λ|θi + θo|. The
+//! SSDF sign step is compared only where |d| > 1e-3 rad, since the sign of a near-zero f32 sum
+//! is not the f64 one.
+
+use std::collections::HashMap;
 
 use glam::{DVec3, Vec3};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
 use twill_precompute::bake::settings::Quality;
+use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::SceneFile;
 use twill_precompute::shading::{self, SegmentShading};
@@ -21,8 +30,8 @@ use twill_renderer::fabric_data::FabricData;
 use twill_renderer::gpu::Gpu;
 use twill_renderer::shaders;
 
-fn draft_bake() -> Baked {
-    let scene = SceneFile::default_scene().build().expect("default scene");
+fn draft_bake(file: &SceneFile) -> Baked {
+    let scene = file.build().expect("scene");
     let inputs = BakeInputs {
         exemplar: &scene.exemplar,
         materials: &scene.material_descs,
@@ -31,16 +40,44 @@ fn draft_bake() -> Baked {
     bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
 }
 
+/// The lobe widths of the narrowest material the model allows (0.5°, `BETA_RANGE_DEG` and
+/// `GAMMA_RANGE_DEG`): the sharpest Gn, longitudinal and azimuthal lobes shading meets.
+const NARROW_DEG: f64 = 0.5;
+
+/// The narrowest fiber material.
+fn narrow_material() -> MaterialDesc {
+    MaterialDesc::Fiber(FiberParams {
+        c_r: Rgb::new(0.04, 0.06, 0.08),
+        beta_r_deg: NARROW_DEG,
+        c_tt: Rgb::new(0.9, 0.6, 0.3),
+        beta_tt_deg: NARROW_DEG,
+        gamma_tt_deg: NARROW_DEG,
+    })
+}
+
+/// The default scene with the narrowest fiber material on the warp yarns.
+fn narrow_scene() -> SceneFile {
+    let mut file = SceneFile::default_scene();
+    file.materials.warp = Some(narrow_material());
+    file
+}
+
 /// Direction codes shared by both sides: 0..32 are spherical Fibonacci points computed in f32
-/// the same way in WGSL and Rust; 1000 = +t, 1001 = −t, 1002 = near the fabric normal tilted
+/// the same way in WGSL and Rust; 1000 = +t, 1001 = −t (each side's own unit tangent, exactly),
+/// 1002 = near the fabric normal tilted
 /// 1e-3 toward t, 1003 = +x, 1004 = +z, 1005 = grazing the fabric plane.
 const FIB: u32 = 32;
 
 fn direction_of(code: u32, t: DVec3) -> DVec3 {
+    // ±t is the tangent itself, as in the WGSL (`return t;`), not t rounded through f32: that
+    // lies up to 3.4e-8 off the f64 tangent, where S cos θi (∝ |ω⊥|/Gn(±π/2)) is already 3e-4.
+    match code {
+        1000 => return t,
+        1001 => return -t,
+        _ => {}
+    }
     let tf = t.as_vec3();
     let d = match code {
-        1000 => tf,
-        1001 => -tf,
         1002 => (Vec3::Z + 1e-3 * tf).normalize(),
         1003 => Vec3::X,
         1004 => Vec3::Z,
@@ -114,10 +151,15 @@ impl Case {
     }
 }
 
+/// The segments the grid uses: 12 spread over the bake.
+fn grid_segments(baked: &Baked) -> Vec<u32> {
+    let count = baked.volume.segments.len() as u32;
+    (0..12).map(|i| (i * 1733 + 5) % count).collect()
+}
+
 /// Segments spread over the bake, directions over the sphere plus the hard ones.
 fn cases(baked: &Baked, lambdas: &[f64]) -> Vec<Case> {
-    let count = baked.volume.segments.len() as u32;
-    let segments: Vec<u32> = (0..12).map(|i| (i * 1733 + 5) % count).collect();
+    let segments = grid_segments(baked);
     let specials = [1000, 1001, 1002, 1003, 1004, 1005];
     let wos: Vec<u32> = (0..FIB).step_by(3).chain(specials).collect();
     let mut out = Vec::new();
@@ -137,7 +179,13 @@ fn cases(baked: &Baked, lambdas: &[f64]) -> Vec<Case> {
 fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) -> Vec<String> {
     let mut failures = Vec::new();
     let mut worst = 0.0_f64;
-    let scale = cpu.iter().flatten().map(|c| c.abs().max_element()).fold(0.0, f64::max);
+    // The tolerance's scale: the largest |cpu| value over the grid's cases of the same segment.
+    let mut scales: HashMap<u32, f64> = HashMap::new();
+    for (case, c) in cases.iter().zip(cpu) {
+        let largest = c.map_or(0.0, |c| c.abs().max_element());
+        let scale = scales.entry(case.segment).or_insert(0.0);
+        *scale = scale.max(largest);
+    }
     let mut compared = 0;
     for ((case, g), c) in cases.iter().zip(gpu).zip(cpu) {
         assert!(
@@ -148,6 +196,7 @@ fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) ->
         );
         let Some(c) = c else { continue };
         compared += 1;
+        let scale = scales[&case.segment];
         for ch in 0..3 {
             let err = (f64::from(g[ch]) - c[ch]).abs();
             let allowed = 2e-3 * scale.max(c[ch].abs()) + 1e-6;
@@ -160,30 +209,51 @@ fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) ->
             }
         }
     }
-    eprintln!("{name}: {compared} cases, worst error {worst:.2e} of the grid's largest value {scale:.3e}");
+    let largest = scales.values().copied().fold(0.0, f64::max);
+    eprintln!(
+        "{name}: {compared} cases, worst error {worst:.2e} of its segment's largest value (largest over the grid {largest:.3e})"
+    );
     assert!(compared > cases.len() / 2, "{name}: only {compared} of {} cases compared", cases.len());
     eprintln!("{name}: {} of {compared} cases outside the tolerance", failures.len());
     failures
 }
 
 #[test]
-#[ignore = "open defect (issue 4): WGSL Γ differs from its Rust twin by up to ~10% on some cases; run with --ignored"]
 fn shading_functions_match_their_rust_twins() {
-    let mut failures = Vec::new();
     let Some(gpu) = Gpu::for_test("shading_functions_match_their_rust_twins") else { return };
-    let baked = draft_bake();
+    let mut failures = Vec::new();
+    failures.extend(compare_bake(&gpu, "default", &draft_bake(&SceneFile::default_scene())));
+    let narrow = draft_bake(&narrow_scene());
+    let narrow_segments = grid_segments(&narrow)
+        .into_iter()
+        .filter(|&k| {
+            narrow.materials[narrow.volume.segments.material[k as usize] as usize] == narrow_material()
+        })
+        .count();
+    eprintln!("narrow: {narrow_segments} of the grid's segments have β_R = β_TT = γ_TT = {NARROW_DEG}°");
+    assert!(narrow_segments > 0, "the grid must include segments of the narrowest material");
+    failures.extend(compare_bake(&gpu, "narrow", &narrow));
+    for f in failures.iter().take(20) {
+        eprintln!("{f}");
+    }
+    assert!(failures.is_empty(), "{} GPU/CPU shading mismatches (first 20 printed above)", failures.len());
+}
+
+/// Every shading function of one bake over the grid; returns the mismatches, labelled.
+fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
+    let mut failures = Vec::new();
     let fabric =
-        FabricData::upload(&gpu.device, &gpu.queue, &[&baked], &PatternMap::uniform(0)).expect("upload");
+        FabricData::upload(&gpu.device, &gpu.queue, &[baked], &PatternMap::uniform(0)).expect("upload");
     let library = format!("{}\n{DECODE}", shaders::shared_library());
     let run = |expression: &str, cases: &[Case]| {
         let inputs: Vec<[f32; 4]> = cases.iter().map(Case::input).collect();
         gpu.evaluate_with_fabric(&library, expression, &inputs, Some(&fabric)).expect("GPU evaluation")
     };
     let seg =
-        |c: &Case| SegmentShading::of(&baked, c.segment).expect("fiber segment").expect("non-zero segment");
+        |c: &Case| SegmentShading::of(baked, c.segment).expect("fiber segment").expect("non-zero segment");
 
     // Γ over λ = 1e-4 .. 1e5.
-    let gamma_cases = cases(&baked, &[1e-4, 1.0, 100.0, 300.0, 1e3, 1e4, 1e5]);
+    let gamma_cases = cases(baked, &[1e-4, 1.0, 100.0, 300.0, 1e3, 1e4, 1e5]);
     let gpu_gamma = run("gamma_case(input)", &gamma_cases);
     let cpu_gamma: Vec<Option<Rgb>> = gamma_cases
         .iter()
@@ -193,10 +263,10 @@ fn shading_functions_match_their_rust_twins() {
             Some(shading::gamma(&s.fiber, &baked.gn, s.tangent, axis, lambda32, c.wo(s.tangent)))
         })
         .collect();
-    failures.extend(compare("gamma", &gamma_cases, &gpu_gamma, &cpu_gamma));
+    failures.extend(compare(&format!("{label}, gamma"), &gamma_cases, &gpu_gamma, &cpu_gamma));
 
     // Directional single scattering (unit irradiance): compared where the SSDF is clearly signed.
-    let dir_cases = cases(&baked, &[0.0]);
+    let dir_cases = cases(baked, &[0.0]);
     let gpu_dir = run(
         "vec4<f32>(shade_single_directional(0u, u32(input.x), case_wo(input), case_axis(input)), 0.0)",
         &dir_cases,
@@ -222,14 +292,14 @@ fn shading_functions_match_their_rust_twins() {
             })
         })
         .collect();
-    failures.extend(compare("single, directional", &dir_cases, &gpu_dir, &cpu_dir));
+    failures.extend(compare(&format!("{label}, single, directional"), &dir_cases, &gpu_dir, &cpu_dir));
     let occluded = cpu_dir.iter().flatten().filter(|c| c.max_element() == 0.0).count();
     let visible = cpu_dir.iter().flatten().filter(|c| c.max_element() > 0.0).count();
-    eprintln!("single, directional: {occluded} occluded and {visible} visible cases");
+    eprintln!("{label}, single, directional: {occluded} occluded and {visible} visible cases");
     assert!(occluded > 0 && visible > 0, "the grid must include occluded and visible cases");
 
     // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF (≥ 200).
-    let sg_cases = cases(&baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
+    let sg_cases = cases(baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
     let gpu_sg = run(
         "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
         &sg_cases,
@@ -252,10 +322,10 @@ fn shading_functions_match_their_rust_twins() {
             ))
         })
         .collect();
-    failures.extend(compare("single, SG", &sg_cases, &gpu_sg, &cpu_sg));
+    failures.extend(compare(&format!("{label}, single, SG"), &sg_cases, &gpu_sg, &cpu_sg));
 
     // Multiple scattering of a unit directional light (λ < 0 marks directional) and SG lights.
-    let ms_cases = cases(&baked, &[-1.0, 2e-4, 8.0, 1e5]);
+    let ms_cases = cases(baked, &[-1.0, 2e-4, 8.0, 1e5]);
     let gpu_ms = run("multiple_case(input)", &ms_cases);
     let order = baked.transfer.iirtf.sh_order;
     let cpu_ms: Vec<Option<Rgb>> = ms_cases
@@ -270,14 +340,9 @@ fn shading_functions_match_their_rust_twins() {
             };
             let c_light = shading::light_sh(&light, order, &baked.cg);
             assert_eq!(c_light.len(), sh::sh_count(order));
-            Some(
-                shading::multiple_scattering(&baked, c.segment, c.wo(s.tangent), &c_light).expect("multiple"),
-            )
+            Some(shading::multiple_scattering(baked, c.segment, c.wo(s.tangent), &c_light).expect("multiple"))
         })
         .collect();
-    failures.extend(compare("multiple", &ms_cases, &gpu_ms, &cpu_ms));
-    for f in failures.iter().take(20) {
-        eprintln!("{f}");
-    }
-    assert!(failures.is_empty(), "{} GPU/CPU shading mismatches (first 20 printed above)", failures.len());
+    failures.extend(compare(&format!("{label}, multiple"), &ms_cases, &gpu_ms, &cpu_ms));
+    failures
 }

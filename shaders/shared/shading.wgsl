@@ -8,6 +8,9 @@
 const LOBE_R: u32 = 0u;
 const LOBE_TT: u32 = 1u;
 const HALF_PI: f32 = 1.5707963267948966;
+// |w - (w.t) t| at or below which w lies along +-t and has no azimuth: perpendicular(t) is used
+// (bake::cs_table::AZIMUTH_MIN_PERP; f32 rounding alone leaves up to ~2e-7).
+const AZIMUTH_MIN_PERP: f32 = 1e-6;
 
 // Gn(mu) of a material's lobe by cubic Hermite interpolation (bake::tables::GnTable::eval).
 fn gn_eval(material: u32, lobe: u32, mu: f32) -> f32 {
@@ -63,16 +66,26 @@ fn perpendicular(z: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(1.0 + sign * z.x * z.x * a, sign * z.x * z.y * a, -sign * z.x);
 }
 
+// The part of w across the unit tangent t, w - (w.t) t (the twins' form), computed as
+// (t x w) x t. In f32 the subtraction cancels near +-t: for w = t it leaves up to 2.7e-7
+// (measured on lavapipe over the default fabric's tangents), and near the fiber axis
+// S cos(theta_i) grows like |w_perp| / Gn(-+pi/2), so fiber_eval_cos gave up to 6.4e-3 where
+// the answer is 0. The cross product of equal or opposite vectors is exactly 0 (a fused
+// multiply-add would leave its product's rounding, ~1e-8).
+fn across_fiber(t: vec3<f32>, w: vec3<f32>) -> vec3<f32> {
+    return cross(cross(t, w), t);
+}
+
 // S(wi, wo) cos(theta_i) (shading::bcsdf::fiber_eval_cos).
 fn fiber_eval_cos(f: FiberConstants, t: vec3<f32>, wi: vec3<f32>, wo: vec3<f32>) -> vec3<f32> {
     let si = dot(wi, t);
-    let pi_ = wi - si * t;
+    let pi_ = across_fiber(t, wi);
     let ci = length(pi_);
-    let azi = select(perpendicular(t), pi_ / ci, ci > 1e-6);
+    let azi = select(perpendicular(t), pi_ / ci, ci > AZIMUTH_MIN_PERP);
     let so = dot(wo, t);
-    let po = wo - so * t;
+    let po = across_fiber(t, wo);
     let co = length(po);
-    let azo = select(perpendicular(t), po / co, co > 1e-6);
+    let azo = select(perpendicular(t), po / co, co > AZIMUTH_MIN_PERP);
     let theta_i = atan2(si, ci);
     let theta_o = atan2(so, co);
     let sum = theta_i + theta_o;
@@ -95,11 +108,11 @@ struct OmegaOSpace {
 
 fn omega_o_space(t: vec3<f32>, wo: vec3<f32>) -> OmegaOSpace {
     let along = clamp(dot(wo, t), -1.0, 1.0);
-    let perp = wo - along * t;
+    let perp = across_fiber(t, wo);
     let len = length(perp);
     var s: OmegaOSpace;
     s.t = t;
-    s.b = select(perpendicular(t), perp / len, len > 1e-6);
+    s.b = select(perpendicular(t), perp / len, len > AZIMUTH_MIN_PERP);
     s.c = cross(t, s.b);
     s.theta_o = atan2(along, len);
     return s;
@@ -170,6 +183,11 @@ fn ssdf_lookup(e: u32, segment: u32, dir: vec3<f32>) -> f32 {
     let nf = f32(n);
     let theta = atan2(length(dir.xy), dir.z);
     var phi = atan2(dir.y, dir.x);
+    if (dir.x == 0.0 && dir.y == 0.0) {
+        // At the poles WGSL leaves atan2(0, 0) undefined (lavapipe gives +-3 pi / 4, another
+        // pair of columns); take the twin's IEEE f64 value: pi for x = -0, else +-0.
+        phi = select(0.0, PI, (bitcast<u32>(dir.x) & 0x80000000u) != 0u);
+    }
     if (phi < 0.0) {
         phi += 2.0 * PI;
     }

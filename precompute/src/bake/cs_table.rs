@@ -3,8 +3,8 @@
 //! Definition: `C_S[θo, j] = ∫ Y_j(ωi) S(ωi, ωo) cos θi dωi` in the **ωo-space** of a fiber:
 //! x along the fiber tangent t, y chosen so that ωo lies in the xy plane with a non-negative y
 //! component, z = x × y. In that frame `ωo = (sin θo, cos θo, 0)`. A world direction w has
-//! ωo-space coordinates `(w·t, w·b, w·c)` with `b = normalize(ωo − (ωo·t) t)` (when ωo is
-//! within 1e-12 of ±t, b is `sg::frame_from_z(t).0`) and `c = t × b`; [`OmegaOSpace`] builds
+//! ωo-space coordinates `(w·t, w·b, w·c)` with `b = normalize(ωo − (ωo·t) t)` (when
+//! `|ωo − (ωo·t) t| ≤` [`AZIMUTH_MIN_PERP`], b is `sg::frame_from_z(t).0`) and `c = t × b`; [`OmegaOSpace`] builds
 //! exactly this. Y_j is our real SH ([`crate::sh::sh_eval`]) evaluated on those coordinates, so
 //! a renderer holding world-space SH coefficients c_T gets the ωo-space ones with
 //! `ShRotation::new(order, &OmegaOSpace::world_to_local)` (that rotation maps the coefficients
@@ -68,7 +68,8 @@ impl OmegaOSpace {
     pub fn new(t: DVec3, wo: DVec3) -> Self {
         let along = wo.dot(t).clamp(-1.0, 1.0);
         let perp = wo - along * t;
-        let b = if perp.length() > 1e-12 { perp.normalize() } else { crate::sg::frame_from_z(t).0 };
+        let b =
+            if perp.length() > AZIMUTH_MIN_PERP { perp.normalize() } else { crate::sg::frame_from_z(t).0 };
         let c = t.cross(b);
         Self { theta_o: along.atan2(perp.length()), world_to_local: DMat3::from_cols(t, b, c).transpose() }
     }
@@ -79,6 +80,16 @@ impl OmegaOSpace {
         self.world_to_local * w
     }
 }
+
+/// Below this `|ω − (ω·t) t|` a direction ω counts as lying along ±t: its azimuth about the
+/// fiber is undefined and the fixed axis `sg::frame_from_z(t).0` is used instead
+/// ([`OmegaOSpace`], `shading::bcsdf::FiberAngles`, and their WGSL twins in
+/// `shaders/shared/shading.wgsl`, which use the same value). It sits above f32 rounding: a
+/// direction meant to lie along t but held in f32 (the baked tangents, the GPU's view
+/// directions) is off by up to ~2e-7 (measured on lavapipe for ωo = ±normalize(t) over every
+/// segment of the default fabric: |ω⊥| ≤ 2.2e-7), so a smaller threshold would turn rounding
+/// noise into an azimuth on the GPU and in any f64 code fed f32 data. 1e-6 rad is 0.2″.
+pub const AZIMUTH_MIN_PERP: f64 = 1e-6;
 
 /// C_S for one material: `theta_count` rows of `(L+1)²` RGB coefficients.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -281,6 +292,16 @@ mod tests {
         assert!((space.world_to_local.determinant() - 1.0).abs() < 1e-12);
         let pole = OmegaOSpace::new(t, t);
         assert!((pole.theta_o - FRAC_PI_2).abs() < 1e-9 && pole.world_to_local.is_finite());
+        // Within AZIMUTH_MIN_PERP of ±t (f32 rounding of a direction along t) b is the pole's.
+        let (u, v) = crate::sg::frame_from_z(t);
+        for wo in [t, -t] {
+            for tilt in [0.0, 1e-9, 5e-7] {
+                let near = OmegaOSpace::new(t, (wo + tilt * v).normalize());
+                assert_eq!(near.world_to_local.row(1), u, "tilt {tilt}");
+            }
+            let outside = OmegaOSpace::new(t, (wo + 2e-6 * v).normalize());
+            assert!((outside.world_to_local.row(1) - v).length() < 1e-9);
+        }
     }
 
     #[test]

@@ -13,14 +13,17 @@
 //! How it works (the order the GPU follows): with `s = ω·t`, `ω⊥ = ω − s t`, the fiber angle
 //! is `θ = atan2(s, |ω⊥|)` and `cos θ = |ω⊥|`; `1 + cos(φo − φi)` is `½|ûi + ûo|²` with
 //! `û = ω⊥/|ω⊥|`, which has no cancellation at the TT peak (φo − φi = π). A direction within
-//! `|ω⊥| ≤ 1e-12` of ±t has no usable azimuth; it gets `û = sg::frame_from_z(t).0`, the same axis
-//! `bake::cs_table::OmegaOSpace` uses (and `FiberFrame`'s φ = 0).
+//! `|ω⊥| ≤ 1e-6` of ±t (`bake::cs_table::AZIMUTH_MIN_PERP`, above f32 rounding) has no usable
+//! azimuth; it gets `û = sg::frame_from_z(t).0`, the same axis `bake::cs_table::OmegaOSpace`
+//! uses (and `FiberFrame`'s φ = 0). The WGSL computes the same `ω⊥` as `(t × ω) × t`, which
+//! does not cancel in f32 near ±t (in f64 `ω − s t` is accurate enough).
 
 use std::f64::consts::PI;
 
 use glam::DVec3;
 
 use crate::Rgb;
+use crate::bake::cs_table::AZIMUTH_MIN_PERP;
 use crate::bake::tables::GnTable;
 use crate::bcsdf::{BETA_RANGE_DEG, FiberParams, GAMMA_RANGE_DEG};
 use crate::params::{ParamError, check_range, check_rgb};
@@ -89,7 +92,8 @@ impl FiberConstants {
 
 /// A direction in the fiber frame of unit tangent `t`: `θ = atan2(ω·t, |ω⊥|)`, `cos θ = |ω⊥|`,
 /// and the unit azimuthal direction `û = ω⊥/|ω⊥|`, or `frame_from_z(t).0` when
-/// `|ω⊥| ≤ 1e-12` (the threshold of `OmegaOSpace`: closer to the pole the azimuth is noise).
+/// `|ω⊥| ≤ AZIMUTH_MIN_PERP` (1e-6, the threshold of `OmegaOSpace`: closer to the pole an f32
+/// direction's azimuth is rounding noise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FiberAngles {
     pub theta: f64,
@@ -103,7 +107,7 @@ impl FiberAngles {
         let s = w.dot(t);
         let perp = w - s * t;
         let c = perp.length();
-        let azimuth = if c > 1e-12 { perp / c } else { crate::sg::frame_from_z(t).0 };
+        let azimuth = if c > AZIMUTH_MIN_PERP { perp / c } else { crate::sg::frame_from_z(t).0 };
         Self { theta: s.atan2(c), cos_theta: c, azimuth }
     }
 }
