@@ -232,14 +232,24 @@ fn fig13_average_intensity_over_fifty_configurations() {
     let rms = report.reference_rms();
     assert!(rms > 0.0 && rms.is_finite(), "reference RMS {rms}");
     for m in report.methods.iter().chain(&report.ladder).chain([&report.reference]) {
-        assert!(m.average.iter().all(|a| a.is_finite() && a.min_element() >= 0.0), "{}: {:?}", m.name, m.average);
+        assert!(
+            m.average.iter().all(|a| a.is_finite() && a.min_element() >= 0.0),
+            "{}: {:?}",
+            m.name,
+            m.average
+        );
         assert!(m.pixel_mse.iter().all(|e| e.is_finite()), "{}", m.name);
     }
     let relative: Vec<f64> = report.methods.iter().map(|m| report.summary(m).average_rmse / rms).collect();
     for (m, r) in report.methods.iter().zip(&relative) {
         assert!(*r < 0.40, "{}: relative RMSE of the average intensity {r:.3}", m.name);
     }
-    assert!(relative[1] <= relative[0] * 1.1, "128 volume samples {:.3} vs 32: {:.3}", relative[1], relative[0]);
+    assert!(
+        relative[1] <= relative[0] * 1.1,
+        "128 volume samples {:.3} vs 32: {:.3}",
+        relative[1],
+        relative[0]
+    );
     let (one, four) = (report.summary(&report.ladder[0]), report.summary(&report.ladder[1]));
     assert!(
         four.pixel_excess_rmse < 0.7 * one.pixel_excess_rmse,
@@ -247,4 +257,14 @@ fn fig13_average_intensity_over_fifty_configurations() {
         four.pixel_excess_rmse,
         one.pixel_excess_rmse
     );
+}
+
+#[test]
+fn lambertian_yarns_are_refused_with_a_message_not_rendered_black() {
+    let mut baked = default_bake().clone();
+    baked.materials[1] = twill_precompute::bcsdf::MaterialDesc::Lambert { albedo: glam::DVec3::splat(0.5) };
+    let err = twill_renderer::fabric_data::FabricArrays::pack(&[&baked], &PatternMap::uniform(0))
+        .expect_err("a Lambertian slot is refused");
+    let message = err.to_string();
+    assert!(message.contains("material slot 1") && message.contains("twill reference"), "{message}");
 }

@@ -415,7 +415,10 @@ impl Report {
         }
         if let Some(m) = self.methods.first() {
             let _ = writeln!(out, "\nLargest differences of {} (image average, mean of R, G, B):\n", m.name);
-            let _ = writeln!(out, "| configuration | view θ | light | light θ | reference | method | relative |\n|---|---|---|---|---|---|---|");
+            let _ = writeln!(
+                out,
+                "| configuration | view θ | light | light θ | reference | method | relative |\n|---|---|---|---|---|---|---|"
+            );
             let mut order: Vec<usize> = (0..m.average.len()).collect();
             let diff = |i: usize| (m.average[i] - self.reference.average[i]).element_sum().abs();
             order.sort_by(|&a, &b| diff(b).total_cmp(&diff(a)));
@@ -425,7 +428,8 @@ impl Report {
                     Light::Directional { to_light, .. } => ("directional".to_owned(), to_light),
                     Light::Sg { axis, sharpness, .. } => (format!("SG, λ = {sharpness:.1}"), axis),
                 };
-                let (r, o) = (self.reference.average[i].element_sum() / 3.0, m.average[i].element_sum() / 3.0);
+                let (r, o) =
+                    (self.reference.average[i].element_sum() / 3.0, m.average[i].element_sum() / 3.0);
                 let _ = writeln!(
                     out,
                     "| {i} | {:.0}° | {kind} | {:.0}° | {r:.4} | {o:.4} | {:+.1}% |",

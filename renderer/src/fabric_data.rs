@@ -30,6 +30,11 @@ pub enum FabricDataError {
     Inconsistent(String),
     #[error("the bake set has no exemplars")]
     Empty,
+    #[error(
+        "exemplar {exemplar}'s material slot {slot} is Lambertian: the GPU method (Khungurn et al. 2017) \
+         shades fiber (R + TT) materials only; render Lambertian yarns with `twill reference`"
+    )]
+    LambertMaterial { exemplar: usize, slot: usize },
 }
 
 /// Twin of `FabricHeader` in `shaders/shared/fabric_data.wgsl`.
@@ -237,6 +242,10 @@ impl FabricArrays {
                     sos_rotation: baked.visibility.sum_of_sg.rotation(k),
                     pad: [0; 2],
                 });
+            }
+            if let Some(slot) = baked.materials.iter().position(|m| matches!(m, MaterialDesc::Lambert { .. }))
+            {
+                return Err(FabricDataError::LambertMaterial { exemplar: e, slot });
             }
             out.materials.extend(baked.materials.iter().map(material_gpu));
             let ssdf = &baked.visibility.ssdf;

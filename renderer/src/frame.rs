@@ -612,6 +612,33 @@ impl Renderer {
         })
     }
 
+    /// `settings` within the adapter's texture limit: an image larger than
+    /// `max_texture_dimension_2d` is an error naming the limit; shadow maps and visibility
+    /// textures larger than it are shrunk to it (logged), since they only lose sharpness.
+    fn fit_to_adapter(&self, settings: &FrameSettings) -> Result<FrameSettings, RenderError> {
+        let max_2d = self.device.limits().max_texture_dimension_2d;
+        let side = settings.width.max(settings.height);
+        if side > max_2d {
+            return Err(RenderError::Limit {
+                adapter: self.adapter.clone(),
+                what: "max_texture_dimension_2d (the image's larger side)",
+                have: u64::from(max_2d),
+                need: u64::from(side),
+            });
+        }
+        let mut fitted = settings.clone();
+        for (name, size) in [
+            ("shadow_map_size", &mut fitted.gpu.shadow_map_size),
+            ("visibility_texture_size", &mut fitted.gpu.visibility_texture_size),
+        ] {
+            if *size > max_2d {
+                log::warn!("{name} = {size} exceeds the adapter's max_texture_dimension_2d; using {max_2d}");
+                *size = max_2d;
+            }
+        }
+        Ok(fitted)
+    }
+
     /// Renders one frame and reads it back.
     #[allow(clippy::too_many_lines)]
     pub fn render(
@@ -621,6 +648,7 @@ impl Renderer {
         settings: &FrameSettings,
     ) -> Result<Frame, RenderError> {
         validate(settings, lights)?;
+        let settings = &self.fit_to_adapter(settings)?;
         let plan = self.plan(lights, settings);
         let (width, height) = (settings.width, settings.height);
         let device = self.device.clone();
