@@ -16,6 +16,8 @@
 use glam::Vec3;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
+
+use crate::frame::{storage_entry, uniform_entry};
 use twill_precompute::bcsdf::MaterialDesc;
 
 /// Why a bake could not be placed on the GPU.
@@ -426,28 +428,8 @@ pub struct FabricData {
 #[must_use]
 pub fn fabric_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
-    let mut entries = vec![wgpu::BindGroupLayoutEntry {
-        binding: 0,
-        visibility,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }];
-    for binding in 1..=12 {
-        entries.push(wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        });
-    }
+    let mut entries = vec![uniform_entry(0, visibility)];
+    entries.extend((1..=12).map(|binding| storage_entry(binding, visibility, true)));
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("twill.fabric.bind_group_layout"),
         entries: &entries,
