@@ -62,6 +62,7 @@ impl LightEdit {
     #[must_use]
     pub fn new(kind: LightKind, azimuth_deg: f64, elevation_deg: f64, rgb: [f64; 3], sharpness: f64) -> Self {
         let (colour, intensity) = split_colour(rgb);
+        let azimuth_deg = wrap_degrees(azimuth_deg);
         Self { kind, azimuth_deg, elevation_deg, colour, intensity, sharpness }
     }
 
@@ -128,6 +129,13 @@ impl LightEdit {
             LightKind::Sg => format!("{base}, λ {}", format_sharpness(self.sharpness)),
         }
     }
+}
+
+/// An angle in degrees wrapped into (-180, 180] (the azimuth slider's range).
+#[must_use]
+pub fn wrap_degrees(angle: f64) -> f64 {
+    let a = angle.rem_euclid(360.0);
+    if a > 180.0 { a - 360.0 } else { a }
 }
 
 /// Splits linear RGB into a colour whose largest channel is 1 and that channel's value.
@@ -316,7 +324,13 @@ fn light_editor(ui: &mut egui::Ui, light: &mut LightEdit, camera_yaw_deg: f64) -
         ui.color_edit_button_rgb(&mut light.colour);
     });
     let what = if light.kind == LightKind::Sg { "intensity" } else { "irradiance" };
-    ui.add(egui::Slider::new(&mut light.intensity, 0.0..=MAX_SLIDER_INTENSITY).logarithmic(true).text(what));
+    // A scene's light may be brighter than the slider reaches: keep it until it is edited.
+    ui.add(
+        egui::Slider::new(&mut light.intensity, 0.0..=MAX_SLIDER_INTENSITY)
+            .logarithmic(true)
+            .clamping(egui::SliderClamping::Edits)
+            .text(what),
+    );
     *light != before
 }
 
@@ -417,6 +431,15 @@ mod tests {
     }
 
     #[test]
+    fn azimuths_stay_inside_the_slider_range() {
+        assert!((wrap_degrees(225.0) + 135.0).abs() < 1e-12);
+        assert!((wrap_degrees(-190.0) - 170.0).abs() < 1e-12);
+        assert!((wrap_degrees(180.0) - 180.0).abs() < 1e-12);
+        let light = new_light(LightKind::Sg, -170.0);
+        assert!((-180.0..=180.0).contains(&light.azimuth_deg), "{light:?}");
+    }
+
+    #[test]
     fn presets_make_valid_sg_lights_within_the_panel_limit() {
         for p in &ENVIRONMENT_PRESETS {
             let lights = (p.lights)();
@@ -425,6 +448,7 @@ mod tests {
                 assert_eq!(l.kind, LightKind::Sg);
                 assert!(l.light().is_ok(), "{}: {l:?}", p.name);
                 assert!(l.elevation_deg > 0.0, "{}: every light is above the fabric", p.name);
+                assert!((-180.0..=180.0).contains(&l.azimuth_deg), "{}: {l:?}", p.name);
             }
         }
         assert!(preset("Sunset").is_some());
