@@ -9,7 +9,6 @@
 //! mapped on the CPU with the renderer's own tone curve (`twill_renderer::export::display_srgb8`,
 //! the twin of the GPU tone-map pass), so exposure and curve edits need no new samples.
 
-use rayon::prelude::*;
 use twill_precompute::Rgb;
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
 use twill_renderer::frame::PassTiming;
@@ -126,16 +125,24 @@ pub fn display_settings(exposure: f64, filmic: bool) -> Display {
     Display { exposure, curve: if filmic { ToneCurve::Filmic } else { ToneCurve::Clamp } }
 }
 
-/// Tone maps `radiance × scale` to RGBA8 with the renderer's curve (in parallel).
+/// Tone maps `radiance × scale` to RGBA8 with the renderer's curve, on a few scoped threads.
+/// (Not on rayon's pool: a bake keeps that busy for seconds at a time, and the window would wait.)
 #[must_use]
 pub fn tone_map_rgba8(radiance: &[[f32; 3]], scale: f64, exposure: f64, filmic: bool) -> Vec<u8> {
     let display = display_settings(exposure, filmic);
     let mut out = vec![0_u8; radiance.len() * 4];
-    out.par_chunks_mut(4 * 4096).zip(radiance.par_chunks(4096)).for_each(|(out, pixels)| {
+    let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get).min(8);
+    let chunk = radiance.len().div_ceil(threads).max(1);
+    let map = |out: &mut [u8], pixels: &[[f32; 3]]| {
         for (o, p) in out.chunks_exact_mut(4).zip(pixels) {
             let rgb = Rgb::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * scale;
             let [r, g, b] = display_srgb8(rgb, display);
             o.copy_from_slice(&[r, g, b, 255]);
+        }
+    };
+    std::thread::scope(|scope| {
+        for (out, pixels) in out.chunks_mut(4 * chunk).zip(radiance.chunks(chunk)) {
+            scope.spawn(move || map(out, pixels));
         }
     });
     out
