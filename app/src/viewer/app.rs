@@ -10,8 +10,10 @@
 //!    messages at the bottom) and the viewport in the middle, where dragging orbits, right or
 //!    middle dragging pans, scrolling zooms, and F or a double click fits the fabric to the view;
 //! 3. compares the view (fabric, camera, lights, render settings, viewport size) with the last
-//!    one: any difference starts a new generation, and for a moment after an edit the picture is
-//!    rendered at a reduced size, one sample a batch, so dragging stays fluid;
+//!    one: any difference starts a new generation. After an edit the picture is rendered at a
+//!    reduced size, one sample a batch, until the edits have stopped for a moment and a reduced
+//!    picture of the last one has been shown, so dragging stays fluid even when full-size
+//!    samples take seconds (lavapipe);
 //! 4. asks the worker for the next batch of the current view: the first sample of a new view,
 //!    then batches that double in size (up to [`MAX_BATCH_SPP`], and no more than the measured
 //!    cost allows in [`BATCH_BUDGET_MS`]) until the target sample count is reached, after which
@@ -57,8 +59,8 @@ const INTERACTION_SETTLE: Duration = Duration::from_millis(300);
 const MAX_BATCH_SPP: u32 = 16;
 /// Longest a batch should take (the worker takes no new view until its batch is done).
 const BATCH_BUDGET_MS: f64 = 250.0;
-/// How often a running script checks its step.
-const SCRIPT_POLL: Duration = Duration::from_millis(50);
+/// How often a waiting script step is checked when nothing else wakes the window.
+const SCRIPT_POLL: Duration = Duration::from_millis(250);
 /// Side panels' widths (points) and their sliders' length.
 const LEFT_PANEL_WIDTH: f32 = 290.0;
 const RIGHT_PANEL_WIDTH: f32 = 310.0;
@@ -157,6 +159,8 @@ pub struct ViewerApp {
     fabric: Option<FabricInfo>,
 
     generation: u64,
+    /// The generation of the last edit (a fabric change is no edit).
+    edit_generation: u64,
     view_key: Option<ViewKey>,
     last_edit: Instant,
     failed_generation: Option<u64>,
@@ -263,6 +267,7 @@ impl ViewerApp {
             uploading: Vec::new(),
             fabric: None,
             generation: 0,
+            edit_generation: 0,
             view_key: None,
             last_edit: Instant::now(),
             failed_generation: None,
@@ -633,10 +638,11 @@ impl ViewerApp {
             size: [w, h],
         };
         if self.view_key.as_ref() != Some(&key) {
+            self.generation += 1;
             if self.view_key.as_ref().is_some_and(|old| !old.same_edit(&key)) {
                 self.last_edit = Instant::now();
+                self.edit_generation = self.generation;
             }
-            self.generation += 1;
             self.view_key = Some(key.clone());
         }
         if self.failed_generation == Some(self.generation) {
@@ -644,7 +650,11 @@ impl ViewerApp {
         }
         let since_edit = self.last_edit.elapsed();
         let scale = self.interaction_scale();
-        let interacting = since_edit < INTERACTION_SETTLE && scale < 1.0;
+        // A reduced preview while edits come in, and as the first picture after an edit (or the
+        // very first picture) even when the worker was too busy to show one in time.
+        let shown_since_edit =
+            self.accumulation.as_ref().is_some_and(|a| a.generation >= self.edit_generation);
+        let interacting = scale < 1.0 && (since_edit < INTERACTION_SETTLE || !shown_since_edit);
         let size = if interacting {
             let s = scale;
             [((f64::from(w) * s).round() as u32).max(1), ((f64::from(h) * s).round() as u32).max(1)]
@@ -772,11 +782,17 @@ impl ViewerApp {
     fn run_script(&mut self, ctx: &egui::Context) {
         let Some(mut run) = self.script.take() else { return };
         if !run.finished {
-            ctx.request_repaint_after(SCRIPT_POLL);
+            let before = run.next;
             if let Err(message) = self.advance_script(&mut run, ctx) {
                 self.finish_script(&mut run, ctx, Err(message));
             } else if run.next >= run.lines.len() {
                 self.finish_script(&mut run, ctx, Ok(()));
+            } else if run.next != before {
+                ctx.request_repaint();
+            } else {
+                // Waiting: the worker, the bake thread and the screenshot wake the window; this
+                // only bounds how late a timeout is noticed.
+                ctx.request_repaint_after(SCRIPT_POLL);
             }
         }
         self.script = Some(run);
@@ -826,6 +842,14 @@ impl ViewerApp {
             Step::WaitFabric(q) => Ok(self.fabric.as_ref().is_some_and(|f| {
                 f.quality == *q && self.accumulation.as_ref().is_some_and(|a| a.fabric_id == f.id)
             })),
+            Step::Bake(q) => {
+                self.start_bake(*q);
+                Ok(true)
+            }
+            Step::CancelBake => {
+                self.baker.cancel();
+                Ok(true)
+            }
             Step::Orbit { yaw_deg, pitch_deg } => {
                 self.camera.orbit(*yaw_deg, *pitch_deg);
                 Ok(true)
@@ -885,9 +909,10 @@ impl ViewerApp {
             Step::Screenshot(path) => {
                 if run.screenshot_rect.is_none() {
                     run.screenshot_rect = Some(self.viewport_rect_px);
-                    let slot = Arc::clone(&run.screenshot);
+                    let (slot, repaint) = (Arc::clone(&run.screenshot), ctx.clone());
                     ctx.request_screenshot(move |image| {
                         *slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(image);
+                        repaint.request_repaint();
                     });
                     return Ok(false);
                 }
@@ -967,7 +992,7 @@ fn bake_sequence(quality: Quality) -> Vec<Quality> {
 
 fn apply_light_field(light: &mut LightEdit, field: LightField) -> Result<(), String> {
     match field {
-        LightField::Azimuth(a) => light.azimuth_deg = a,
+        LightField::Azimuth(a) => light.azimuth_deg = super::lights::wrap_degrees(a),
         LightField::Elevation(e) if (-90.0..=90.0).contains(&e) => light.elevation_deg = e,
         LightField::Elevation(e) => return Err(format!("elevation {e} is outside -90..=90")),
         LightField::Sharpness(s) => {

@@ -12,6 +12,7 @@
 //! re-tone-map the samples already accumulated.
 
 use eframe::egui;
+use twill_precompute::bake::pipeline::Stage;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::scene::GpuSection;
 use twill_renderer::frame::describe_timings;
@@ -94,11 +95,15 @@ pub fn quality_panel(
     egui::CollapsingHeader::new("Fabric and bake").default_open(true).show(ui, |ui| {
         match view.fabric {
             Some(f) => {
+                let stages = match f.computed_stages {
+                    0 => "every stage from the cache".to_owned(),
+                    n if n >= Stage::ALL.len() => "every stage computed".to_owned(),
+                    n => format!("{n} of {} stages computed, the rest from the cache", Stage::ALL.len()),
+                };
                 ui.label(format!(
-                    "Showing the {} bake ({:.1} s, {} of 7 stages computed, the rest cached).",
+                    "Showing the {} bake ({:.1} s, {stages}).",
                     f.quality.name(),
-                    f.bake_seconds,
-                    f.computed_stages
+                    f.bake_seconds
                 ));
                 ui.label(format!(
                     "Uploaded in {:.2} s: {:.1} MB on the GPU.",
@@ -187,7 +192,11 @@ pub fn quality_panel(
         .on_hover_text("Fraction of the viewport's size rendered while the view changes (1 = full size)");
         ui.checkbox(&mut controls.interaction_auto, "size while moving: automatic")
             .on_hover_text(format!("Pick the size so a frame takes about {INTERACTION_BUDGET_MS:.0} ms"));
-        ui.add(egui::Slider::new(&mut controls.exposure, -8.0..=8.0).text("exposure"));
+        ui.add(
+            egui::Slider::new(&mut controls.exposure, -8.0..=8.0)
+                .clamping(egui::SliderClamping::Edits)
+                .text("exposure"),
+        );
         ui.checkbox(&mut controls.filmic, "filmic tone curve (else clamp)");
     });
 
@@ -209,6 +218,7 @@ pub fn quality_panel(
         .on_hover_text("Samples along each eye ray per shell tetrahedron (paper: 32, 64 or 128)");
         ui.add(
             egui::Slider::new(&mut controls.gpu.sigma_glo_cm, SIGMA_GLO_RANGE_CM.0..=SIGMA_GLO_RANGE_CM.1)
+                .clamping(egui::SliderClamping::Edits)
                 .text("σ_glo (cm)"),
         )
         .on_hover_text(

@@ -13,6 +13,8 @@
 //!
 //! ```text
 //! wait-fabric draft|interactive|paper   # until that bake's picture is on screen
+//! bake draft|interactive|paper          # start a bake (cancels the one in flight)
+//! cancel-bake
 //! orbit DYAW DPITCH                     # degrees
 //! zoom FACTOR                           # < 1 zooms in
 //! fit                                   # fit the fabric to the view
@@ -65,6 +67,8 @@ pub enum Setting {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Step {
     WaitFabric(Quality),
+    Bake(Quality),
+    CancelBake,
     Orbit { yaw_deg: f64, pitch_deg: f64 },
     Zoom(f64),
     Fit,
@@ -100,13 +104,16 @@ fn finite(value: f64, what: &str) -> Result<f64, String> {
 
 fn parse_step(words: &[&str]) -> Result<Step, String> {
     let mut args = words[1..].iter().copied();
+    let quality = |word: Option<&str>| match word {
+        Some("draft") => Ok(Quality::Draft),
+        Some("interactive") => Ok(Quality::Interactive),
+        Some("paper") => Ok(Quality::Paper),
+        other => Err(format!("{} takes draft, interactive or paper, not {other:?}", words[0])),
+    };
     let step = match words[0] {
-        "wait-fabric" => Step::WaitFabric(match args.next() {
-            Some("draft") => Quality::Draft,
-            Some("interactive") => Quality::Interactive,
-            Some("paper") => Quality::Paper,
-            other => return Err(format!("wait-fabric takes draft, interactive or paper, not {other:?}")),
-        }),
+        "wait-fabric" => Step::WaitFabric(quality(args.next())?),
+        "bake" => Step::Bake(quality(args.next())?),
+        "cancel-bake" => Step::CancelBake,
         "orbit" => Step::Orbit {
             yaw_deg: finite(number(args.next(), "yaw in degrees")?, "yaw")?,
             pitch_deg: finite(number(args.next(), "pitch in degrees")?, "pitch")?,
@@ -219,17 +226,18 @@ mod tests {
 
     #[test]
     fn every_command_parses() {
-        let text = "# comment\nwait-fabric draft\norbit 20 -5\nzoom 0.8\nfit\nlight 0 azimuth 120 # trailing\n\
+        let text = "# comment\nwait-fabric draft\nbake paper\ncancel-bake\norbit 20 -5\nzoom 0.8\nfit\nlight 0 azimuth 120 # trailing\n\
                     light 1 colour 1 0.5 0.25\nadd-light sg\nremove-light 2\npreset studio three-point\n\
                     set spp 8\nwait-spp 8\nscreenshot out.png\nexport shot.exr 64x48 4\nwait-export\n\
                     expect-error unknown preset\nquit\n";
         let steps = parse_script(text, Path::new("s.txt")).unwrap();
-        assert_eq!(steps.len(), 16);
+        assert_eq!(steps.len(), 18);
         assert_eq!(steps[0].line, 2);
-        assert_eq!(steps[4].step, Step::Light { index: 0, field: LightField::Azimuth(120.0) });
-        assert_eq!(steps[8].step, Step::Preset("studio three-point".into()));
-        assert_eq!(steps[12].step, Step::Export { path: "shot.exr".into(), width: 64, height: 48, spp: 4 });
-        assert_eq!(steps[14].step, Step::ExpectError("unknown preset".into()));
+        assert_eq!(steps[1].step, Step::Bake(Quality::Paper));
+        assert_eq!(steps[6].step, Step::Light { index: 0, field: LightField::Azimuth(120.0) });
+        assert_eq!(steps[10].step, Step::Preset("studio three-point".into()));
+        assert_eq!(steps[14].step, Step::Export { path: "shot.exr".into(), width: 64, height: 48, spp: 4 });
+        assert_eq!(steps[16].step, Step::ExpectError("unknown preset".into()));
     }
 
     #[test]
