@@ -12,8 +12,10 @@
 //! channels <= 3, at most 1% of pixels off by more than 32; `TWILL_BLESS=1` writes the golden).
 //! Only the viewport is compared: the panels show timings that change from run to run.
 //!
-//! `a_failed_bake_is_shown_in_the_window` opens a scene whose fabric cannot be built and checks
-//! that the error appears in the window while the viewer keeps running.
+//! `a_failed_bake_and_a_missing_scene_are_shown_in_the_window` opens a scene whose fabric cannot
+//! be built, then a scene file that does not exist, and checks that each error appears in the
+//! window while the viewer keeps running (the scripted run above also exports to a folder that
+//! does not exist).
 //!
 //! Both need `xvfb-run` (Debian package xvfb; scripts/setup.sh installs it). Without it they
 //! fail, unless `TWILL_ALLOW_NO_GPU=1`, when they print a loud SKIPPED line. The binary is
@@ -173,6 +175,9 @@ fn scripted_edits_render_and_match_the_golden() {
         wait-export\n\
         export export.exr 48x32 1\n\
         wait-export\n\
+        # An export that cannot be written is an error in the window, not a crash.\n\
+        export no-such-folder/shot.png 16x16 1\n\
+        expect-error no-such-folder\n\
         quit\n";
     std::fs::write(out.join("edits.script"), script).unwrap();
     let size = format!("{}x{}", WINDOW.0, WINDOW.1);
@@ -206,8 +211,8 @@ fn scripted_edits_render_and_match_the_golden() {
 }
 
 #[test]
-fn a_failed_bake_is_shown_in_the_window() {
-    let test = "a_failed_bake_is_shown_in_the_window";
+fn a_failed_bake_and_a_missing_scene_are_shown_in_the_window() {
+    let test = "a_failed_bake_and_a_missing_scene_are_shown_in_the_window";
     let Some(xvfb) = xvfb_run_for(test) else { return };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path();
@@ -220,4 +225,8 @@ fn a_failed_bake_is_shown_in_the_window() {
     let run = run_viewer(&xvfb, out, &["bad.toml", "--quality", "draft", "--script", "error.script"]);
     assert!(run.success, "the viewer failed:\n{}", run.stderr);
     assert!(out.join("error.png").is_file());
+
+    std::fs::write(out.join("missing.script"), "expect-error could not be read\nquit\n").unwrap();
+    let run = run_viewer(&xvfb, out, &["no-such-scene.toml", "--script", "missing.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
 }
