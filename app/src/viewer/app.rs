@@ -6,8 +6,8 @@
 //!    and takes the worker's results: uploaded fabrics, rendered batches (added to the
 //!    progressive [`Accumulation`]), export progress and every error, which goes to the message
 //!    list at the bottom of the window;
-//! 2. lays out the panels (lights and export on the left, quality and performance on the right,
-//!    messages at the bottom) and the viewport in the middle, where dragging orbits, right or
+//! 2. lays out the panels (lights and export on the left, quality and performance on the right)
+//!    and the viewport in the middle, with messages drawn over its bottom edge, where dragging orbits, right or
 //!    middle dragging pans, scrolling zooms, and F or a double click fits the fabric to the view;
 //! 3. compares the view (fabric, camera, lights, render settings, viewport size) with the last
 //!    one: any difference starts a new generation. After an edit the picture is rendered at a
@@ -75,10 +75,13 @@ enum Level {
     Info,
 }
 
-/// The message list at the bottom of the window.
+/// How long an information message stays on screen (errors stay until dismissed).
+const INFO_SECONDS: Duration = Duration::from_secs(10);
+
+/// The message list, drawn over the bottom of the viewport (so messages never resize it).
 #[derive(Default)]
 struct Messages {
-    shown: Vec<(Level, String)>,
+    shown: Vec<(Level, String, Instant)>,
     /// Every error shown since the start (scripts check these).
     errors: Vec<String>,
 }
@@ -88,13 +91,13 @@ impl Messages {
         let text = text.into();
         log::error!("{text}");
         self.errors.push(text.clone());
-        self.shown.push((Level::Error, text));
+        self.shown.push((Level::Error, text, Instant::now()));
     }
 
     fn info(&mut self, text: impl Into<String>) {
         let text = text.into();
         log::info!("{text}");
-        self.shown.push((Level::Info, text));
+        self.shown.push((Level::Info, text, Instant::now()));
     }
 }
 
@@ -462,25 +465,52 @@ impl ViewerApp {
         });
     }
 
-    fn messages_panel(&mut self, ui: &mut egui::Ui) {
+    /// The messages, over the bottom of the viewport (`area`).
+    fn messages_overlay(&mut self, ctx: &egui::Context, area: egui::Rect) {
+        self.messages.shown.retain(|(level, _, at)| *level == Level::Error || at.elapsed() < INFO_SECONDS);
+        if self.messages.shown.is_empty() || !area.is_positive() {
+            return;
+        }
+        if self.messages.shown.iter().any(|(level, ..)| *level == Level::Info) {
+            ctx.request_repaint_after(Duration::from_secs(1));
+        }
         let mut remove = None;
-        egui::ScrollArea::vertical().max_height(120.0).show(ui, |ui| {
-            for (i, (level, text)) in self.messages.shown.iter().enumerate() {
+        let width = (area.width() - 16.0).max(100.0);
+        egui::Area::new(egui::Id::unique("twill.messages"))
+            .order(egui::Order::Foreground)
+            .pivot(egui::Align2::LEFT_BOTTOM)
+            .fixed_pos(area.left_bottom() + egui::vec2(8.0, -26.0))
+            .show(ctx, |ui| {
+                egui::Frame::popup(ui.style()).show(ui, |ui| {
+                    ui.set_max_width(width);
+                    egui::ScrollArea::vertical().max_height(140.0).show(ui, |ui| {
+                        remove = self.messages_list(ui);
+                    });
+                });
+            });
+        if let Some(i) = remove {
+            self.messages.shown.remove(i);
+        }
+    }
+
+    /// The messages with their dismiss buttons; returns the one dismissed.
+    fn messages_list(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let mut remove = None;
+        {
+            for (i, (level, text, _)) in self.messages.shown.iter().enumerate() {
                 ui.horizontal(|ui| {
-                    if ui.small_button("✕").on_hover_text("Dismiss").clicked() {
+                    if ui.small_button("×").on_hover_text("Dismiss").clicked() {
                         remove = Some(i);
                     }
                     let colour = match level {
                         Level::Error => ui.visuals().error_fg_color,
                         Level::Info => ui.visuals().text_color(),
                     };
-                    ui.label(egui::RichText::new(text).color(colour));
+                    ui.add(egui::Label::new(egui::RichText::new(text).color(colour)).wrap());
                 });
             }
-        });
-        if let Some(i) = remove {
-            self.messages.shown.remove(i);
         }
+        remove
     }
 
     fn left_panel(&mut self, ui: &mut egui::Ui) {
@@ -580,13 +610,13 @@ impl ViewerApp {
             painter.image(texture.id(), image_rect, uv, egui::Color32::WHITE);
         } else {
             let text = if self.scene_file.is_none() {
-                "The scene could not be loaded: see the messages below.".to_owned()
+                "The scene could not be loaded: see the messages.".to_owned()
             } else if let Some(p) = self.baker.progress() {
                 format!("Baking the {} fabric… {:.0}%", p.quality.name(), 100.0 * p.overall)
             } else if self.fabric.is_some() {
                 "Rendering…".to_owned()
             } else {
-                "No fabric: see the messages below.".to_owned()
+                "No fabric: see the messages.".to_owned()
             };
             painter.text(
                 rect.center(),
@@ -1086,9 +1116,6 @@ impl eframe::App for ViewerApp {
         self.refresh_texture(&ctx);
 
         egui::Panel::top("twill.top").show(ui, |ui| self.top_bar(ui));
-        if !self.messages.shown.is_empty() {
-            egui::Panel::bottom("twill.messages").show(ui, |ui| self.messages_panel(ui));
-        }
         egui::Panel::left("twill.left")
             .resizable(true)
             .default_size(LEFT_PANEL_WIDTH)
@@ -1106,6 +1133,11 @@ impl eframe::App for ViewerApp {
                 self.right_panel(ui);
             });
         egui::CentralPanel::no_frame().show(ui, |ui| self.viewport(ui));
+        let viewport = egui::Rect::from_min_size(
+            (self.viewport_rect_px.min.to_vec2() / ctx.pixels_per_point()).to_pos2(),
+            self.viewport_rect_px.size() / ctx.pixels_per_point(),
+        );
+        self.messages_overlay(&ctx, viewport);
 
         self.schedule(&ctx);
         self.run_script(&ctx);

@@ -78,9 +78,13 @@ pub fn run(options: ViewerOptions) -> Result<()> {
         None => None,
     };
     let [w, h] = options.window_size;
+    let title = match &options.scene {
+        Some(path) => format!("twill — {}", path.display()),
+        None => "twill — default fabric".to_owned(),
+    };
     let native = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default()
-            .with_title("twill")
+            .with_title(title)
             .with_app_id("twill")
             .with_inner_size([w as f32, h as f32])
             .with_min_inner_size([480.0, 320.0]),
