@@ -79,7 +79,10 @@ struct Run {
 }
 
 /// Runs `twill view ARGS` under xvfb-run in `dir`, with a private runtime folder and bake cache.
+/// One at a time: `xvfb-run -a` can hand two concurrent runs the same display number.
 fn run_viewer(xvfb: &Path, dir: &Path, args: &[&str]) -> Run {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let runtime = dir.join("xdg");
     std::fs::create_dir_all(&runtime).unwrap();
     #[cfg(unix)]
