@@ -5,8 +5,11 @@
 set -euo pipefail
 
 # mesa-vulkan-drivers + libvulkan1: lavapipe (software Vulkan) for the GPU tests on machines
-# without a GPU.
-need_packages=(pkg-config mesa-vulkan-drivers libvulkan1)
+# without a GPU. The viewer's window (winit on X11) loads libX11, libXcursor, libXrandr, libXi
+# and libxkbcommon-x11 at run time; xvfb (with xauth, which xvfb-run needs and xvfb only
+# recommends) gives its test (tests/viewer_window.rs) a display.
+need_packages=(pkg-config mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6
+  libxkbcommon-x11-0)
 
 missing=()
 for pkg in "${need_packages[@]}"; do

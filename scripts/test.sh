@@ -2,7 +2,8 @@
 # Runs every check and test of twill: formatting, clippy (pedantic, warnings are errors), and
 # the whole workspace's tests (unit, integration and workspace-level tests in tests/). The GPU
 # tests run on lavapipe (installed by setup.sh) when the machine has no GPU; they fail rather
-# than skip when no Vulkan adapter is found.
+# than skip when no Vulkan adapter is found. The viewer's window test runs under Xvfb (xvfb-run,
+# also installed by setup.sh) and fails when it is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh

@@ -14,7 +14,7 @@ use twill_precompute::image::{Estimate, Image, compare};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
-use twill_renderer::frame::Frame;
+use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::{SceneRenderer, frame_settings};
 use twill_renderer::plan::Components;
@@ -136,6 +136,35 @@ fn golden_images_and_the_plan_as_executed() {
         }
     }
     assert!(failures.is_empty(), "golden mismatches:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn sample_batches_add_up_to_one_frame() {
+    // The viewer's progressive rendering: frames of samples 0..2 and 2..4, weighted by their
+    // sample counts, are the frame of samples 0..4.
+    let Some(gpu) = Gpu::for_test("sample_batches_add_up_to_one_frame") else { return };
+    let scene = scene(&format!("{FABRIC}{}", camera_above(0.4)), &[SUN]);
+    let mut settings = frame_settings(&scene, Components::All);
+    (settings.width, settings.height, settings.spp) = (48, 40, 4);
+    let mut session = SceneRenderer::with_gpu(gpu, &scene, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let whole = session.render(&scene, &settings).expect("frame renders");
+    let (camera, lights) = (&scene.camera, &scene.path_scene.lights);
+    let half = FrameSettings { spp: 2, ..settings.clone() };
+    let first = session.renderer.render_samples(camera, lights, &half, 0).expect("samples 0..2");
+    let second = session.renderer.render_samples(camera, lights, &half, 2).expect("samples 2..4");
+    let mut largest = 0.0_f32;
+    for ((w, a), b) in whole.radiance.iter().zip(&first.radiance).zip(&second.radiance) {
+        for c in 0..3 {
+            let mean = 0.5 * (a[c] + b[c]);
+            assert!((mean - w[c]).abs() <= 1e-4 * w[c].abs().max(1.0), "{w:?} vs {a:?} + {b:?}");
+            largest = largest.max(w[c]);
+        }
+    }
+    assert!(largest > 0.01, "the frame is lit");
+    assert!(first.radiance != second.radiance, "the two batches take different samples");
+    let err = session.renderer.render_samples(camera, lights, &half, MAX_SAMPLE_INDEX - 1).unwrap_err();
+    assert!(err.to_string().contains("sequence ends"), "{err}");
 }
 
 #[test]

@@ -183,7 +183,9 @@ pub struct RenderOptions {
     pub timings: bool,
 }
 
-fn open_cache(explicit: Option<&Path>, no_cache: bool) -> Result<Option<Cache>> {
+/// The stage cache: `explicit`, else the default folder ([`default_cache_dir`]); none with
+/// `no_cache`. The viewer bakes through it too.
+pub(crate) fn open_cache(explicit: Option<&Path>, no_cache: bool) -> Result<Option<Cache>> {
     if no_cache {
         return Ok(None);
     }

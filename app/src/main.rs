@@ -1,10 +1,11 @@
-//! The `twill` program: command line front end.
+//! The `twill` program: the desktop viewer (no arguments, or `twill view`) and the command line.
 //!
 //! Each subcommand loads a scene (a TOML file, or the built-in default scene when none is
 //! given), builds what it needs and reports errors through anyhow with the file and place that
-//! caused them. Long work shows a progress bar on stderr.
+//! caused them. Long work shows a progress bar on stderr. The viewer is in `viewer/`.
 
 mod commands;
+mod viewer;
 
 use std::path::PathBuf;
 
@@ -12,15 +13,22 @@ use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 
 #[derive(Debug, Parser)]
-#[command(name = "twill", version, about = "Fiber-level woven fabric rendering (Khungurn et al. 2017)")]
-#[command(arg_required_else_help = true)]
+#[command(
+    name = "twill",
+    version,
+    about = "Fiber-level woven fabric rendering (Khungurn et al. 2017)",
+    long_about = "Fiber-level woven fabric rendering (Khungurn et al. 2017). Without a command, \
+                  opens the viewer on the built-in default fabric (`twill view`)."
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Open the desktop viewer (the default without a command).
+    View(ViewArgs),
     /// Inspect, list and export fabrics.
     Fabric {
         #[command(subcommand)]
@@ -96,6 +104,27 @@ enum QualityArg {
     Interactive,
     /// The 2017 paper's settings.
     Paper,
+}
+
+#[derive(Debug, clap::Args)]
+struct ViewArgs {
+    /// Scene file (default: the built-in default scene).
+    scene: Option<PathBuf>,
+    /// Bake quality the viewer refines to after the draft bake.
+    #[arg(long, value_enum, default_value = "interactive")]
+    quality: QualityArg,
+    /// Window size in points, WIDTHxHEIGHT.
+    #[arg(long, value_parser = commands::parse_size, default_value = "1280x800")]
+    window_size: (usize, usize),
+    /// Play a script of edits and screenshots, then close (for tests; see app/src/viewer/script.rs).
+    #[arg(long, hide = true)]
+    script: Option<PathBuf>,
+}
+
+impl Default for ViewArgs {
+    fn default() -> Self {
+        Self { scene: None, quality: QualityArg::Interactive, window_size: (1280, 800), script: None }
+    }
 }
 
 #[derive(Debug, clap::Args)]
@@ -228,7 +257,9 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    match cli.command {
+    let Some(command) = cli.command else { return view(ViewArgs::default()) };
+    match command {
+        Command::View(args) => view(args),
         Command::Fabric { command } => match command {
             FabricCommand::Presets => {
                 commands::fabric_presets();
@@ -302,6 +333,15 @@ fn run(cli: Cli) -> Result<()> {
             seed: args.seed,
         }),
     }
+}
+
+fn view(args: ViewArgs) -> Result<()> {
+    viewer::run(viewer::ViewerOptions {
+        scene: args.scene,
+        quality: quality_of(args.quality),
+        script: args.script,
+        window_size: [args.window_size.0 as u32, args.window_size.1 as u32],
+    })
 }
 
 #[cfg(test)]

@@ -12,11 +12,28 @@ fn text(bytes: &[u8]) -> String {
 }
 
 #[test]
-fn no_arguments_prints_help() {
+fn no_arguments_open_the_viewer_which_says_when_there_is_no_display() {
     let dir = tempfile::tempdir().unwrap();
-    let out = twill(&[], dir.path());
+    let out = Command::new(env!("CARGO_BIN_EXE_twill"))
+        .current_dir(dir.path())
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("twill runs");
     assert!(!out.status.success());
-    assert!(text(&out.stderr).contains("reference"), "{}", text(&out.stderr));
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("the viewer needs an X11 display") && stderr.contains("xvfb-run"), "{stderr}");
+}
+
+#[test]
+fn help_lists_the_viewer_and_the_subcommands() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = twill(&["--help"], dir.path());
+    assert!(out.status.success());
+    let stdout = text(&out.stdout);
+    for command in ["view", "render", "reference", "bake"] {
+        assert!(stdout.contains(command), "missing {command:?} in\n{stdout}");
+    }
 }
 
 #[test]

@@ -45,6 +45,8 @@ use crate::shell::Shell;
 pub const MAX_SHADOWED_LIGHTS: usize = 8;
 /// Most lights in one frame.
 pub const MAX_LIGHTS: usize = 64;
+/// End of the sample sequence [`Renderer::render_samples`] can continue (exclusive).
+pub const MAX_SAMPLE_INDEX: u32 = 1 << 24;
 /// Largest SG light angle used for PCSS penumbrae.
 const MAX_PCSS_ANGLE_DEG: f64 = 60.0;
 
@@ -583,6 +585,12 @@ impl Renderer {
         &self.fabric
     }
 
+    /// The shell's world-space bounding box (min, max corners), e.g. to fit a camera to it.
+    #[must_use]
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.shell.bounds
+    }
+
     /// Plans a frame for these lights and settings.
     #[must_use]
     pub fn plan(&self, lights: &[Light], settings: &FrameSettings) -> FramePlan {
@@ -640,14 +648,36 @@ impl Renderer {
     }
 
     /// Renders one frame and reads it back.
-    #[allow(clippy::too_many_lines)]
     pub fn render(
         &mut self,
         camera: &CameraSection,
         lights: &[Light],
         settings: &FrameSettings,
     ) -> Result<Frame, RenderError> {
+        self.render_samples(camera, lights, settings, 0)
+    }
+
+    /// As [`Renderer::render`], for samples `first_sample .. first_sample + settings.spp` of
+    /// one longer sample sequence (sub-pixel jitter and volume-sample offsets continue where the
+    /// previous frame stopped). The frame's `radiance` is the mean of its own samples, so a
+    /// viewer that weights each frame by its `spp` and sums them gets the same image as one
+    /// frame with all the samples: progressive rendering without keeping state on the GPU.
+    /// `first_sample = 0` is exactly [`Renderer::render`].
+    #[allow(clippy::too_many_lines)]
+    pub fn render_samples(
+        &mut self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+        first_sample: u32,
+    ) -> Result<Frame, RenderError> {
         validate(settings, lights)?;
+        if first_sample.checked_add(settings.spp).is_none_or(|end| end > MAX_SAMPLE_INDEX) {
+            return Err(RenderError::Settings(format!(
+                "samples {first_sample}..{first_sample}+{}: the sequence ends at {MAX_SAMPLE_INDEX}",
+                settings.spp
+            )));
+        }
         let settings = &self.fit_to_adapter(settings)?;
         let plan = self.plan(lights, settings);
         let (width, height) = (settings.width, settings.height);
@@ -819,14 +849,15 @@ impl Renderer {
 
         let (position_view, ids_view, depth_view) = (view(&position), view(&ids), view(&depth));
         for sample in 0..settings.spp {
-            let (jx, jy) = (halton(sample + 1, 2) as f32, halton(sample + 1, 3) as f32);
-            let jitter = if settings.spp == 1 {
+            let index = first_sample + sample;
+            let (jx, jy) = (halton(index + 1, 2) as f32, halton(index + 1, 3) as f32);
+            let jitter = if settings.spp == 1 && first_sample == 0 {
                 [0.0, 0.0, 0.5, 0.0]
             } else {
                 [
                     (2.0 * jx - 1.0) / width as f32,
                     -(2.0 * jy - 1.0) / height as f32,
-                    (0.5 + sample as f32 * 0.618_034).fract(),
+                    (0.5 + index as f32 * 0.618_034).fract(),
                     0.0,
                 ]
             };

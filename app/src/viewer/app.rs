@@ -1,0 +1,1145 @@
+//! The viewer window: panels, the viewport and the glue between the bake thread, the render
+//! worker and what is on screen.
+//!
+//! How it works: every egui frame [`ViewerApp`]
+//! 1. takes finished bakes from the [`Baker`] and hands them to the render worker for upload,
+//!    and takes the worker's results: uploaded fabrics, rendered batches (added to the
+//!    progressive [`Accumulation`]), export progress and every error, which goes to the message
+//!    list at the bottom of the window;
+//! 2. lays out the panels (lights and export on the left, quality and performance on the right)
+//!    and the viewport in the middle, with messages drawn over its bottom edge, where dragging orbits, right or
+//!    middle dragging pans, scrolling zooms, and F or a double click fits the fabric to the view;
+//! 3. compares the view (fabric, camera, lights, render settings, viewport size) with the last
+//!    one: any difference starts a new generation. After an edit the picture is rendered at a
+//!    reduced size, one sample a batch, until the edits have stopped for a moment and a reduced
+//!    picture of the last one has been shown, so dragging stays fluid even when full-size
+//!    samples take seconds (lavapipe);
+//! 4. asks the worker for the next batch of the current view: the first sample of a new view,
+//!    then batches that double in size (up to [`MAX_BATCH_SPP`], and no more than the measured
+//!    cost allows in [`BATCH_BUDGET_MS`]) until the target sample count is reached, after which
+//!    nothing is rendered until something changes;
+//! 5. plays the next step of a script, if one was given.
+//!
+//! The picture on screen is replaced only when a new batch arrives, so the old picture stays
+//! while a new view, a new bake or a resize is being rendered.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use eframe::egui;
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::pathtrace::Light;
+use twill_precompute::pathtrace::light::SG_SHARPNESS_RANGE;
+use twill_precompute::scene::{CameraSection, DEFAULT_SCENE_TOML, GpuSection, RenderSection, SceneFile};
+use twill_renderer::export::write_rgb8_png;
+use twill_renderer::frame::FrameSettings;
+use twill_renderer::plan::Components;
+
+use super::ViewerOptions;
+use super::accumulate::{Accumulation, Added};
+use super::bake::{BakeEvent, Baker};
+use super::camera::OrbitCamera;
+use super::export::{
+    ExportAction, ExportForm, ExportFormat, ExportStatus, ViewSettings, export_panel, scene_toml,
+};
+use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
+use super::quality::{
+    FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
+    SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, VOLUME_SAMPLES_RANGE, quality_panel,
+};
+use super::render_worker::{
+    DeviceHandles, ExportRequest, FrameRequest, NewFabric, RenderWorker, WorkerEvent,
+};
+use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
+
+/// How long after an edit the picture is still rendered at the reduced size.
+const INTERACTION_SETTLE: Duration = Duration::from_millis(300);
+/// Largest batch of samples per request once a view is still.
+const MAX_BATCH_SPP: u32 = 16;
+/// Longest a batch should take (the worker takes no new view until its batch is done).
+const BATCH_BUDGET_MS: f64 = 250.0;
+/// How often a waiting script step is checked when nothing else wakes the window.
+const SCRIPT_POLL: Duration = Duration::from_millis(250);
+/// Side panels' widths (points) and their sliders' length.
+const LEFT_PANEL_WIDTH: f32 = 290.0;
+const RIGHT_PANEL_WIDTH: f32 = 310.0;
+const SLIDER_WIDTH: f32 = 120.0;
+/// The smallest viewport rendered, in pixels per side.
+const MIN_VIEWPORT_PX: u32 = 8;
+
+/// Severity of a message in the message list.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Level {
+    Error,
+    Info,
+}
+
+/// How long an information message stays on screen (errors stay until dismissed).
+const INFO_SECONDS: Duration = Duration::from_secs(10);
+
+/// The message list, drawn over the bottom of the viewport (so messages never resize it).
+#[derive(Default)]
+struct Messages {
+    shown: Vec<(Level, String, Instant)>,
+    /// Every error shown since the start (scripts check these).
+    errors: Vec<String>,
+}
+
+impl Messages {
+    fn error(&mut self, text: impl Into<String>) {
+        let text = text.into();
+        log::error!("{text}");
+        self.errors.push(text.clone());
+        self.shown.push((Level::Error, text, Instant::now()));
+    }
+
+    fn info(&mut self, text: impl Into<String>) {
+        let text = text.into();
+        log::info!("{text}");
+        self.shown.push((Level::Info, text, Instant::now()));
+    }
+}
+
+/// Everything that decides the picture; a change restarts the accumulation.
+#[derive(Debug, Clone, PartialEq)]
+struct ViewKey {
+    fabric_id: u64,
+    camera: CameraSection,
+    lights: Vec<Light>,
+    components: Components,
+    gpu: GpuSection,
+    size: [u32; 2],
+}
+
+impl ViewKey {
+    /// The same view except for the fabric (a new bake is no interaction).
+    fn same_edit(&self, other: &Self) -> bool {
+        Self { fabric_id: other.fabric_id, ..self.clone() } == *other
+    }
+}
+
+/// A script being played.
+struct ScriptRun {
+    lines: Vec<ScriptLine>,
+    next: usize,
+    step_started: Instant,
+    screenshot: Arc<Mutex<Option<Arc<egui::ColorImage>>>>,
+    /// Viewport rectangle in window pixels when the screenshot was asked for.
+    screenshot_rect: Option<egui::Rect>,
+    errors_seen: usize,
+    expected_error_seen: bool,
+    finished: bool,
+}
+
+/// The state of the last export.
+enum ExportOutcome {
+    Done,
+    Failed(String),
+}
+
+/// The viewer (see the module docs).
+pub struct ViewerApp {
+    source_text: String,
+    source_path: PathBuf,
+    scene_file: Option<SceneFile>,
+    final_quality: Quality,
+    bake_choice: Quality,
+
+    camera: OrbitCamera,
+    initial_camera: OrbitCamera,
+    lights: Vec<LightEdit>,
+    scene_lights: Vec<LightEdit>,
+    selected_light: usize,
+    lights_error: Option<String>,
+    controls: RenderControls,
+
+    baker: Baker,
+    worker: Option<RenderWorker>,
+    next_fabric_id: u64,
+    /// Bakes sent to the worker and not yet uploaded: (fabric id, bake seconds, computed stages).
+    uploading: Vec<(u64, f64, usize)>,
+    fabric: Option<FabricInfo>,
+
+    generation: u64,
+    /// The generation of the last edit (a fabric change is no edit).
+    edit_generation: u64,
+    view_key: Option<ViewKey>,
+    last_edit: Instant,
+    failed_generation: Option<u64>,
+    in_flight: Option<FrameRequest>,
+    accumulation: Option<Accumulation>,
+    texture: Option<egui::TextureHandle>,
+    texture_dirty: bool,
+    shown_tone: (f64, bool),
+    viewport_px: [u32; 2],
+    viewport_rect_px: egui::Rect,
+    /// Measured wall time per pixel and sample, nanoseconds (smoothed over batches).
+    cost_ns_per_pixel_sample: Option<f64>,
+
+    export_form: ExportForm,
+    export_status: ExportStatus,
+    last_export: Option<ExportOutcome>,
+
+    messages: Messages,
+    script: Option<ScriptRun>,
+    outcome: Arc<Mutex<Option<Result<(), String>>>>,
+}
+
+fn default_controls(scene: &SceneFile) -> RenderControls {
+    RenderControls {
+        target_spp: scene.render.spp.clamp(TARGET_SPP_RANGE.0, TARGET_SPP_RANGE.1),
+        interaction_auto: true,
+        interaction_scale: 0.5,
+        exposure: scene.render.exposure,
+        filmic: true,
+        components: Components::All,
+        gpu: scene.gpu,
+    }
+}
+
+impl ViewerApp {
+    pub fn new(
+        cc: &eframe::CreationContext<'_>,
+        options: &ViewerOptions,
+        script: Option<Vec<ScriptLine>>,
+        outcome: Arc<Mutex<Option<Result<(), String>>>>,
+    ) -> Self {
+        let mut messages = Messages::default();
+        let (scene_file, source_text, source_path) = match &options.scene {
+            None => (
+                Some(SceneFile::default_scene()),
+                DEFAULT_SCENE_TOML.to_owned(),
+                PathBuf::from("<built-in default scene>"),
+            ),
+            Some(path) => match std::fs::read_to_string(path) {
+                Ok(text) => match SceneFile::parse(&text, path) {
+                    Ok(file) => (Some(file), text, path.clone()),
+                    Err(e) => {
+                        messages.error(format!("the scene could not be loaded: {e}"));
+                        (None, text, path.clone())
+                    }
+                },
+                Err(e) => {
+                    messages.error(format!("the scene could not be read: {}: {e}", path.display()));
+                    (None, String::new(), path.clone())
+                }
+            },
+        };
+        // Without a scene the panels show the default scene's camera and lights (nothing renders).
+        let shown = scene_file.clone().unwrap_or_else(SceneFile::default_scene);
+        let camera = OrbitCamera::from_section(&shown.camera);
+        let lights: Vec<LightEdit> = shown.lights.iter().map(LightEdit::from_section).collect();
+
+        let worker = if let Some(state) = &cc.wgpu_render_state {
+            let device = render_device(state).unwrap_or_else(|e| {
+                messages.error(format!("{e}; rendering on the window's device"));
+                DeviceHandles {
+                    adapter_info: state.adapter.get_info(),
+                    device: state.device.clone(),
+                    queue: state.queue.clone(),
+                }
+            });
+            RenderWorker::start(device, cc.egui_ctx.clone())
+                .map_err(|e| messages.error(format!("could not start the render thread: {e}")))
+                .ok()
+        } else {
+            messages.error("eframe opened no wgpu device: nothing can be rendered");
+            None
+        };
+        let mut baker = Baker::new(cc.egui_ctx.clone());
+        if let Some(file) = &scene_file {
+            baker.start(file.clone(), bake_sequence(options.quality));
+        }
+        Self {
+            source_text,
+            source_path,
+            final_quality: options.quality,
+            bake_choice: options.quality,
+            camera,
+            initial_camera: camera,
+            scene_lights: lights.clone(),
+            lights,
+            selected_light: 0,
+            lights_error: None,
+            controls: default_controls(&shown),
+            scene_file,
+            baker,
+            worker,
+            next_fabric_id: 1,
+            uploading: Vec::new(),
+            fabric: None,
+            generation: 0,
+            edit_generation: 0,
+            view_key: None,
+            last_edit: Instant::now(),
+            failed_generation: None,
+            in_flight: None,
+            accumulation: None,
+            texture: None,
+            texture_dirty: false,
+            shown_tone: (f64::NAN, true),
+            viewport_px: [0, 0],
+            viewport_rect_px: egui::Rect::NOTHING,
+            cost_ns_per_pixel_sample: None,
+            export_form: ExportForm::default(),
+            export_status: ExportStatus::Idle,
+            last_export: None,
+            messages,
+            script: script.map(|lines| ScriptRun {
+                lines,
+                next: 0,
+                step_started: Instant::now(),
+                screenshot: Arc::default(),
+                screenshot_rect: None,
+                errors_seen: 0,
+                expected_error_seen: false,
+                finished: false,
+            }),
+            outcome,
+        }
+    }
+
+    fn start_bake(&mut self, quality: Quality) {
+        if let Some(file) = &self.scene_file {
+            let sequence = if self.fabric.is_none() { bake_sequence(quality) } else { vec![quality] };
+            self.baker.start(file.clone(), sequence);
+            self.final_quality = quality;
+        }
+    }
+
+    fn handle_bake_events(&mut self) {
+        for event in self.baker.poll() {
+            match event {
+                BakeEvent::Ready(bake) => {
+                    let Some(worker) = &self.worker else { continue };
+                    let fabric_id = self.next_fabric_id;
+                    self.next_fabric_id += 1;
+                    self.uploading.push((fabric_id, bake.seconds, bake.computed.len()));
+                    worker.set_fabric(NewFabric {
+                        fabric_id,
+                        quality: bake.quality,
+                        baked: bake.baked,
+                        scene: bake.scene,
+                    });
+                }
+                BakeEvent::Failed { message } => self.messages.error(message),
+            }
+        }
+    }
+
+    fn handle_worker_events(&mut self) {
+        let Some(worker) = &self.worker else { return };
+        for event in worker.poll() {
+            match event {
+                WorkerEvent::FabricReady { fabric_id, quality, adapter, resident_bytes, bounds, seconds } => {
+                    let (bake_seconds, computed_stages) = self
+                        .uploading
+                        .iter()
+                        .find(|(id, ..)| *id == fabric_id)
+                        .map_or((0.0, 0), |(_, s, c)| (*s, *c));
+                    self.uploading.retain(|(id, ..)| *id > fabric_id);
+                    self.fabric = Some(FabricInfo {
+                        id: fabric_id,
+                        quality,
+                        bake_seconds,
+                        computed_stages,
+                        upload_seconds: seconds,
+                        adapter,
+                        resident_bytes,
+                        bounds,
+                    });
+                }
+                WorkerEvent::FabricFailed { message } => self.messages.error(message),
+                WorkerEvent::Frame(result) => {
+                    if self.in_flight.as_ref() == Some(&result.request) {
+                        self.in_flight = None;
+                    }
+                    let s = &result.request.settings;
+                    let work = f64::from(s.width) * f64::from(s.height) * f64::from(s.spp.max(1));
+                    let cost = result.wall_ms * 1e6 / work.max(1.0);
+                    self.cost_ns_per_pixel_sample =
+                        Some(self.cost_ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
+                    if Accumulation::add(&mut self.accumulation, &result) != Added::Dropped {
+                        self.texture_dirty = true;
+                    }
+                }
+                WorkerEvent::FrameFailed { generation, message } => {
+                    self.in_flight = None;
+                    if self.failed_generation != Some(generation) {
+                        self.failed_generation = Some(generation);
+                        self.messages.error(message);
+                    }
+                }
+                WorkerEvent::ExportProgress { done, total } => {
+                    self.export_status = ExportStatus::Running { done, total };
+                }
+                WorkerEvent::ExportDone { files, seconds } => {
+                    self.export_status = ExportStatus::Idle;
+                    self.last_export = Some(ExportOutcome::Done);
+                    let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+                    self.messages.info(format!("exported {} in {seconds:.1} s", names.join(" and ")));
+                }
+                WorkerEvent::ExportFailed { message } => {
+                    self.export_status = ExportStatus::Idle;
+                    self.last_export = Some(ExportOutcome::Failed(message.clone()));
+                    self.messages.error(message);
+                }
+            }
+        }
+    }
+
+    fn refresh_texture(&mut self, ctx: &egui::Context) {
+        let tone = (self.controls.exposure, self.controls.filmic);
+        if tone != self.shown_tone {
+            self.texture_dirty = true;
+        }
+        let Some(acc) = self.accumulation.as_ref().filter(|_| self.texture_dirty) else { return };
+        let rgba = acc.display_rgba8(tone.0, tone.1);
+        let image =
+            egui::ColorImage::from_rgba_unmultiplied([acc.width as usize, acc.height as usize], &rgba);
+        match &mut self.texture {
+            Some(texture) => texture.set(image, egui::TextureOptions::LINEAR),
+            None => {
+                self.texture = Some(ctx.load_texture("twill.viewport", image, egui::TextureOptions::LINEAR));
+            }
+        }
+        self.texture_dirty = false;
+        self.shown_tone = tone;
+    }
+
+    fn fit_view(&mut self) -> Result<(), String> {
+        let fabric = self.fabric.as_ref().ok_or("no fabric on screen yet")?;
+        let [w, h] = self.viewport_px;
+        let (lo, hi) = fabric.bounds;
+        self.camera.fit(lo.as_dvec3(), hi.as_dvec3(), f64::from(w.max(1)) / f64::from(h.max(1)));
+        Ok(())
+    }
+
+    fn current_lights(&self) -> Result<Vec<Light>, String> {
+        self.lights
+            .iter()
+            .enumerate()
+            .map(|(i, l)| l.light().map_err(|e| format!("light {i}: {e}")))
+            .collect()
+    }
+
+    /// Whether the accumulation on screen is of the current view at the viewport's full size.
+    fn picture_is_current(&self) -> bool {
+        match (&self.accumulation, &self.fabric) {
+            (Some(acc), Some(fabric)) => {
+                acc.generation == self.generation
+                    && acc.fabric_id == fabric.id
+                    && [acc.width, acc.height] == self.viewport_px
+            }
+            _ => false,
+        }
+    }
+
+    fn top_bar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            ui.label(egui::RichText::new("twill").strong());
+            ui.label(egui::RichText::new(self.source_path.display().to_string()).weak());
+            ui.separator();
+            let has_fabric = self.fabric.is_some();
+            if ui
+                .add_enabled(has_fabric, egui::Button::new("Fit view (F)"))
+                .on_hover_text("Frame the whole fabric")
+                .clicked()
+            {
+                let _ = self.fit_view();
+            }
+            if ui.button("Reset view").on_hover_text("The scene's camera").clicked() {
+                self.camera = self.initial_camera;
+            }
+            ui.separator();
+            match (self.baker.progress(), &self.fabric) {
+                (Some(p), _) => {
+                    ui.label(format!("baking {} ({:.0}%)", p.quality.name(), 100.0 * p.overall));
+                }
+                (None, Some(f)) => {
+                    ui.label(format!("{} bake", f.quality.name()));
+                }
+                (None, None) => {}
+            }
+        });
+    }
+
+    /// The messages, over the bottom of the viewport (`area`).
+    fn messages_overlay(&mut self, ctx: &egui::Context, area: egui::Rect) {
+        self.messages.shown.retain(|(level, _, at)| *level == Level::Error || at.elapsed() < INFO_SECONDS);
+        if self.messages.shown.is_empty() || !area.is_positive() {
+            return;
+        }
+        if self.messages.shown.iter().any(|(level, ..)| *level == Level::Info) {
+            ctx.request_repaint_after(Duration::from_secs(1));
+        }
+        let mut remove = None;
+        let width = (area.width() - 16.0).max(100.0);
+        egui::Area::new(egui::Id::unique("twill.messages"))
+            .order(egui::Order::Foreground)
+            .pivot(egui::Align2::LEFT_BOTTOM)
+            .fixed_pos(area.left_bottom() + egui::vec2(8.0, -26.0))
+            .show(ctx, |ui| {
+                egui::Frame::popup(ui.style()).show(ui, |ui| {
+                    ui.set_max_width(width);
+                    egui::ScrollArea::vertical().max_height(140.0).show(ui, |ui| {
+                        remove = self.messages_list(ui);
+                    });
+                });
+            });
+        if let Some(i) = remove {
+            self.messages.shown.remove(i);
+        }
+    }
+
+    /// The messages with their dismiss buttons; returns the one dismissed.
+    fn messages_list(&self, ui: &mut egui::Ui) -> Option<usize> {
+        let mut remove = None;
+        {
+            for (i, (level, text, _)) in self.messages.shown.iter().enumerate() {
+                ui.horizontal(|ui| {
+                    if ui.small_button("×").on_hover_text("Dismiss").clicked() {
+                        remove = Some(i);
+                    }
+                    let colour = match level {
+                        Level::Error => ui.visuals().error_fg_color,
+                        Level::Info => ui.visuals().text_color(),
+                    };
+                    ui.add(egui::Label::new(egui::RichText::new(text).color(colour)).wrap());
+                });
+            }
+        }
+        remove
+    }
+
+    fn left_panel(&mut self, ui: &mut egui::Ui) {
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            egui::CollapsingHeader::new("Lights").default_open(true).show(ui, |ui| {
+                let outcome = lights_panel(
+                    ui,
+                    &mut self.lights,
+                    &mut self.selected_light,
+                    &self.scene_lights,
+                    self.camera.yaw_deg,
+                );
+                if outcome.changed {
+                    ui.ctx().request_repaint();
+                }
+                if let Some(e) = &self.lights_error {
+                    ui.colored_label(ui.visuals().error_fg_color, e);
+                }
+            });
+            egui::CollapsingHeader::new("Export").default_open(true).show(ui, |ui| {
+                let size = (self.viewport_px[0] > 0).then_some(self.viewport_px);
+                let can_export = self.fabric.is_some() && self.worker.is_some();
+                match export_panel(ui, &mut self.export_form, &self.export_status, size, can_export) {
+                    Some(ExportAction::Start) => {
+                        let form = self.export_form.clone();
+                        if let Err(e) = self.start_export(&form) {
+                            self.messages.error(e);
+                        }
+                    }
+                    Some(ExportAction::Cancel) => {
+                        if let Some(worker) = &self.worker {
+                            worker.cancel_export();
+                        }
+                    }
+                    None => {}
+                }
+            });
+        });
+    }
+
+    fn right_panel(&mut self, ui: &mut egui::Ui) {
+        let view = QualityView {
+            fabric: self.fabric.as_ref(),
+            bake: self.baker.progress(),
+            accumulation: self.accumulation.as_ref(),
+            current: self.picture_is_current(),
+            full_size: self.viewport_px,
+            interaction_scale: self.interaction_scale(),
+        };
+        let (controls, bake_choice) = (&mut self.controls, &mut self.bake_choice);
+        let action =
+            egui::ScrollArea::vertical().show(ui, |ui| quality_panel(ui, controls, &view, bake_choice)).inner;
+        match action {
+            Some(QualityAction::Bake(q)) => self.start_bake(q),
+            Some(QualityAction::CancelBake) => self.baker.cancel(),
+            None => {}
+        }
+    }
+
+    fn viewport(&mut self, ui: &mut egui::Ui) {
+        let ppp = ui.ctx().pixels_per_point();
+        let available = ui.available_rect_before_wrap();
+        // Whole physical pixels, so the picture maps 1:1 onto the screen.
+        let min_px = (available.min.to_vec2() * ppp).round();
+        let size_px = (available.size() * ppp).floor().max(egui::Vec2::ZERO);
+        let rect = egui::Rect::from_min_size((min_px / ppp).to_pos2(), size_px / ppp);
+        let response = ui.allocate_rect(rect, egui::Sense::click_and_drag());
+        self.viewport_px = [size_px.x as u32, size_px.y as u32];
+        self.viewport_rect_px = egui::Rect::from_min_size(min_px.to_pos2(), size_px);
+
+        let delta = response.drag_delta();
+        if response.dragged_by(egui::PointerButton::Primary) {
+            self.camera.orbit_by_drag(f64::from(delta.x), f64::from(delta.y));
+        } else if response.dragged_by(egui::PointerButton::Secondary)
+            || response.dragged_by(egui::PointerButton::Middle)
+        {
+            self.camera.pan_by_drag(f64::from(delta.x), f64::from(delta.y), f64::from(rect.height()));
+        }
+        if response.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            if scroll != 0.0 {
+                self.camera.zoom((-f64::from(scroll) * 0.002).exp());
+            }
+        }
+        let fit_key = !ui.ctx().egui_wants_keyboard_input() && ui.input(|i| i.key_pressed(egui::Key::F));
+        if response.double_clicked() || fit_key {
+            let _ = self.fit_view();
+        }
+
+        let painter = ui.painter_at(rect);
+        painter.rect_filled(rect, 0.0, egui::Color32::from_gray(18));
+        if let Some(texture) = &self.texture {
+            let [w, h] = texture.size().map(|s| s as f32);
+            let scale = (rect.width() / w).min(rect.height() / h);
+            let image_rect = egui::Rect::from_center_size(rect.center(), egui::vec2(w, h) * scale);
+            let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+            painter.image(texture.id(), image_rect, uv, egui::Color32::WHITE);
+        } else {
+            let text = if self.scene_file.is_none() {
+                "The scene could not be loaded: see the messages.".to_owned()
+            } else if let Some(p) = self.baker.progress() {
+                format!("Baking the {} fabric… {:.0}%", p.quality.name(), 100.0 * p.overall)
+            } else if self.fabric.is_some() {
+                "Rendering…".to_owned()
+            } else {
+                "No fabric: see the messages.".to_owned()
+            };
+            painter.text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                text,
+                egui::FontId::proportional(16.0),
+                egui::Color32::from_gray(200),
+            );
+        }
+        let status = match &self.accumulation {
+            Some(acc) => {
+                let state = if self.picture_is_current() { "" } else { " · updating" };
+                format!("{} spp · {}×{}{state}", acc.samples, acc.width, acc.height)
+            }
+            None => String::new(),
+        };
+        overlay_text(&painter, rect.left_top() + egui::vec2(4.0, 4.0), egui::Align2::LEFT_TOP, status);
+        overlay_text(
+            &painter,
+            rect.left_bottom() + egui::vec2(4.0, -4.0),
+            egui::Align2::LEFT_BOTTOM,
+            "drag: orbit · right/middle drag: pan · scroll: zoom · F: fit".into(),
+        );
+    }
+
+    /// Compares the view with the last one and asks the worker for the next batch.
+    fn schedule(&mut self, ctx: &egui::Context) {
+        let lights = match self.current_lights() {
+            Ok(lights) => {
+                self.lights_error = None;
+                lights
+            }
+            Err(e) => {
+                self.lights_error = Some(e);
+                return;
+            }
+        };
+        let (Some(worker), Some(fabric)) = (&self.worker, &self.fabric) else { return };
+        let [w, h] = self.viewport_px;
+        if w < MIN_VIEWPORT_PX || h < MIN_VIEWPORT_PX {
+            return;
+        }
+        let key = ViewKey {
+            fabric_id: fabric.id,
+            camera: self.camera.section(),
+            lights,
+            components: self.controls.components,
+            gpu: self.controls.gpu,
+            size: [w, h],
+        };
+        if self.view_key.as_ref() != Some(&key) {
+            self.generation += 1;
+            if self.view_key.as_ref().is_some_and(|old| !old.same_edit(&key)) {
+                self.last_edit = Instant::now();
+                self.edit_generation = self.generation;
+            }
+            self.view_key = Some(key.clone());
+        }
+        if self.failed_generation == Some(self.generation) {
+            return;
+        }
+        let since_edit = self.last_edit.elapsed();
+        let scale = self.interaction_scale();
+        // A reduced preview while edits come in, and as the first picture after an edit (or the
+        // very first picture) even when the worker was too busy to show one in time.
+        let shown_since_edit =
+            self.accumulation.as_ref().is_some_and(|a| a.generation >= self.edit_generation);
+        let interacting = scale < 1.0 && (since_edit < INTERACTION_SETTLE || !shown_since_edit);
+        let size = if interacting {
+            let s = scale;
+            [((f64::from(w) * s).round() as u32).max(1), ((f64::from(h) * s).round() as u32).max(1)]
+        } else {
+            [w, h]
+        };
+        if interacting {
+            ctx.request_repaint_after(INTERACTION_SETTLE.saturating_sub(since_edit));
+        }
+        let first_sample = match &self.accumulation {
+            Some(acc)
+                if acc.generation == self.generation
+                    && acc.fabric_id == fabric.id
+                    && [acc.width, acc.height] == size =>
+            {
+                acc.samples
+            }
+            _ => 0,
+        };
+        let target = if interacting { 1 } else { self.controls.target_spp.max(1) };
+        if first_sample >= target {
+            worker.clear_frame_request();
+            return;
+        }
+        // Batches double (1, 1, 2, 4, ...) but stay near BATCH_BUDGET_MS at the measured cost.
+        let affordable = self.cost_ns_per_pixel_sample.map_or(1, |cost| {
+            let per_sample_ms = cost * f64::from(size[0]) * f64::from(size[1]) * 1e-6;
+            (BATCH_BUDGET_MS / per_sample_ms.max(1e-6)).floor().clamp(1.0, f64::from(MAX_BATCH_SPP)) as u32
+        });
+        let spp = if first_sample == 0 {
+            1
+        } else {
+            first_sample.min(MAX_BATCH_SPP).min(affordable).min(target - first_sample)
+        };
+        let request = FrameRequest {
+            generation: self.generation,
+            fabric_id: fabric.id,
+            camera: key.camera,
+            lights: key.lights,
+            settings: FrameSettings {
+                width: size[0],
+                height: size[1],
+                spp,
+                // The viewer tone maps on the CPU (exposure edits need no new samples).
+                exposure: 0.0,
+                filmic: true,
+                components: key.components,
+                gpu: key.gpu,
+            },
+            first_sample,
+        };
+        if self.in_flight.as_ref() != Some(&request) {
+            worker.request_frame(request.clone());
+            self.in_flight = Some(request);
+        }
+    }
+
+    /// The fraction of the viewport rendered while the view changes: the chosen one, or with
+    /// "auto" the one whose frame takes about `INTERACTION_BUDGET_MS` at the measured cost.
+    fn interaction_scale(&self) -> f64 {
+        let (lo, hi) = INTERACTION_SCALE_RANGE;
+        if !self.controls.interaction_auto {
+            return self.controls.interaction_scale.clamp(lo, hi);
+        }
+        let [w, h] = self.viewport_px;
+        let pixels = f64::from(w) * f64::from(h);
+        match self.cost_ns_per_pixel_sample {
+            Some(cost) if pixels > 0.0 => {
+                let scale = (INTERACTION_BUDGET_MS * 1e6 / (cost * pixels)).sqrt().clamp(lo, hi);
+                // Whole sixteenths, so the size does not change with every measurement.
+                ((scale * 16.0).floor() / 16.0).clamp(lo, hi)
+            }
+            _ => 0.5,
+        }
+    }
+
+    fn start_export(&mut self, form: &ExportForm) -> Result<(), String> {
+        let worker = self.worker.as_ref().ok_or("no GPU device: nothing can be exported")?;
+        if self.fabric.is_none() {
+            return Err("no fabric on screen yet: nothing to export".into());
+        }
+        if matches!(self.export_status, ExportStatus::Running { .. }) {
+            return Err("an export is already running".into());
+        }
+        let scene = self.scene_file.as_ref().ok_or("no scene")?;
+        let path = PathBuf::from(form.path.trim());
+        ExportFormat::of(&path)?;
+        let lights = self.current_lights()?;
+        let sections: Vec<_> = self.lights.iter().map(LightEdit::section).collect();
+        let camera = self.camera.section();
+        let c = &self.controls;
+        let render = RenderSection {
+            width: form.width as usize,
+            height: form.height as usize,
+            spp: form.spp,
+            exposure: c.exposure,
+            ..scene.render
+        };
+        let view = ViewSettings { camera, lights: &sections, render, gpu: c.gpu };
+        let mut toml = scene_toml(&self.source_text, &self.source_path, &view)?;
+        if c.components != Components::All {
+            let only = if c.components == Components::SingleOnly { "single" } else { "multiple" };
+            toml = format!("# Exported with only {only} scattering: twill render --only {only}\n{toml}");
+        }
+        worker.export(ExportRequest {
+            camera,
+            lights,
+            settings: FrameSettings {
+                width: form.width,
+                height: form.height,
+                spp: form.spp,
+                exposure: c.exposure,
+                filmic: c.filmic,
+                components: c.components,
+                gpu: c.gpu,
+            },
+            image_path: path,
+            scene_toml: toml,
+        });
+        self.export_status = ExportStatus::Running { done: 0, total: form.spp };
+        self.last_export = None;
+        Ok(())
+    }
+
+    fn run_script(&mut self, ctx: &egui::Context) {
+        let Some(mut run) = self.script.take() else { return };
+        if !run.finished {
+            let before = run.next;
+            if let Err(message) = self.advance_script(&mut run, ctx) {
+                self.finish_script(&mut run, ctx, Err(message));
+            } else if run.next >= run.lines.len() {
+                self.finish_script(&mut run, ctx, Ok(()));
+            } else if run.next != before {
+                ctx.request_repaint();
+            } else {
+                // Waiting: the worker, the bake thread and the screenshot wake the window; this
+                // only bounds how late a timeout is noticed.
+                ctx.request_repaint_after(SCRIPT_POLL);
+            }
+        }
+        self.script = Some(run);
+    }
+
+    fn advance_script(&mut self, run: &mut ScriptRun, ctx: &egui::Context) -> Result<(), String> {
+        let Some(line) = run.lines.get(run.next).cloned() else { return Ok(()) };
+        let at = |message: String| format!("script line {} ({}): {message}", line.line, line.text);
+        while run.errors_seen < self.messages.errors.len() {
+            let error = &self.messages.errors[run.errors_seen];
+            run.errors_seen += 1;
+            match &line.step {
+                Step::ExpectError(text) if error.contains(text.as_str()) => run.expected_error_seen = true,
+                _ => return Err(at(format!("the viewer showed an error: {error}"))),
+            }
+        }
+        if self.script_step(&line.step, run, ctx).map_err(at)? {
+            eprintln!(
+                "script line {}: {} (done after {:.1} s)",
+                line.line,
+                line.text,
+                run.step_started.elapsed().as_secs_f64()
+            );
+            run.next += 1;
+            run.step_started = Instant::now();
+            run.expected_error_seen = false;
+            run.screenshot_rect = None;
+        } else if run.step_started.elapsed() > STEP_TIMEOUT {
+            return Err(at(format!("still waiting after {} s", STEP_TIMEOUT.as_secs())));
+        }
+        Ok(())
+    }
+
+    fn finish_script(&mut self, run: &mut ScriptRun, ctx: &egui::Context, result: Result<(), String>) {
+        run.finished = true;
+        match &result {
+            Ok(()) => eprintln!("script finished"),
+            Err(e) => eprintln!("script failed: {e}"),
+        }
+        *self.outcome.lock().unwrap_or_else(PoisonError::into_inner) = Some(result);
+        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+    }
+
+    /// Plays one step; `Ok(true)` when it is done, `Ok(false)` while it waits.
+    fn script_step(&mut self, step: &Step, run: &mut ScriptRun, ctx: &egui::Context) -> Result<bool, String> {
+        match step {
+            Step::WaitFabric(q) => Ok(self.fabric.as_ref().is_some_and(|f| {
+                f.quality == *q && self.accumulation.as_ref().is_some_and(|a| a.fabric_id == f.id)
+            })),
+            Step::Bake(q) => {
+                self.start_bake(*q);
+                Ok(true)
+            }
+            Step::CancelBake => {
+                self.baker.cancel();
+                Ok(true)
+            }
+            Step::Orbit { yaw_deg, pitch_deg } => {
+                self.camera.orbit(*yaw_deg, *pitch_deg);
+                Ok(true)
+            }
+            Step::Zoom(factor) => {
+                self.camera.zoom(*factor);
+                Ok(true)
+            }
+            Step::Fit => self.fit_view().map(|()| true),
+            Step::Light { index, field } => {
+                let count = self.lights.len();
+                let light =
+                    self.lights.get_mut(*index).ok_or(format!("no light {index}: the scene has {count}"))?;
+                apply_light_field(light, *field)?;
+                Ok(true)
+            }
+            Step::AddLight(kind) => {
+                if self.lights.len() >= MAX_VIEWER_LIGHTS {
+                    return Err(format!("at most {MAX_VIEWER_LIGHTS} lights"));
+                }
+                self.lights.push(new_light(*kind, self.camera.yaw_deg));
+                Ok(true)
+            }
+            Step::RemoveLight(index) => {
+                if *index >= self.lights.len() || self.lights.len() == 1 {
+                    return Err(format!("cannot remove light {index} of {}", self.lights.len()));
+                }
+                self.lights.remove(*index);
+                Ok(true)
+            }
+            Step::Preset(name) => {
+                let p = preset(name).ok_or_else(|| {
+                    let names: Vec<_> = super::lights::ENVIRONMENT_PRESETS.iter().map(|p| p.name).collect();
+                    format!("unknown preset {name:?}; presets: {}", names.join(", "))
+                })?;
+                self.lights = (p.lights)();
+                self.selected_light = 0;
+                Ok(true)
+            }
+            Step::Set(setting) => {
+                apply_setting(&mut self.controls, *setting)?;
+                Ok(true)
+            }
+            Step::WaitSpp(n) => {
+                let samples = self.accumulation.as_ref().map_or(0, |a| a.samples);
+                if !self.picture_is_current() || self.texture_dirty || samples < *n {
+                    return Ok(false);
+                }
+                if samples > *n {
+                    return Err(format!(
+                        "the picture has {samples} samples, more than {n}: lower the target with \
+                         `set spp {n}` before the view settles"
+                    ));
+                }
+                Ok(true)
+            }
+            Step::Screenshot(path) => {
+                if run.screenshot_rect.is_none() {
+                    run.screenshot_rect = Some(self.viewport_rect_px);
+                    let (slot, repaint) = (Arc::clone(&run.screenshot), ctx.clone());
+                    ctx.request_screenshot(move |image| {
+                        *slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(image);
+                        repaint.request_repaint();
+                    });
+                    return Ok(false);
+                }
+                let Some(image) = run.screenshot.lock().unwrap_or_else(PoisonError::into_inner).take() else {
+                    return Ok(false);
+                };
+                let rect = run.screenshot_rect.unwrap_or(egui::Rect::NOTHING);
+                write_screenshots(path, &image, rect)?;
+                Ok(true)
+            }
+            Step::Export { path, width, height, spp } => {
+                let form = ExportForm {
+                    path: path.display().to_string(),
+                    width: *width,
+                    height: *height,
+                    spp: *spp,
+                };
+                self.start_export(&form)?;
+                Ok(true)
+            }
+            Step::WaitExport => match (&self.export_status, &self.last_export) {
+                (ExportStatus::Running { .. }, _) => Ok(false),
+                (ExportStatus::Idle, Some(ExportOutcome::Done)) => Ok(true),
+                (ExportStatus::Idle, Some(ExportOutcome::Failed(e))) => {
+                    Err(format!("the export failed: {e}"))
+                }
+                (ExportStatus::Idle, None) => Err("no export was started".into()),
+            },
+            Step::ExpectError(_) => Ok(run.expected_error_seen),
+            Step::Quit => {
+                run.next = run.lines.len() - 1;
+                Ok(true)
+            }
+        }
+    }
+}
+
+/// Small text on a dark plate over the picture.
+fn overlay_text(painter: &egui::Painter, anchor: egui::Pos2, align: egui::Align2, text: String) {
+    if text.is_empty() {
+        return;
+    }
+    let galley =
+        painter.layout_no_wrap(text, egui::FontId::proportional(12.0), egui::Color32::from_gray(210));
+    let rect = align.anchor_size(anchor, galley.size()).expand(2.0);
+    painter.rect_filled(rect, 3.0, egui::Color32::from_black_alpha(150));
+    painter.galley(rect.min + egui::vec2(2.0, 2.0), galley, egui::Color32::from_gray(210));
+}
+
+/// The device the renderer runs on: eframe's own, except on a software adapter (lavapipe),
+/// whose single queue runs one submission at a time, so the window's frames would wait behind
+/// every fabric frame (seconds each): there the renderer gets a device of its own.
+/// `TWILL_VIEWER_DEVICE=shared|separate` overrides the choice.
+fn render_device(state: &eframe::egui_wgpu::RenderState) -> Result<DeviceHandles, String> {
+    let info = state.adapter.get_info();
+    let separate = match std::env::var("TWILL_VIEWER_DEVICE").as_deref() {
+        Ok("shared") => false,
+        Ok("separate") => true,
+        _ => info.device_type == wgpu::DeviceType::Cpu,
+    };
+    if !separate {
+        return Ok(DeviceHandles {
+            adapter_info: info,
+            device: state.device.clone(),
+            queue: state.queue.clone(),
+        });
+    }
+    let gpu = twill_renderer::gpu::Gpu::headless()
+        .map_err(|e| format!("could not open a render device beside the window's: {e}"))?;
+    Ok(DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue })
+}
+
+/// The bakes to run for a final quality: draft first, for a quick first picture.
+fn bake_sequence(quality: Quality) -> Vec<Quality> {
+    if quality == Quality::Draft { vec![Quality::Draft] } else { vec![Quality::Draft, quality] }
+}
+
+fn apply_light_field(light: &mut LightEdit, field: LightField) -> Result<(), String> {
+    match field {
+        LightField::Azimuth(a) => light.azimuth_deg = super::lights::wrap_degrees(a),
+        LightField::Elevation(e) if (-90.0..=90.0).contains(&e) => light.elevation_deg = e,
+        LightField::Elevation(e) => return Err(format!("elevation {e} is outside -90..=90")),
+        LightField::Sharpness(s) => {
+            let (lo, hi) = SG_SHARPNESS_RANGE;
+            if !(lo..=hi).contains(&s) {
+                return Err(format!("sharpness {s} is outside {lo}..={hi}"));
+            }
+            light.sharpness = s;
+        }
+        LightField::Intensity(i) if i >= 0.0 => light.intensity = i,
+        LightField::Intensity(i) => return Err(format!("intensity {i} is negative")),
+        LightField::Colour(rgb) => {
+            let (colour, scale) = super::lights::split_colour(rgb.map(f64::from));
+            light.colour = colour;
+            light.intensity *= scale;
+        }
+    }
+    Ok(())
+}
+
+fn apply_setting(controls: &mut RenderControls, setting: Setting) -> Result<(), String> {
+    let out_of = |what: &str, lo: f64, hi: f64| Err(format!("{what} must be in {lo}..={hi}"));
+    match setting {
+        Setting::Exposure(e) if (-30.0..=30.0).contains(&e) => controls.exposure = e,
+        Setting::Exposure(_) => return out_of("exposure", -30.0, 30.0),
+        Setting::Spp(n) if (TARGET_SPP_RANGE.0..=TARGET_SPP_RANGE.1).contains(&n) => controls.target_spp = n,
+        Setting::Spp(_) => {
+            return out_of("spp", f64::from(TARGET_SPP_RANGE.0), f64::from(TARGET_SPP_RANGE.1));
+        }
+        Setting::VolumeSamples(n) if (VOLUME_SAMPLES_RANGE.0..=VOLUME_SAMPLES_RANGE.1).contains(&n) => {
+            controls.gpu.volume_samples = n;
+        }
+        Setting::VolumeSamples(_) => {
+            return out_of(
+                "volume samples",
+                f64::from(VOLUME_SAMPLES_RANGE.0),
+                f64::from(VOLUME_SAMPLES_RANGE.1),
+            );
+        }
+        Setting::SigmaGlo(s) if (SIGMA_GLO_RANGE_CM.0..=SIGMA_GLO_RANGE_CM.1).contains(&s) => {
+            controls.gpu.sigma_glo_cm = s;
+        }
+        Setting::SigmaGlo(_) => return out_of("sigma_glo", SIGMA_GLO_RANGE_CM.0, SIGMA_GLO_RANGE_CM.1),
+        Setting::InteractionScale(s)
+            if (INTERACTION_SCALE_RANGE.0..=INTERACTION_SCALE_RANGE.1).contains(&s) =>
+        {
+            controls.interaction_auto = false;
+            controls.interaction_scale = s;
+        }
+        Setting::InteractionScale(_) => {
+            return out_of("interaction scale", INTERACTION_SCALE_RANGE.0, INTERACTION_SCALE_RANGE.1);
+        }
+    }
+    Ok(())
+}
+
+/// Writes the window screenshot to `path` and the viewport part of it beside it.
+fn write_screenshots(path: &Path, image: &egui::ColorImage, viewport_px: egui::Rect) -> Result<(), String> {
+    let [w, h] = image.size;
+    let rgb: Vec<u8> = image.pixels.iter().flat_map(|c| [c.r(), c.g(), c.b()]).collect();
+    write_rgb8_png(path, w as u32, h as u32, &rgb).map_err(|e| format!("{}: {e}", path.display()))?;
+    let x0 = (viewport_px.min.x.max(0.0) as usize).min(w);
+    let y0 = (viewport_px.min.y.max(0.0) as usize).min(h);
+    let x1 = (viewport_px.max.x.max(0.0) as usize).min(w);
+    let y1 = (viewport_px.max.y.max(0.0) as usize).min(h);
+    if x1 <= x0 || y1 <= y0 {
+        return Err(format!("the viewport {viewport_px:?} is not inside the {w}x{h} screenshot"));
+    }
+    let mut crop = Vec::with_capacity((x1 - x0) * (y1 - y0) * 3);
+    for y in y0..y1 {
+        crop.extend_from_slice(&rgb[(y * w + x0) * 3..(y * w + x1) * 3]);
+    }
+    let crop_path = viewport_screenshot_path(path);
+    write_rgb8_png(&crop_path, (x1 - x0) as u32, (y1 - y0) as u32, &crop)
+        .map_err(|e| format!("{}: {e}", crop_path.display()))?;
+    eprintln!(
+        "screenshot: {} ({w}x{h}) and {} ({}x{})",
+        path.display(),
+        crop_path.display(),
+        x1 - x0,
+        y1 - y0
+    );
+    Ok(())
+}
+
+impl eframe::App for ViewerApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        self.handle_bake_events();
+        self.handle_worker_events();
+        self.refresh_texture(&ctx);
+
+        egui::Panel::top("twill.top").show(ui, |ui| self.top_bar(ui));
+        egui::Panel::left("twill.left")
+            .resizable(true)
+            .default_size(LEFT_PANEL_WIDTH)
+            .size_range(220.0..=640.0)
+            .show(ui, |ui| {
+                ui.spacing_mut().slider_width = SLIDER_WIDTH;
+                self.left_panel(ui);
+            });
+        egui::Panel::right("twill.right")
+            .resizable(true)
+            .default_size(RIGHT_PANEL_WIDTH)
+            .size_range(220.0..=640.0)
+            .show(ui, |ui| {
+                ui.spacing_mut().slider_width = SLIDER_WIDTH;
+                self.right_panel(ui);
+            });
+        egui::CentralPanel::no_frame().show(ui, |ui| self.viewport(ui));
+        let viewport = egui::Rect::from_min_size(
+            (self.viewport_rect_px.min.to_vec2() / ctx.pixels_per_point()).to_pos2(),
+            self.viewport_rect_px.size() / ctx.pixels_per_point(),
+        );
+        self.messages_overlay(&ctx, viewport);
+
+        self.schedule(&ctx);
+        self.run_script(&ctx);
+    }
+}

@@ -1,0 +1,275 @@
+//! Background baking: the fabric's precomputation runs on its own thread while the viewer
+//! keeps drawing, first at draft quality (for a first picture within seconds) and then at the
+//! final quality, each result handed over as soon as it is ready.
+//!
+//! How it works: [`Baker::start`] cancels the bake in flight (its [`Cancel`] token; the old
+//! thread stops at its next check and reports nothing) and spawns a thread that builds the
+//! scene (fabric exemplar, materials), then bakes each requested quality in turn through the
+//! stage cache (the same cache `twill bake` and `twill render` use, so a quality baked before
+//! loads in a moment). Progress comes from the pipeline's `&|stage, fraction|` callback and is
+//! kept in a shared [`BakeProgress`] that the quality panel reads; the overall fraction weights
+//! each stage by its typical share of a bake's time, which is also what the ETA extrapolates
+//! (a rough guide, not a promise). Finished bakes and failures arrive as [`BakeEvent`]s; the
+//! viewer forwards a finished bake to the render worker, and keeps showing the old picture until
+//! the new fabric's first frame is ready.
+
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use eframe::egui;
+use twill_precompute::bake::Cancel;
+use twill_precompute::bake::pipeline::{BakeError, BakeInputs, Baked, Stage, bake};
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::scene::{Scene, SceneFile};
+
+/// Typical share of a bake's time per stage, in [`Stage::ALL`] order (from docs/BENCHMARKS.md:
+/// visibility and the IIRTF dominate).
+const STAGE_WEIGHTS: [f64; 7] = [0.05, 0.45, 0.35, 0.07, 0.03, 0.02, 0.03];
+/// How often a running bake asks the window to redraw its progress.
+const PROGRESS_REPAINT: Duration = Duration::from_millis(250);
+
+/// A finished bake of the scene's fabric.
+pub struct FabricBake {
+    pub quality: Quality,
+    pub baked: Arc<Baked>,
+    pub scene: Arc<Scene>,
+    /// Wall time of this quality's bake (cached stages load in milliseconds).
+    pub seconds: f64,
+    /// Stages computed rather than loaded from the cache.
+    pub computed: Vec<Stage>,
+}
+
+/// What the bake thread reports.
+pub enum BakeEvent {
+    Ready(FabricBake),
+    Failed { message: String },
+}
+
+/// Where the bake in flight is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BakeProgress {
+    pub quality: Quality,
+    pub stage: Option<Stage>,
+    pub stage_fraction: f64,
+    /// Fraction of the whole bake of this quality, stages weighted by [`STAGE_WEIGHTS`].
+    pub overall: f64,
+    pub started: Instant,
+}
+
+impl BakeProgress {
+    /// Seconds left, extrapolated from the time so far (None until there is something to go on).
+    #[must_use]
+    pub fn eta_seconds(&self) -> Option<f64> {
+        (self.overall > 0.02).then(|| {
+            let elapsed = self.started.elapsed().as_secs_f64();
+            elapsed * (1.0 - self.overall) / self.overall
+        })
+    }
+}
+
+/// Fraction of a whole bake done when `stage` is `fraction` done.
+#[must_use]
+pub fn overall_fraction(stage: Stage, fraction: f64) -> f64 {
+    let index = Stage::ALL.iter().position(|s| *s == stage).unwrap_or(0);
+    let before: f64 = STAGE_WEIGHTS[..index].iter().sum();
+    (before + STAGE_WEIGHTS[index] * fraction.clamp(0.0, 1.0)).min(1.0)
+}
+
+/// Shared between the bake thread and the viewer: which bake is current, and its progress.
+#[derive(Default)]
+struct Shared {
+    /// Id of the current bake; an older thread's reports are ignored.
+    current: u64,
+    progress: Option<BakeProgress>,
+}
+
+/// Runs bakes in the background (see the module docs).
+pub struct Baker {
+    shared: Arc<Mutex<Shared>>,
+    cancel: Option<Cancel>,
+    next_id: u64,
+    sender: Sender<(u64, BakeEvent)>,
+    receiver: Receiver<(u64, BakeEvent)>,
+    repaint: egui::Context,
+}
+
+impl Baker {
+    #[must_use]
+    pub fn new(repaint: egui::Context) -> Self {
+        let (sender, receiver) = channel();
+        Self { shared: Arc::default(), cancel: None, next_id: 1, sender, receiver, repaint }
+    }
+
+    /// Bakes `scene`'s fabric at each of `qualities` in turn, cancelling any bake in flight.
+    pub fn start(&mut self, scene: SceneFile, qualities: Vec<Quality>) {
+        self.cancel();
+        let id = self.next_id;
+        self.next_id += 1;
+        let cancel = Cancel::new();
+        self.cancel = Some(cancel.clone());
+        lock(&self.shared).current = id;
+        let (shared, sender, repaint) = (Arc::clone(&self.shared), self.sender.clone(), self.repaint.clone());
+        let spawned = std::thread::Builder::new().name("twill-bake".into()).spawn(move || {
+            run_bakes(id, &scene, &qualities, &cancel, &shared, &sender, &repaint);
+        });
+        if let Err(e) = spawned {
+            let message = format!("could not start the bake thread: {e}");
+            let _ = self.sender.send((id, BakeEvent::Failed { message }));
+        }
+    }
+
+    /// Stops the bake in flight, if any.
+    pub fn cancel(&mut self) {
+        if let Some(cancel) = self.cancel.take() {
+            cancel.cancel();
+        }
+        let mut shared = lock(&self.shared);
+        shared.current = 0;
+        shared.progress = None;
+    }
+
+    /// The progress of the bake in flight.
+    #[must_use]
+    pub fn progress(&self) -> Option<BakeProgress> {
+        lock(&self.shared).progress
+    }
+
+    /// Events of the current bake since the last call (those of superseded bakes are dropped).
+    pub fn poll(&self) -> Vec<BakeEvent> {
+        let current = lock(&self.shared).current;
+        self.receiver.try_iter().filter(|(id, _)| *id == current).map(|(_, e)| e).collect()
+    }
+}
+
+impl Drop for Baker {
+    fn drop(&mut self) {
+        self.cancel();
+    }
+}
+
+fn lock(shared: &Mutex<Shared>) -> std::sync::MutexGuard<'_, Shared> {
+    shared.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+fn run_bakes(
+    id: u64,
+    scene_file: &SceneFile,
+    qualities: &[Quality],
+    cancel: &Cancel,
+    shared: &Mutex<Shared>,
+    sender: &Sender<(u64, BakeEvent)>,
+    repaint: &egui::Context,
+) {
+    let report = |event: BakeEvent| {
+        let _ = sender.send((id, event));
+        repaint.request_repaint();
+    };
+    let set_progress = |progress: Option<BakeProgress>| {
+        let mut s = lock(shared);
+        if s.current == id {
+            s.progress = progress;
+        }
+    };
+    let first = qualities.first().copied().unwrap_or(Quality::Draft);
+    set_progress(Some(BakeProgress {
+        quality: first,
+        stage: None,
+        stage_fraction: 0.0,
+        overall: 0.0,
+        started: Instant::now(),
+    }));
+    let scene = match scene_file.build() {
+        Ok(scene) => Arc::new(scene),
+        Err(e) => {
+            set_progress(None);
+            report(BakeEvent::Failed { message: format!("the scene cannot be built: {e}") });
+            return;
+        }
+    };
+    let cache = match crate::commands::open_cache(None, false) {
+        Ok(cache) => cache,
+        Err(e) => {
+            log::warn!("baking without the stage cache: {e:#}");
+            None
+        }
+    };
+    for &quality in qualities {
+        let started = Instant::now();
+        set_progress(Some(BakeProgress { quality, stage: None, stage_fraction: 0.0, overall: 0.0, started }));
+        let last_repaint = Mutex::new(Instant::now());
+        let progress = |stage: Stage, fraction: f64| {
+            set_progress(Some(BakeProgress {
+                quality,
+                stage: Some(stage),
+                stage_fraction: fraction,
+                overall: overall_fraction(stage, fraction),
+                started,
+            }));
+            let mut last = last_repaint.lock().unwrap_or_else(PoisonError::into_inner);
+            if last.elapsed() >= PROGRESS_REPAINT {
+                *last = Instant::now();
+                repaint.request_repaint_after(PROGRESS_REPAINT);
+            }
+        };
+        let inputs = BakeInputs {
+            exemplar: &scene.exemplar,
+            materials: &scene.material_descs,
+            settings: quality.settings(),
+        };
+        match bake(&inputs, cache.as_ref(), cancel, &progress) {
+            Ok(outcome) => {
+                let computed = outcome.computed();
+                report(BakeEvent::Ready(FabricBake {
+                    quality,
+                    baked: Arc::new(outcome.baked),
+                    scene: Arc::clone(&scene),
+                    seconds: started.elapsed().as_secs_f64(),
+                    computed,
+                }));
+            }
+            Err(BakeError::Cancelled) => return,
+            Err(e) => {
+                set_progress(None);
+                report(BakeEvent::Failed { message: format!("the {} bake failed: {e}", quality.name()) });
+                return;
+            }
+        }
+    }
+    set_progress(None);
+    repaint.request_repaint();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overall_progress_runs_from_zero_to_one_in_stage_order() {
+        assert!((STAGE_WEIGHTS.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(overall_fraction(Stage::MeanFreePath, 0.0).abs() < 1e-12);
+        assert!((overall_fraction(Stage::Volume, 1.0) - 1.0).abs() < 1e-12);
+        let mut last = 0.0;
+        for stage in Stage::ALL {
+            for f in [0.0, 0.5, 1.0] {
+                let o = overall_fraction(stage, f);
+                assert!(o >= last, "{stage:?} {f}");
+                last = o;
+            }
+        }
+    }
+
+    #[test]
+    fn the_eta_extrapolates_the_elapsed_time() {
+        let p = BakeProgress {
+            quality: Quality::Draft,
+            stage: Some(Stage::Transfer),
+            stage_fraction: 0.5,
+            overall: 0.5,
+            started: Instant::now().checked_sub(Duration::from_secs(4)).unwrap(),
+        };
+        let eta = p.eta_seconds().unwrap();
+        assert!((eta - 4.0).abs() < 0.5, "{eta}");
+        assert!(BakeProgress { overall: 0.0, ..p }.eta_seconds().is_none());
+    }
+}

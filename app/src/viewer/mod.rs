@@ -1,0 +1,109 @@
+//! The desktop viewer: `twill` with no arguments, or `twill view [SCENE]`.
+//!
+//! How it works: [`run`] opens an eframe window on wgpu (Vulkan only) and asks for a device
+//! with the adapter's own limits and timestamp queries, because twill's renderer needs more
+//! storage buffers per stage than wgpu's defaults and times its passes. The app
+//! ([`app::ViewerApp`]) then
+//! - bakes the scene's fabric in the background ([`bake`]): draft first, then the final quality;
+//! - renders on eframe's device from a worker thread ([`render_worker`]) that owns twill's
+//!   `Renderer`, accumulating samples progressively while the view is still ([`accumulate`]) and
+//!   showing the picture as an egui texture;
+//! - orbits, pans, zooms and fits the camera ([`camera`]);
+//! - edits lights ([`lights`]) and render settings ([`quality`]), which only restart the picture;
+//! - exports the view at any size and sample count as PNG or EXR with its scene settings
+//!   ([`export`]);
+//! - plays scripts of edits and screenshots for tests ([`script`]).
+//!
+//! Errors (a scene that does not load, a failed bake, upload, render or export) are shown in the
+//! window's message list; the viewer keeps running.
+
+mod accumulate;
+mod app;
+mod bake;
+mod camera;
+mod export;
+mod lights;
+mod quality;
+mod render_worker;
+mod script;
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use anyhow::{Context, Result};
+use eframe::{egui, egui_wgpu};
+use twill_precompute::bake::settings::Quality;
+
+/// How the viewer starts.
+#[derive(Debug, Clone)]
+pub struct ViewerOptions {
+    /// Scene file (default: the built-in default scene).
+    pub scene: Option<PathBuf>,
+    /// Bake quality after the draft.
+    pub quality: Quality,
+    /// A script of edits to play (see [`script`]).
+    pub script: Option<PathBuf>,
+    /// Window's inner size in points.
+    pub window_size: [u32; 2],
+}
+
+/// The device the viewer asks eframe for: Vulkan, the adapter's own limits, and timestamp
+/// queries where the adapter has them.
+fn wgpu_configuration() -> egui_wgpu::WgpuConfiguration {
+    let mut setup = egui_wgpu::WgpuSetupCreateNew::without_display_handle();
+    setup.instance_descriptor.backends = wgpu::Backends::VULKAN;
+    setup.device_descriptor = Arc::new(|adapter: &wgpu::Adapter| wgpu::DeviceDescriptor {
+        label: Some("twill.viewer.device"),
+        required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+        required_limits: adapter.limits(),
+        ..Default::default()
+    });
+    egui_wgpu::WgpuConfiguration { wgpu_setup: egui_wgpu::WgpuSetup::CreateNew(setup), ..Default::default() }
+}
+
+/// Opens the viewer window and runs it until it is closed (or its script ends).
+pub fn run(options: ViewerOptions) -> Result<()> {
+    #[cfg(target_os = "linux")]
+    if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
+        anyhow::bail!(
+            "the viewer needs an X11 display and DISPLAY is not set. Run it on a desktop, under \
+             `xvfb-run -a twill view` without one, or use a subcommand (`twill --help`)"
+        );
+    }
+    let script = match &options.script {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+            Some(script::parse_script(&text, path).map_err(anyhow::Error::msg)?)
+        }
+        None => None,
+    };
+    let [w, h] = options.window_size;
+    let title = match &options.scene {
+        Some(path) => format!("twill — {}", path.display()),
+        None => "twill — default fabric".to_owned(),
+    };
+    let native = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title(title)
+            .with_app_id("twill")
+            .with_inner_size([w as f32, h as f32])
+            .with_min_inner_size([480.0, 320.0]),
+        renderer: eframe::Renderer::Wgpu,
+        wgpu_options: wgpu_configuration(),
+        // Dithering would change the rendered fabric's pixels on screen.
+        dithering: false,
+        ..Default::default()
+    };
+    let outcome: Arc<Mutex<Option<Result<(), String>>>> = Arc::default();
+    let app_outcome = Arc::clone(&outcome);
+    eframe::run_native(
+        "twill",
+        native,
+        Box::new(move |cc| Ok(Box::new(app::ViewerApp::new(cc, &options, script, app_outcome)))),
+    )
+    .map_err(|e| anyhow::anyhow!("the viewer window failed: {e}"))?;
+    match outcome.lock().unwrap_or_else(PoisonError::into_inner).take() {
+        Some(Err(message)) => Err(anyhow::anyhow!(message)),
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,400 @@
+//! The render worker: twill's GPU renderer on eframe's own wgpu device, driven from a thread of
+//! its own so the window never waits for a frame.
+//!
+//! How it works: the worker thread owns the [`Renderer`] (built on the device and queue that
+//! eframe opened, which the viewer asks for with the adapter's limits and timestamp queries).
+//! The viewer posts work into a small inbox — a new fabric to upload, an export, and the one
+//! viewport frame it wants next — and the worker takes them in that order. The inbox holds at
+//! most one frame request: posting a newer one replaces a request not yet started, so the worker
+//! never renders a picture that is already stale. Each request renders samples
+//! `first_sample .. first_sample + spp` of the view's sample sequence
+//! ([`Renderer::render_samples`]), which is how the viewer accumulates samples over frames.
+//! Results and errors come back as [`WorkerEvent`]s, with a repaint request so the window picks
+//! them up at once. A render that panics is caught and reported as an error; the viewer goes on.
+//!
+//! Exports render at their own size with the same renderer, a few samples per batch (so a
+//! cancel takes effect quickly), accumulate on the CPU and write the files (see `export.rs`).
+
+use std::panic::AssertUnwindSafe;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::time::Instant;
+
+use eframe::egui;
+use glam::Vec3;
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::Baked;
+use twill_precompute::bake::settings::Quality;
+use twill_precompute::pathtrace::Light;
+use twill_precompute::scene::{CameraSection, Scene};
+use twill_renderer::frame::{Frame, FrameSettings, Renderer};
+use twill_renderer::gpu::Gpu;
+use twill_renderer::headless::SceneRenderer;
+
+use super::export::{ExportImage, write_export};
+
+/// Samples per export batch.
+const EXPORT_BATCH_SPP: u32 = 4;
+
+/// The device eframe opened, as the renderer needs it.
+#[derive(Clone)]
+pub struct DeviceHandles {
+    pub adapter_info: wgpu::AdapterInfo,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+}
+
+impl DeviceHandles {
+    fn gpu(&self) -> Gpu {
+        Gpu {
+            adapter_info: self.adapter_info.clone(),
+            device: self.device.clone(),
+            queue: self.queue.clone(),
+        }
+    }
+}
+
+/// A fabric to upload (it replaces the current one once uploaded).
+pub struct NewFabric {
+    pub fabric_id: u64,
+    pub quality: Quality,
+    pub baked: Arc<Baked>,
+    pub scene: Arc<Scene>,
+}
+
+/// One batch of samples of a view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameRequest {
+    /// Which edit of the view this is (the viewer's change counter).
+    pub generation: u64,
+    pub fabric_id: u64,
+    pub camera: CameraSection,
+    pub lights: Vec<Light>,
+    /// Size and the number of samples of this batch.
+    pub settings: FrameSettings,
+    pub first_sample: u32,
+}
+
+/// A rendered batch.
+pub struct FrameResult {
+    pub request: FrameRequest,
+    pub frame: Frame,
+    /// Wall time from the start of the render to the readback.
+    pub wall_ms: f64,
+}
+
+/// An off-screen render to files.
+pub struct ExportRequest {
+    pub camera: CameraSection,
+    pub lights: Vec<Light>,
+    /// Size and total samples; exposure and tone curve apply to PNG output.
+    pub settings: FrameSettings,
+    pub image_path: PathBuf,
+    /// The scene settings, written beside the image.
+    pub scene_toml: String,
+}
+
+/// What the worker reports.
+pub enum WorkerEvent {
+    FabricReady {
+        fabric_id: u64,
+        quality: Quality,
+        adapter: String,
+        resident_bytes: u64,
+        bounds: (Vec3, Vec3),
+        seconds: f64,
+    },
+    FabricFailed {
+        message: String,
+    },
+    Frame(Box<FrameResult>),
+    FrameFailed {
+        generation: u64,
+        message: String,
+    },
+    ExportProgress {
+        done: u32,
+        total: u32,
+    },
+    ExportDone {
+        files: Vec<PathBuf>,
+        seconds: f64,
+    },
+    ExportFailed {
+        message: String,
+    },
+}
+
+#[derive(Default)]
+struct Inbox {
+    fabric: Option<NewFabric>,
+    export: Option<ExportRequest>,
+    frame: Option<FrameRequest>,
+    shutdown: bool,
+}
+
+struct Shared {
+    inbox: Mutex<Inbox>,
+    wake: Condvar,
+    cancel_export: AtomicBool,
+}
+
+/// The viewer's handle on the worker thread.
+pub struct RenderWorker {
+    shared: Arc<Shared>,
+    events: Receiver<WorkerEvent>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl RenderWorker {
+    /// Starts the worker on eframe's device.
+    pub fn start(device: DeviceHandles, repaint: egui::Context) -> std::io::Result<Self> {
+        let shared = Arc::new(Shared {
+            inbox: Mutex::new(Inbox::default()),
+            wake: Condvar::new(),
+            cancel_export: AtomicBool::new(false),
+        });
+        let (sender, events) = channel();
+        let thread_shared = Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name("twill-render".into())
+            .spawn(move || worker_loop(&device, &thread_shared, &sender, &repaint))?;
+        Ok(Self { shared, events, thread: Some(thread) })
+    }
+
+    fn post(&self, fill: impl FnOnce(&mut Inbox)) {
+        fill(&mut self.shared.inbox.lock().unwrap_or_else(PoisonError::into_inner));
+        self.shared.wake.notify_one();
+    }
+
+    /// Uploads a new fabric (replacing one waiting to be uploaded).
+    pub fn set_fabric(&self, fabric: NewFabric) {
+        self.post(|inbox| inbox.fabric = Some(fabric));
+    }
+
+    /// Asks for a viewport frame, replacing a frame request not yet started.
+    pub fn request_frame(&self, request: FrameRequest) {
+        self.post(|inbox| inbox.frame = Some(request));
+    }
+
+    /// Drops a frame request not yet started.
+    pub fn clear_frame_request(&self) {
+        self.post(|inbox| inbox.frame = None);
+    }
+
+    /// Starts an export (after the batch in progress).
+    pub fn export(&self, request: ExportRequest) {
+        self.shared.cancel_export.store(false, Ordering::Relaxed);
+        self.post(|inbox| inbox.export = Some(request));
+    }
+
+    /// Stops the export in progress (at its next batch).
+    pub fn cancel_export(&self) {
+        self.shared.cancel_export.store(true, Ordering::Relaxed);
+        self.post(|inbox| inbox.export = None);
+    }
+
+    /// Events since the last call.
+    pub fn poll(&self) -> Vec<WorkerEvent> {
+        self.events.try_iter().collect()
+    }
+}
+
+impl Drop for RenderWorker {
+    fn drop(&mut self) {
+        self.shared.cancel_export.store(true, Ordering::Relaxed);
+        self.post(|inbox| inbox.shutdown = true);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+enum Work {
+    Fabric(NewFabric),
+    Export(ExportRequest),
+    Frame(FrameRequest),
+}
+
+fn next_work(shared: &Shared) -> Option<Work> {
+    let mut inbox = shared.inbox.lock().unwrap_or_else(PoisonError::into_inner);
+    loop {
+        if inbox.shutdown {
+            return None;
+        }
+        if let Some(fabric) = inbox.fabric.take() {
+            return Some(Work::Fabric(fabric));
+        }
+        if let Some(export) = inbox.export.take() {
+            return Some(Work::Export(export));
+        }
+        if let Some(frame) = inbox.frame.take() {
+            return Some(Work::Frame(frame));
+        }
+        inbox = shared.wake.wait(inbox).unwrap_or_else(PoisonError::into_inner);
+    }
+}
+
+/// Text of a caught panic.
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
+fn worker_loop(
+    device: &DeviceHandles,
+    shared: &Shared,
+    sender: &Sender<WorkerEvent>,
+    repaint: &egui::Context,
+) {
+    let send = |event: WorkerEvent| {
+        let _ = sender.send(event);
+        repaint.request_repaint();
+    };
+    let mut renderer: Option<Renderer> = None;
+    while let Some(work) = next_work(shared) {
+        match work {
+            Work::Fabric(fabric) => {
+                let started = Instant::now();
+                let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    SceneRenderer::with_gpu(
+                        device.gpu(),
+                        &fabric.scene,
+                        &[fabric.baked.as_ref()],
+                        &PatternMap::uniform(0),
+                    )
+                }));
+                match built {
+                    Ok(Ok(session)) => {
+                        let r = session.renderer;
+                        send(WorkerEvent::FabricReady {
+                            fabric_id: fabric.fabric_id,
+                            quality: fabric.quality,
+                            adapter: r.adapter().to_owned(),
+                            resident_bytes: r.resident_bytes(),
+                            bounds: r.bounds(),
+                            seconds: started.elapsed().as_secs_f64(),
+                        });
+                        renderer = Some(r);
+                    }
+                    Ok(Err(e)) => send(WorkerEvent::FabricFailed {
+                        message: format!("uploading the {} bake failed: {e}", fabric.quality.name()),
+                    }),
+                    Err(payload) => send(WorkerEvent::FabricFailed {
+                        message: format!("uploading the bake crashed: {}", panic_text(payload.as_ref())),
+                    }),
+                }
+            }
+            Work::Frame(request) => {
+                let Some(r) = renderer.as_mut() else {
+                    send(WorkerEvent::FrameFailed {
+                        generation: request.generation,
+                        message: "no fabric is uploaded yet".into(),
+                    });
+                    continue;
+                };
+                let started = Instant::now();
+                let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    r.render_samples(
+                        &request.camera,
+                        &request.lights,
+                        &request.settings,
+                        request.first_sample,
+                    )
+                }));
+                let wall_ms = started.elapsed().as_secs_f64() * 1e3;
+                let s = &request.settings;
+                log::debug!(
+                    "frame: generation {}, {}x{}, samples {}..{}, {wall_ms:.0} ms",
+                    request.generation,
+                    s.width,
+                    s.height,
+                    request.first_sample,
+                    request.first_sample + s.spp
+                );
+                match result {
+                    Ok(Ok(frame)) => {
+                        send(WorkerEvent::Frame(Box::new(FrameResult { request, frame, wall_ms })));
+                    }
+                    Ok(Err(e)) => send(WorkerEvent::FrameFailed {
+                        generation: request.generation,
+                        message: format!("render failed: {e}"),
+                    }),
+                    Err(payload) => send(WorkerEvent::FrameFailed {
+                        generation: request.generation,
+                        message: format!("render crashed: {}", panic_text(payload.as_ref())),
+                    }),
+                }
+            }
+            Work::Export(request) => {
+                let Some(r) = renderer.as_mut() else {
+                    send(WorkerEvent::ExportFailed { message: "no fabric is uploaded yet".into() });
+                    continue;
+                };
+                let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    run_export(r, &request, &shared.cancel_export, &|done, total| {
+                        send(WorkerEvent::ExportProgress { done, total });
+                    })
+                }));
+                match result {
+                    Ok(Ok(Some((files, seconds)))) => send(WorkerEvent::ExportDone { files, seconds }),
+                    Ok(Ok(None)) => send(WorkerEvent::ExportFailed { message: "export cancelled".into() }),
+                    Ok(Err(message)) => send(WorkerEvent::ExportFailed { message }),
+                    Err(payload) => send(WorkerEvent::ExportFailed {
+                        message: format!("export crashed: {}", panic_text(payload.as_ref())),
+                    }),
+                }
+            }
+        }
+    }
+}
+
+/// Renders an export in batches and writes its files; `None` when cancelled.
+fn run_export(
+    renderer: &mut Renderer,
+    request: &ExportRequest,
+    cancel: &AtomicBool,
+    progress: &dyn Fn(u32, u32),
+) -> Result<Option<(Vec<PathBuf>, f64)>, String> {
+    let started = Instant::now();
+    let total = request.settings.spp.max(1);
+    let (width, height) = (request.settings.width, request.settings.height);
+    let mut sum = vec![[0.0_f32; 3]; width as usize * height as usize];
+    let mut done = 0;
+    progress(0, total);
+    while done < total {
+        if cancel.load(Ordering::Relaxed) {
+            return Ok(None);
+        }
+        let batch = EXPORT_BATCH_SPP.min(total - done);
+        let settings = FrameSettings { spp: batch, ..request.settings.clone() };
+        let frame = renderer
+            .render_samples(&request.camera, &request.lights, &settings, done)
+            .map_err(|e| format!("export render failed: {e}"))?;
+        let weight = batch as f32;
+        for (s, p) in sum.iter_mut().zip(&frame.radiance) {
+            for c in 0..3 {
+                s[c] += p[c] * weight;
+            }
+        }
+        done += batch;
+        log::debug!("export: {done}/{total} samples after {:.0} ms", started.elapsed().as_secs_f64() * 1e3);
+        progress(done, total);
+    }
+    let inv = 1.0 / total as f32;
+    let mean: Vec<[f32; 3]> = sum.iter().map(|p| p.map(|c| c * inv)).collect();
+    let image = ExportImage {
+        width,
+        height,
+        radiance: &mean,
+        exposure: request.settings.exposure,
+        filmic: request.settings.filmic,
+    };
+    let files = write_export(&request.image_path, &image, &request.scene_toml)?;
+    Ok(Some((files, started.elapsed().as_secs_f64())))
+}

@@ -1,0 +1,264 @@
+//! Viewer scripts: a list of edits and checks the viewer plays back through the same code
+//! paths as the panels, for tests that run the real window (`twill view --script FILE`).
+//!
+//! How it works: [`parse_script`] reads one command per line (`#` starts a comment) into
+//! [`Step`]s, with the line number in every error. The viewer runs one step per frame; waiting
+//! steps (`wait-fabric`, `wait-spp`, `wait-export`, `expect-error`, `screenshot`) hold the
+//! script until their condition holds, each for at most [`STEP_TIMEOUT`]. An error the viewer
+//! shows while a script runs fails the script unless an `expect-error` step is waiting for it.
+//! When the script ends (`quit`, or its last line) the window closes; a failed script makes
+//! `twill view` exit with an error naming the line.
+//!
+//! Commands:
+//!
+//! ```text
+//! wait-fabric draft|interactive|paper   # until that bake's picture is on screen
+//! bake draft|interactive|paper          # start a bake (cancels the one in flight)
+//! cancel-bake
+//! orbit DYAW DPITCH                     # degrees
+//! zoom FACTOR                           # < 1 zooms in
+//! fit                                   # fit the fabric to the view
+//! light INDEX azimuth|elevation|sharpness|intensity VALUE
+//! light INDEX colour R G B
+//! add-light directional|sg
+//! remove-light INDEX
+//! preset NAME                           # an environment preset, e.g. preset sunset
+//! set exposure|spp|volume-samples|sigma-glo|interaction-scale VALUE
+//! wait-spp N                            # until the picture has N samples at full size (it
+//!                                       # fails if it has more: `set spp N` first)
+//! screenshot PATH.png                   # the window; the viewport alone goes to PATH.viewport.png
+//! export PATH WxH SPP                   # an off-screen export (PNG or EXR, with its TOML)
+//! wait-export                           # until the export is written
+//! expect-error TEXT                     # until an error containing TEXT is shown
+//! quit
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use twill_precompute::bake::settings::Quality;
+
+use super::lights::LightKind;
+
+/// Longest a waiting step may wait.
+pub const STEP_TIMEOUT: Duration = Duration::from_mins(5);
+
+/// A light property a script sets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LightField {
+    Azimuth(f64),
+    Elevation(f64),
+    Sharpness(f64),
+    Intensity(f64),
+    Colour([f32; 3]),
+}
+
+/// A viewer setting a script sets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Setting {
+    Exposure(f64),
+    Spp(u32),
+    VolumeSamples(u32),
+    SigmaGlo(f64),
+    InteractionScale(f64),
+}
+
+/// One command.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Step {
+    WaitFabric(Quality),
+    Bake(Quality),
+    CancelBake,
+    Orbit { yaw_deg: f64, pitch_deg: f64 },
+    Zoom(f64),
+    Fit,
+    Light { index: usize, field: LightField },
+    AddLight(LightKind),
+    RemoveLight(usize),
+    Preset(String),
+    Set(Setting),
+    WaitSpp(u32),
+    Screenshot(PathBuf),
+    Export { path: PathBuf, width: u32, height: u32, spp: u32 },
+    WaitExport,
+    ExpectError(String),
+    Quit,
+}
+
+/// A step and the line it came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScriptLine {
+    pub line: usize,
+    pub text: String,
+    pub step: Step,
+}
+
+fn number<T: std::str::FromStr>(word: Option<&str>, what: &str) -> Result<T, String> {
+    let word = word.ok_or_else(|| format!("missing {what}"))?;
+    word.parse().map_err(|_| format!("{word:?} is not a valid {what}"))
+}
+
+fn finite(value: f64, what: &str) -> Result<f64, String> {
+    if value.is_finite() { Ok(value) } else { Err(format!("{what} must be finite")) }
+}
+
+fn parse_step(words: &[&str]) -> Result<Step, String> {
+    let mut args = words[1..].iter().copied();
+    let quality = |word: Option<&str>| match word {
+        Some("draft") => Ok(Quality::Draft),
+        Some("interactive") => Ok(Quality::Interactive),
+        Some("paper") => Ok(Quality::Paper),
+        other => Err(format!("{} takes draft, interactive or paper, not {other:?}", words[0])),
+    };
+    let step = match words[0] {
+        "wait-fabric" => Step::WaitFabric(quality(args.next())?),
+        "bake" => Step::Bake(quality(args.next())?),
+        "cancel-bake" => Step::CancelBake,
+        "orbit" => Step::Orbit {
+            yaw_deg: finite(number(args.next(), "yaw in degrees")?, "yaw")?,
+            pitch_deg: finite(number(args.next(), "pitch in degrees")?, "pitch")?,
+        },
+        "zoom" => {
+            let factor: f64 = number(args.next(), "zoom factor")?;
+            if !(factor.is_finite() && factor > 0.0) {
+                return Err("the zoom factor must be positive".into());
+            }
+            Step::Zoom(factor)
+        }
+        "fit" => Step::Fit,
+        "light" => {
+            let index = number(args.next(), "light index")?;
+            let property = args.next().ok_or("missing light property")?;
+            let field = match property {
+                "azimuth" => LightField::Azimuth(finite(number(args.next(), "azimuth")?, "azimuth")?),
+                "elevation" => LightField::Elevation(finite(number(args.next(), "elevation")?, "elevation")?),
+                "sharpness" => LightField::Sharpness(finite(number(args.next(), "sharpness")?, "sharpness")?),
+                "intensity" => LightField::Intensity(finite(number(args.next(), "intensity")?, "intensity")?),
+                "colour" | "color" => LightField::Colour([
+                    number(args.next(), "red")?,
+                    number(args.next(), "green")?,
+                    number(args.next(), "blue")?,
+                ]),
+                other => return Err(format!("unknown light property {other:?}")),
+            };
+            Step::Light { index, field }
+        }
+        "add-light" => Step::AddLight(match args.next() {
+            Some("directional") => LightKind::Directional,
+            Some("sg") => LightKind::Sg,
+            other => return Err(format!("add-light takes directional or sg, not {other:?}")),
+        }),
+        "remove-light" => Step::RemoveLight(number(args.next(), "light index")?),
+        "preset" => {
+            let name = words[1..].join(" ");
+            if name.is_empty() {
+                return Err("missing preset name".into());
+            }
+            args = [].iter().copied();
+            Step::Preset(name)
+        }
+        "set" => {
+            let key = args.next().ok_or("missing setting name")?;
+            Step::Set(match key {
+                "exposure" => Setting::Exposure(finite(number(args.next(), "exposure")?, "exposure")?),
+                "spp" => Setting::Spp(number(args.next(), "sample count")?),
+                "volume-samples" => Setting::VolumeSamples(number(args.next(), "volume sample count")?),
+                "sigma-glo" => Setting::SigmaGlo(finite(number(args.next(), "sigma_glo")?, "sigma_glo")?),
+                "interaction-scale" => {
+                    Setting::InteractionScale(finite(number(args.next(), "scale")?, "interaction scale")?)
+                }
+                other => return Err(format!("unknown setting {other:?}")),
+            })
+        }
+        "wait-spp" => Step::WaitSpp(number(args.next(), "sample count")?),
+        "screenshot" => Step::Screenshot(PathBuf::from(args.next().ok_or("missing screenshot file")?)),
+        "export" => {
+            let path = PathBuf::from(args.next().ok_or("missing export file")?);
+            let size = args.next().ok_or("missing export size WxH")?;
+            let (w, h) = crate::commands::parse_size(size)?;
+            Step::Export {
+                path,
+                width: w as u32,
+                height: h as u32,
+                spp: number(args.next(), "sample count")?,
+            }
+        }
+        "wait-export" => Step::WaitExport,
+        "expect-error" => {
+            let text = words[1..].join(" ");
+            args = [].iter().copied();
+            Step::ExpectError(text)
+        }
+        "quit" => Step::Quit,
+        other => return Err(format!("unknown command {other:?}")),
+    };
+    if let Some(extra) = args.next() {
+        return Err(format!("unexpected {extra:?} after the command"));
+    }
+    Ok(step)
+}
+
+/// Parses a script; errors name the file and line.
+pub fn parse_script(text: &str, path: &Path) -> Result<Vec<ScriptLine>, String> {
+    let mut steps = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let content = raw.split('#').next().unwrap_or("").trim();
+        if content.is_empty() {
+            continue;
+        }
+        let words: Vec<&str> = content.split_whitespace().collect();
+        let step = parse_step(&words).map_err(|e| format!("{}:{}: {e}", path.display(), i + 1))?;
+        steps.push(ScriptLine { line: i + 1, text: content.to_owned(), step });
+    }
+    Ok(steps)
+}
+
+/// The file the viewport alone is written to beside a window screenshot.
+#[must_use]
+pub fn viewport_screenshot_path(window: &Path) -> PathBuf {
+    let stem = window.file_stem().map_or_else(|| "screenshot".into(), |s| s.to_string_lossy().into_owned());
+    window.with_file_name(format!("{stem}.viewport.png"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_command_parses() {
+        let text = "# comment\nwait-fabric draft\nbake paper\ncancel-bake\norbit 20 -5\nzoom 0.8\nfit\nlight 0 azimuth 120 # trailing\n\
+                    light 1 colour 1 0.5 0.25\nadd-light sg\nremove-light 2\npreset studio three-point\n\
+                    set spp 8\nwait-spp 8\nscreenshot out.png\nexport shot.exr 64x48 4\nwait-export\n\
+                    expect-error unknown preset\nquit\n";
+        let steps = parse_script(text, Path::new("s.txt")).unwrap();
+        assert_eq!(steps.len(), 18);
+        assert_eq!(steps[0].line, 2);
+        assert_eq!(steps[1].step, Step::Bake(Quality::Paper));
+        assert_eq!(steps[6].step, Step::Light { index: 0, field: LightField::Azimuth(120.0) });
+        assert_eq!(steps[10].step, Step::Preset("studio three-point".into()));
+        assert_eq!(steps[14].step, Step::Export { path: "shot.exr".into(), width: 64, height: 48, spp: 4 });
+        assert_eq!(steps[16].step, Step::ExpectError("unknown preset".into()));
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        for (text, needle) in [
+            ("fit\nspin 3\n", "s.txt:2: unknown command \"spin\""),
+            ("light 0 azimuth\n", "missing azimuth"),
+            ("zoom -1\n", "positive"),
+            ("fit now\n", "unexpected \"now\""),
+            ("export a.png 0x5 4\n", "WIDTHxHEIGHT"),
+        ] {
+            let err = parse_script(text, Path::new("s.txt")).unwrap_err();
+            assert!(err.contains(needle), "{err}");
+        }
+    }
+
+    #[test]
+    fn the_viewport_crop_goes_beside_the_window_screenshot() {
+        assert_eq!(
+            viewport_screenshot_path(Path::new("/tmp/a/shot.png")),
+            Path::new("/tmp/a/shot.viewport.png")
+        );
+    }
+}

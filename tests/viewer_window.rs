@@ -1,0 +1,235 @@
+//! The desktop viewer end to end: the real `twill` binary in a real window under Xvfb, on
+//! lavapipe (Mesa's software Vulkan) where there is no GPU.
+//!
+//! `scripted_edits_render_and_match_the_golden` starts the viewer on the built-in default
+//! scene with a script (`twill view --script`, see app/src/viewer/script.rs) that waits for the
+//! draft bake's picture, orbits the camera, moves the key light, changes the SG fill's
+//! sharpness λ and intensity, waits for 4 accumulated samples, takes a window screenshot with
+//! egui's screenshot API and exports the view as PNG and EXR with its scene TOML. The viewport
+//! part of the screenshot, at half size (2×2 box average: a small golden, and single fiber-edge
+//! pixels that flip between drivers count less), is compared with
+//! `tests/goldens/viewer_scripted_edits.png` (`twill_tests::compare_with_golden`: RMSE of 8-bit
+//! channels <= 3, at most 1% of pixels off by more than 32; `TWILL_BLESS=1` writes the golden).
+//! Only the viewport is compared: the panels show timings that change from run to run.
+//!
+//! `a_failed_bake_and_a_missing_scene_are_shown_in_the_window` opens a scene whose fabric cannot
+//! be built, then a scene file that does not exist, and checks that each error appears in the
+//! window while the viewer keeps running (the scripted run above also exports to a folder that
+//! does not exist).
+//!
+//! Both need `xvfb-run` (Debian package xvfb; scripts/setup.sh installs it). Without it they
+//! fail, unless `TWILL_ALLOW_NO_GPU=1`, when they print a loud SKIPPED line. The binary is
+//! `target/<profile>/twill` beside this test's own folder (`cargo test --workspace` builds it),
+//! or `$TWILL_BIN`.
+
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use twill_precompute::scene::SceneFile;
+use twill_tests::compare_with_golden;
+
+/// Window size of the scripted runs (points; Xvfb has one pixel per point).
+const WINDOW: (u32, u32) = (1000, 640);
+/// Longest a viewer run may take (two bakes at most, a few seconds of rendering).
+const RUN_TIMEOUT: Duration = Duration::from_mins(10);
+
+fn find_on_path(name: &str) -> Option<PathBuf> {
+    std::env::split_paths(&std::env::var_os("PATH")?).map(|d| d.join(name)).find(|p| p.is_file())
+}
+
+/// `xvfb-run`, or `None` after a loud SKIPPED line when `TWILL_ALLOW_NO_GPU=1`.
+fn xvfb_run_for(test: &str) -> Option<PathBuf> {
+    if let Some(path) = find_on_path("xvfb-run") {
+        return Some(path);
+    }
+    if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") {
+        eprintln!(
+            "SKIPPED {test}: xvfb-run not found (TWILL_ALLOW_NO_GPU=1); install the xvfb package to run it"
+        );
+        return None;
+    }
+    panic!(
+        "{test}: xvfb-run not found. Install it (apt-get install xvfb, or run scripts/setup.sh), \
+         or set TWILL_ALLOW_NO_GPU=1 to skip this test explicitly."
+    );
+}
+
+/// The `twill` binary this test run goes with.
+fn twill_binary() -> PathBuf {
+    if let Some(path) = std::env::var_os("TWILL_BIN") {
+        return PathBuf::from(path);
+    }
+    let exe = std::env::current_exe().expect("the test knows its own path");
+    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
+    let binary = profile_dir.join("twill");
+    assert!(
+        binary.is_file(),
+        "{} is missing: build it first (cargo build -p twill-app with this test's profile, or run \
+         `cargo test --workspace`), or point TWILL_BIN at it",
+        binary.display()
+    );
+    binary
+}
+
+struct Run {
+    success: bool,
+    stderr: String,
+}
+
+/// Runs `twill view ARGS` under xvfb-run in `dir`, with a private runtime folder and bake cache.
+/// One at a time: `xvfb-run -a` can hand two concurrent runs the same display number.
+fn run_viewer(xvfb: &Path, dir: &Path, args: &[&str]) -> Run {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let runtime = dir.join("xdg");
+    std::fs::create_dir_all(&runtime).unwrap();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::set_permissions(&runtime, std::fs::Permissions::from_mode(0o700)).unwrap();
+    }
+    let stderr_path = dir.join("viewer.stderr");
+    let mut command = Command::new(xvfb);
+    command
+        .args(["-a", "-s", "-screen 0 1280x800x24"])
+        .arg(twill_binary())
+        .arg("view")
+        .args(args)
+        .current_dir(dir)
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .env("WGPU_DEBUG", "0")
+        .env("TWILL_CACHE_DIR", dir.join("cache"))
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr_path).unwrap());
+    #[cfg(unix)]
+    std::os::unix::process::CommandExt::process_group(&mut command, 0);
+    let mut child = command.spawn().expect("xvfb-run starts");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for the viewer") {
+            break Some(status);
+        }
+        if started.elapsed() > RUN_TIMEOUT {
+            // xvfb-run, Xvfb and the viewer share the process group.
+            let _ = Command::new("kill").args(["-KILL", &format!("-{}", child.id())]).status();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut stderr = String::new();
+    std::fs::File::open(&stderr_path).unwrap().read_to_string(&mut stderr).unwrap();
+    eprintln!("--- viewer stderr ---\n{stderr}---");
+    let Some(status) = status else {
+        panic!("the viewer did not finish within {} s", RUN_TIMEOUT.as_secs());
+    };
+    Run { success: status.success(), stderr }
+}
+
+fn read_png_rgba(path: &Path) -> (u32, u32, Vec<[u8; 4]>) {
+    let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());
+    let pixels = buf[..info.buffer_size()].chunks_exact(3).map(|p| [p[0], p[1], p[2], 255]).collect();
+    (info.width, info.height, pixels)
+}
+
+/// The image at half size (2×2 box average of the 8-bit values; an odd last row or column is
+/// dropped).
+fn half_size(width: u32, height: u32, pixels: &[[u8; 4]]) -> (u32, u32, Vec<[u8; 4]>) {
+    let (w, h) = (width / 2, height / 2);
+    let at = |x: u32, y: u32| pixels[(y * width + x) as usize];
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let quad =
+                [at(2 * x, 2 * y), at(2 * x + 1, 2 * y), at(2 * x, 2 * y + 1), at(2 * x + 1, 2 * y + 1)];
+            let mean = |c: usize| ((quad.iter().map(|p| u32::from(p[c])).sum::<u32>() + 2) / 4) as u8;
+            out.push([mean(0), mean(1), mean(2), 255]);
+        }
+    }
+    (w, h, out)
+}
+
+#[test]
+fn scripted_edits_render_and_match_the_golden() {
+    let test = "scripted_edits_render_and_match_the_golden";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    let script = "\
+        # The default scene's draft bake, then edits through the viewer's own code paths.\n\
+        wait-fabric draft\n\
+        set spp 4\n\
+        orbit 25 -10\n\
+        light 0 azimuth 120\n\
+        light 0 elevation 35\n\
+        light 1 sharpness 40\n\
+        light 1 intensity 2.5\n\
+        wait-spp 4\n\
+        screenshot window.png\n\
+        export export.png 96x64 2\n\
+        wait-export\n\
+        export export.exr 48x32 1\n\
+        wait-export\n\
+        # An export that cannot be written is an error in the window, not a crash.\n\
+        export no-such-folder/shot.png 16x16 1\n\
+        expect-error no-such-folder\n\
+        quit\n";
+    std::fs::write(out.join("edits.script"), script).unwrap();
+    let size = format!("{}x{}", WINDOW.0, WINDOW.1);
+    let run =
+        run_viewer(&xvfb, out, &["--quality", "draft", "--window-size", &size, "--script", "edits.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
+    assert!(run.stderr.contains("script finished"), "{}", run.stderr);
+
+    let (w, h, _) = read_png_rgba(&out.join("window.png"));
+    assert_eq!((w, h), WINDOW, "the window screenshot has the window's size");
+    let (vw, vh, viewport) = read_png_rgba(&out.join("window.viewport.png"));
+    assert!(vw > 200 && vh > 400, "viewport {vw}x{vh}");
+    let bright = viewport.iter().filter(|p| p[..3].iter().any(|&c| c > 40)).count();
+    assert!(bright > viewport.len() / 4, "the fabric is lit: {bright} of {} pixels", viewport.len());
+    let (hw, hh, half) = half_size(vw, vh, &viewport);
+    match compare_with_golden("viewer_scripted_edits", hw, hh, &half) {
+        Ok(summary) => eprintln!("{summary}"),
+        Err(reason) => panic!("{reason}"),
+    }
+
+    let (ew, eh, _) = read_png_rgba(&out.join("export.png"));
+    assert_eq!((ew, eh), (96, 64));
+    assert!(out.join("export.exr").is_file());
+    let saved = SceneFile::load(&out.join("export.toml")).expect("the exported settings load");
+    saved.build().expect("the exported settings build");
+    assert_eq!((saved.render.width, saved.render.height, saved.render.spp), (48, 32, 1));
+    let twill_precompute::scene::LightSection::Sg { sharpness, .. } = saved.lights[1] else {
+        panic!("light 1 should be the SG fill, is {:?}", saved.lights[1]);
+    };
+    assert!((sharpness - 40.0).abs() < 1e-9, "the edited λ is saved: {sharpness}");
+}
+
+#[test]
+fn a_failed_bake_and_a_missing_scene_are_shown_in_the_window() {
+    let test = "a_failed_bake_and_a_missing_scene_are_shown_in_the_window";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    let scene = "[fabric]\npreset = \"no-such-fabric\"\n\
+                 [camera]\nprojection = \"perspective\"\neye = [0, -0.5, 0.7]\ntarget = [0, 0, 0]\n\
+                 [[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+    std::fs::write(out.join("bad.toml"), scene).unwrap();
+    let script = "expect-error unknown preset \"no-such-fabric\"\nscreenshot error.png\nquit\n";
+    std::fs::write(out.join("error.script"), script).unwrap();
+    let run = run_viewer(&xvfb, out, &["bad.toml", "--quality", "draft", "--script", "error.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
+    assert!(out.join("error.png").is_file());
+
+    std::fs::write(out.join("missing.script"), "expect-error could not be read\nquit\n").unwrap();
+    let run = run_viewer(&xvfb, out, &["no-such-scene.toml", "--script", "missing.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
+}
