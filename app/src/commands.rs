@@ -369,7 +369,11 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
         std::fs::metadata(&output).map_or(0.0, |m| m.len() as f64 / 1e6)
     );
     for run in &outcome.stages {
-        let how = if run.source == StageSource::Cached { "cached" } else { "computed" };
+        let how = match run.source {
+            StageSource::Cached => "cached",
+            StageSource::Computed => "computed",
+            StageSource::Kept => "kept from the previous bake",
+        };
         eprintln!("  {:<16} {how:<8} {:>8.2} s", run.stage.name(), run.seconds);
     }
     let pca = &b.visibility.ssdf.stats;

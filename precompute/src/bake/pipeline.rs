@@ -155,6 +155,8 @@ pub struct Baked {
 pub enum StageSource {
     Computed,
     Cached,
+    /// Kept from the previous bake ([`bake_material_preview`]): stale on purpose.
+    Kept,
 }
 
 /// One stage of one bake: its key, where its result came from and how long it took.
@@ -229,6 +231,41 @@ pub fn bake(
     cancel: &Cancel,
     progress: BakeProgress<'_>,
 ) -> Result<BakeOutcome, BakeError> {
+    bake_stages(inputs, cache, cancel, progress, None)
+}
+
+/// A quick preview of a material edit: every stage of `inputs` except the two that carry
+/// multiple scattering, transfer (the IIRTF, seconds to minutes) and the C_S tables, which are
+/// kept from `previous`. Single scattering (the Gn tables) is exact for the new materials, while
+/// multiple scattering stays as it was until the full [`bake`] finishes: what an interactive
+/// editor shows in the meantime. `previous` must have been baked from the same geometry with the
+/// same settings and material count (the geometry is the caller's promise; settings and count
+/// are checked). The result's key marks it as a preview; never store it as a bake file.
+pub fn bake_material_preview(
+    inputs: &BakeInputs<'_>,
+    previous: &Baked,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: BakeProgress<'_>,
+) -> Result<BakeOutcome, BakeError> {
+    if previous.settings != inputs.settings || previous.materials.len() != inputs.materials.len() {
+        return Err(BakeError::Fabric(format!(
+            "a material preview needs the previous bake's settings and {} material slots; it has {}",
+            inputs.materials.len(),
+            previous.materials.len()
+        )));
+    }
+    bake_stages(inputs, cache, cancel, progress, Some(previous))
+}
+
+/// [`bake`], or with `keep` the preview of [`bake_material_preview`].
+fn bake_stages(
+    inputs: &BakeInputs<'_>,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: BakeProgress<'_>,
+    keep: Option<&Baked>,
+) -> Result<BakeOutcome, BakeError> {
     let s = &inputs.settings;
     s.validate()?;
     let materials: Vec<Material> =
@@ -286,35 +323,46 @@ pub fn bake(
         Ok(VisibilityData { resolution: s.svf_resolution, ssdf, sum_of_sg, mean_visible_solid_angle })
     })?;
 
-    let transfer = stage_runner.run(Stage::Transfer, keys.transfer(&mfp), || {
-        let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp)?;
-        let iirtf = bake_iirtf(
-            inputs.exemplar,
-            &yarn_materials,
-            &cells,
-            s,
-            &IirtfOptions::default(),
-            cancel,
-            &|f| progress(Stage::Transfer, f),
-        )?;
-        // Round to the stored precision now, so a fresh bake equals one loaded from a file.
-        let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf))
-            .map_err(|message| BakeError::Serialize { stage: Stage::Transfer.name(), message })?;
-        Ok(TransferData { cells, iirtf })
-    })?;
+    let transfer_key = keys.transfer(&mfp);
+    let transfer = if let Some(previous) = keep {
+        stage_runner.keep(Stage::Transfer, transfer_key);
+        previous.transfer.clone()
+    } else {
+        stage_runner.run(Stage::Transfer, transfer_key, || {
+            let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp)?;
+            let iirtf = bake_iirtf(
+                inputs.exemplar,
+                &yarn_materials,
+                &cells,
+                s,
+                &IirtfOptions::default(),
+                cancel,
+                &|f| progress(Stage::Transfer, f),
+            )?;
+            // Round to the stored precision now, so a fresh bake equals one loaded from a file.
+            let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf))
+                .map_err(|message| BakeError::Serialize { stage: Stage::Transfer.name(), message })?;
+            Ok(TransferData { cells, iirtf })
+        })?
+    };
 
-    let cs_tables = stage_runner.run(Stage::CsTables, keys.cs, || {
-        let mut tables = Vec::with_capacity(materials.len());
-        for (i, m) in materials.iter().enumerate() {
-            cancel.check()?;
-            tables.push(match m {
-                Material::Fiber(fiber) => Some(CsTable::new(fiber, s.sh_order, s.cs_theta_count)?),
-                Material::Lambert(_) => None,
-            });
-            progress(Stage::CsTables, (i + 1) as f64 / materials.len() as f64);
-        }
-        Ok(tables)
-    })?;
+    let cs_tables = if let Some(previous) = keep {
+        stage_runner.keep(Stage::CsTables, keys.cs);
+        previous.cs_tables.clone()
+    } else {
+        stage_runner.run(Stage::CsTables, keys.cs, || {
+            let mut tables = Vec::with_capacity(materials.len());
+            for (i, m) in materials.iter().enumerate() {
+                cancel.check()?;
+                tables.push(match m {
+                    Material::Fiber(fiber) => Some(CsTable::new(fiber, s.sh_order, s.cs_theta_count)?),
+                    Material::Lambert(_) => None,
+                });
+                progress(Stage::CsTables, (i + 1) as f64 / materials.len() as f64);
+            }
+            Ok(tables)
+        })?
+    };
 
     let gn = stage_runner.run(Stage::GnTables, keys.gn, || Ok(GnTable::new(inputs.materials)?))?;
     let cg =
@@ -577,6 +625,13 @@ impl StageRunner<'_, '_> {
         Ok(value)
     }
 
+    /// Records a stage whose result is kept from an earlier bake (a preview): its key is
+    /// derived from the key the stage would have, so no preview's whole key equals a bake's.
+    fn keep(&mut self, stage: Stage, key: ContentHash) {
+        let kept = Hasher::new("twill.kept_from_previous").hash(&key).finish();
+        self.record(stage, kept, StageSource::Kept, Instant::now());
+    }
+
     fn record(&mut self, stage: Stage, key: ContentHash, source: StageSource, started: Instant) {
         self.runs.push(StageRun { stage, key, source, seconds: started.elapsed().as_secs_f64() });
     }
@@ -740,6 +795,49 @@ mod tests {
             run(&twill, &materials, settings, &cache).computed(),
             vec![MeanFreePath, Visibility, Transfer, Volume]
         );
+    }
+
+    #[test]
+    fn a_material_preview_updates_single_scattering_and_keeps_multiple_scattering() {
+        use Stage::{CsTables, GnTables, Transfer};
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::new(dir.path()).unwrap();
+        let (exemplar, materials) = tiny(WeavePreset::Plain);
+        let settings = test_settings();
+        let before = run(&exemplar, &materials, settings, &cache);
+
+        // A new colour and a wider TT lobe for the warp.
+        let recoloured = match with_colour(materials[0], Rgb::new(0.2, 0.6, 0.3)) {
+            MaterialDesc::Fiber(p) => {
+                [MaterialDesc::Fiber(FiberParams { beta_tt_deg: p.beta_tt_deg + 5.0, ..p }), materials[1]]
+            }
+            MaterialDesc::Lambert { .. } => panic!("cotton_plain has fiber materials"),
+        };
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings };
+        let preview =
+            bake_material_preview(&inputs, &before.baked, Some(&cache), &Cancel::new(), &|_, _| {}).unwrap();
+        // Only the Gn tables are computed; transfer and C_S are the old ones, on purpose.
+        assert_eq!(preview.computed(), vec![GnTables]);
+        let kept: Vec<Stage> =
+            preview.stages.iter().filter(|r| r.source == StageSource::Kept).map(|r| r.stage).collect();
+        assert_eq!(kept, vec![Transfer, CsTables]);
+        assert_eq!(preview.baked.transfer, before.baked.transfer);
+        assert_eq!(preview.baked.cs_tables, before.baked.cs_tables);
+        assert_eq!(preview.baked.materials, recoloured.to_vec());
+
+        // The full bake then computes what the preview kept, and agrees with it on the rest.
+        let full = run(&exemplar, &recoloured, settings, &cache);
+        assert_eq!(full.computed(), vec![Transfer, CsTables]);
+        assert_eq!(full.baked.gn, preview.baked.gn);
+        assert_ne!(full.baked.gn, before.baked.gn, "the edit changed single scattering");
+        assert_ne!(full.baked.transfer, before.baked.transfer, "and multiple scattering");
+        assert_ne!(preview.key, full.key, "a preview's key is never a bake's");
+
+        // A preview from a bake with other settings is refused.
+        let other = BakeSettings { sh_order: 3, ..settings };
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings: other };
+        let refused = bake_material_preview(&inputs, &before.baked, None, &Cancel::new(), &|_, _| {});
+        assert!(matches!(refused, Err(BakeError::Fabric(_))), "{refused:?}");
     }
 
     #[test]
