@@ -16,7 +16,7 @@ use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
 use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX};
 use twill_renderer::gpu::Gpu;
-use twill_renderer::headless::{SceneRenderer, frame_settings};
+use twill_renderer::headless::{SceneRenderer, frame_settings, shell_for_mesh};
 use twill_renderer::plan::Components;
 use twill_tests::compare_with_golden;
 
@@ -165,6 +165,39 @@ fn sample_batches_add_up_to_one_frame() {
     assert!(first.radiance != second.radiance, "the two batches take different samples");
     let err = session.renderer.render_samples(camera, lights, &half, MAX_SAMPLE_INDEX - 1).unwrap_err();
     assert!(err.to_string().contains("sequence ends"), "{err}");
+}
+
+#[test]
+fn a_mesh_edit_replaces_only_the_shell() {
+    // The viewer's mesh edit: set_shell on a renderer of the swatch gives the same picture as a
+    // renderer built on the cushion, without uploading the fabric again.
+    let Some(gpu) = Gpu::for_test("a_mesh_edit_replaces_only_the_shell") else { return };
+    let flat = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
+    let cushion = scene(
+        &format!("{FABRIC}[mesh]\nbuiltin = \"cushion\"\nsize_cm = [1.0, 1.0]\n{}", camera_above(0.5)),
+        &[SUN],
+    );
+    let mut settings = frame_settings(&flat, Components::All);
+    (settings.width, settings.height, settings.spp) = (40, 32, 1);
+    settings.gpu.visibility_texture_size = 128;
+    settings.gpu.shadow_map_size = 256;
+    let mut session = SceneRenderer::with_gpu(gpu, &flat, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let before = session.render(&flat, &settings).expect("swatch renders");
+    let z = session.renderer.fabric_z_range();
+    let shell = shell_for_mesh(&cushion.mesh, cushion.swatch.size_cm, &cushion.base_dir, z).expect("cushion shell");
+    session.renderer.set_shell(&shell);
+    let edited = session.render(&cushion, &settings).expect("cushion renders");
+    let mut fresh = SceneRenderer::with_gpu(session.gpu, &cushion, &[default_bake()], &PatternMap::uniform(0))
+        .expect("cushion uploads");
+    let reference = fresh.render(&cushion, &settings).expect("cushion renders");
+    assert!(edited.radiance != before.radiance, "the mesh edit changed the picture");
+    for (i, (a, b)) in edited.radiance.iter().zip(&reference.radiance).enumerate() {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1.0), "pixel {i}: {a:?} vs {b:?}");
+        }
+    }
+    assert_eq!(edited.plan.to_string(), reference.plan.to_string());
 }
 
 #[test]

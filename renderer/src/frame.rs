@@ -647,6 +647,18 @@ impl Renderer {
         Ok(fitted)
     }
 
+    /// Replaces the base surface (a mesh edit): only the shell is uploaded again, the fabric
+    /// stays. `shell` must span [`Renderer::fabric_z_range`] (see `headless::shell_for_mesh`).
+    pub fn set_shell(&mut self, shell: &Shell) {
+        self.shell = upload_shell(&self.device, &self.queue, shell);
+    }
+
+    /// The baked fabric slab's depth range (cm), which a shell must span.
+    #[must_use]
+    pub fn fabric_z_range(&self) -> [f32; 2] {
+        self.fabric.arrays.header.z_range
+    }
+
     /// Renders one frame and reads it back.
     pub fn render(
         &mut self,

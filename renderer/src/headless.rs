@@ -11,7 +11,7 @@ use std::path::Path;
 
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
-use twill_precompute::scene::Scene;
+use twill_precompute::scene::{MeshSection, Scene};
 
 use crate::fabric_data::{FabricData, FabricDataError};
 use crate::frame::{Frame, FrameSettings, RenderError, Renderer};
@@ -34,11 +34,21 @@ pub enum HeadlessError {
 
 /// The shell of a scene's `[mesh]` (default: the flat swatch) around a fabric slab.
 pub fn shell_for_scene(scene: &Scene, z_range: [f32; 2]) -> Result<Shell, ShellError> {
-    let m = &scene.mesh;
-    let size = m.size_cm.unwrap_or(scene.swatch.size_cm);
+    shell_for_mesh(&scene.mesh, scene.swatch.size_cm, &scene.base_dir, z_range)
+}
+
+/// The shell of a `[mesh]` section around a fabric slab; `swatch_cm` is the default size of a
+/// built-in surface and `base_dir` resolves a relative mesh path.
+pub fn shell_for_mesh(
+    m: &MeshSection,
+    swatch_cm: [f64; 2],
+    base_dir: &Path,
+    z_range: [f32; 2],
+) -> Result<Shell, ShellError> {
+    let size = m.size_cm.unwrap_or(swatch_cm);
     let size = [size[0] as f32, size[1] as f32];
     let mut mesh = match (&m.builtin, &m.path) {
-        (_, Some(path)) => BaseMesh::load(&resolve(&scene.base_dir, path))?,
+        (_, Some(path)) => BaseMesh::load(&resolve(base_dir, path))?,
         (Some(name), None) => BaseMesh::builtin(name, size)?,
         (None, None) => BaseMesh::builtin("swatch", size)?,
     };
