@@ -4,13 +4,20 @@
 //! `scripted_edits_render_and_match_the_golden` starts the viewer on the built-in default
 //! scene with a script (`twill view --script`, see app/src/viewer/script.rs) that waits for the
 //! draft bake's picture, orbits the camera, moves the key light, changes the SG fill's
-//! sharpness λ and intensity, waits for 4 accumulated samples, takes a window screenshot with
+//! sharpness λ and intensity, flips a crossing of the weave draft (and waits for its bake),
+//! waits for 4 accumulated samples, takes a window screenshot with
 //! egui's screenshot API and exports the view as PNG and EXR with its scene TOML. The viewport
 //! part of the screenshot, at half size (2×2 box average: a small golden, and single fiber-edge
 //! pixels that flip between drivers count less), is compared with
 //! `tests/goldens/viewer_scripted_edits.png` (`twill_tests::compare_with_golden`: RMSE of 8-bit
 //! channels <= 3, at most 1% of pixels off by more than 32; `TWILL_BLESS=1` writes the golden).
 //! Only the viewport is compared: the panels show timings that change from run to run.
+//!
+//! `fabric_edits_rebake_only_what_they_change_and_undo_restores_them` edits a fiber material
+//! (single scattering previewed, then only the transfer and C_S stages computed), flips a weave
+//! cell (only the geometry stages computed), swaps the mesh (no bake at all), saves the scene,
+//! undoes everything (the bake comes back from the stage cache), saves again, and records UI
+//! frame times while a bake runs; the saved scenes must load and hold exactly the edits.
 //!
 //! `a_failed_bake_and_a_missing_scene_are_shown_in_the_window` opens a scene whose fabric cannot
 //! be built, then a scene file that does not exist, and checks that each error appears in the
@@ -172,6 +179,9 @@ fn scripted_edits_render_and_match_the_golden() {
         light 0 elevation 35\n\
         light 1 sharpness 40\n\
         light 1 intensity 2.5\n\
+        # Flip one crossing of the 2/2 twill: a geometry rebake.\n\
+        flip 0 0\n\
+        wait-idle\n\
         wait-spp 4\n\
         screenshot window.png\n\
         export export.png 96x64 2\n\
@@ -211,6 +221,93 @@ fn scripted_edits_render_and_match_the_golden() {
         panic!("light 1 should be the SG fill, is {:?}", saved.lights[1]);
     };
     assert!((sharpness - 40.0).abs() < 1e-9, "the edited λ is saved: {sharpness}");
+}
+
+/// The stages the `wait-idle` steps report, in order.
+fn idle_reports(stderr: &str) -> Vec<String> {
+    stderr
+        .lines()
+        .filter_map(|l| l.split_once("idle: the draft bake on screen computed ["))
+        .map(|(_, rest)| rest.trim_end_matches(']').to_owned())
+        .collect()
+}
+
+#[test]
+fn fabric_edits_rebake_only_what_they_change_and_undo_restores_them() {
+    let test = "fabric_edits_rebake_only_what_they_change_and_undo_restores_them";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    let script = "\
+        wait-fabric draft\n\
+        set spp 1\n\
+        wait-idle\n\
+        fiber warp beta_tt 20\n\
+        fiber warp c_tt 0.6 0.2 0.1\n\
+        wait-idle\n\
+        flip 0 0\n\
+        wait-idle\n\
+        mesh builtin cushion\n\
+        mesh thickness 1.5\n\
+        set spp 2\n\
+        wait-spp 2\n\
+        screenshot cushion.png\n\
+        save edited.toml\n\
+        undo\n\
+        undo\n\
+        undo\n\
+        wait-idle\n\
+        save undone.toml\n\
+        # A material edit whose transfer stage is not cached: frames while it bakes.\n\
+        fiber weft beta_r 7\n\
+        spin 2\n\
+        frame-times frames.txt\n\
+        wait-idle\n\
+        quit\n";
+    std::fs::write(out.join("fabric.script"), script).unwrap();
+    let run = run_viewer(&xvfb, out, &["--quality", "draft", "--window-size", "900x600", "--script", "fabric.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
+
+    let reports = idle_reports(&run.stderr);
+    let expected = [
+        // The first bake of an empty cache computes everything.
+        "mean_free_path, visibility, transfer, cs_tables, gn_tables, cg_table, volume",
+        // A material edit: its Gn tables came with the preview; transfer and C_S after it.
+        "transfer, cs_tables",
+        // A weave edit: the stages that depend on geometry.
+        "mean_free_path, visibility, transfer, volume",
+        // Undoing back to the material edit's scene: all of it from the cache.
+        "",
+        // The last material edit.
+        "transfer, cs_tables",
+    ];
+    assert_eq!(reports, expected, "stages computed per bake:\n{}", run.stderr);
+
+    let (_, _, cushion) = read_png_rgba(&out.join("cushion.viewport.png"));
+    let bright = cushion.iter().filter(|p| p[..3].iter().any(|&c| c > 40)).count();
+    assert!(bright > cushion.len() / 10, "the cushion is lit: {bright} of {} pixels", cushion.len());
+
+    let edited = SceneFile::load(&out.join("edited.toml")).expect("the saved scene loads");
+    edited.build().expect("the saved scene builds");
+    let Some(twill_precompute::bcsdf::MaterialDesc::Fiber(warp)) = edited.materials.warp else {
+        panic!("the warp material is saved: {:?}", edited.materials.warp);
+    };
+    assert!((warp.beta_tt_deg - 20.0).abs() < 1e-12 && (warp.c_tt.to_array()[0] - 0.6).abs() < 1e-12);
+    assert_eq!(edited.mesh.builtin.as_deref(), Some("cushion"));
+    assert!((edited.mesh.thickness_scale - 1.5).abs() < 1e-12);
+    let spec = edited.fabric.spec.as_ref().expect("a weave edit saves the full fabric spec");
+    let twill_precompute::fabric::presets::FabricSpec::Woven(woven) = spec else { panic!("woven") };
+    let draft = woven.weave.draft();
+    assert!(!draft.warp_over(0, 0), "the flipped crossing is saved");
+    assert!(draft.warp_over(0, 1));
+
+    let undone = SceneFile::load(&out.join("undone.toml")).expect("the second save loads");
+    assert_eq!(undone.fabric.preset.as_deref(), Some("default"), "the flip is undone");
+    assert!(undone.mesh.builtin.is_none() && (undone.mesh.thickness_scale - 1.0).abs() < 1e-12);
+    assert_eq!(undone.materials, edited.materials, "the material edit stays");
+
+    let frames = std::fs::read_to_string(out.join("frames.txt")).unwrap();
+    assert!(frames.contains("while baking: frame interval"), "{frames}");
 }
 
 #[test]

@@ -65,6 +65,21 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         frames: usize,
     },
+    /// The viewer's own frame times while a bake runs in the background (needs a display:
+    /// run under `xvfb-run -a` without one). The bake starts from an empty stage cache.
+    Ui {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Quality of the background bake.
+        #[arg(long, value_enum, default_value = "interactive")]
+        quality: QualityArg,
+        /// How long to orbit the view (and measure), seconds.
+        #[arg(long, default_value_t = 20.0)]
+        seconds: f64,
+        /// Window size in points, WIDTHxHEIGHT.
+        #[arg(long, value_parser = commands::parse_size, default_value = "1280x800")]
+        window_size: (usize, usize),
+    },
     /// The paper's Fig. 13 experiment on a flat swatch of the scene's fabric: RMSE of the
     /// average intensity over many light/view configurations against path-traced references,
     /// per method, and the path tracer's cost at equal error.
@@ -295,6 +310,12 @@ fn run(cli: Cli) -> Result<()> {
             timings: args.timings,
         }),
         Command::Bench { command } => match command {
+            BenchCommand::Ui { scene, quality, seconds, window_size } => {
+                let size = [window_size.0 as u32, window_size.1 as u32];
+                let report = viewer::bench_ui(scene, quality_of(quality), seconds, size)?;
+                println!("UI frame times (orbiting every frame; bake: {quality:?}, {seconds} s):\n{report}");
+                Ok(())
+            }
             BenchCommand::Passes { scene, size, spp, quality, frames } => {
                 commands::bench_passes(scene.as_deref(), size, spp, quality_of(quality), frames)
             }
@@ -341,6 +362,7 @@ fn view(args: ViewArgs) -> Result<()> {
         quality: quality_of(args.quality),
         script: args.script,
         window_size: [args.window_size.0 as u32, args.window_size.1 as u32],
+        cache_dir: None,
     })
 }
 

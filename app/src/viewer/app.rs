@@ -28,6 +28,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use eframe::egui;
+use twill_precompute::bake::pipeline::{Baked, Stage};
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::pathtrace::light::SG_SHARPNESS_RANGE;
@@ -40,6 +41,10 @@ use super::ViewerOptions;
 use super::accumulate::{Accumulation, Added};
 use super::bake::{BakeEvent, Baker};
 use super::camera::OrbitCamera;
+use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_panel};
+use super::history::History;
+use super::mesh::{MeshForm, mesh_panel};
+use super::timing::FrameStats;
 use super::export::{
     ExportAction, ExportForm, ExportFormat, ExportStatus, ViewSettings, export_panel, scene_toml,
 };
@@ -49,7 +54,7 @@ use super::quality::{
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, VOLUME_SAMPLES_RANGE, quality_panel,
 };
 use super::render_worker::{
-    DeviceHandles, ExportRequest, FrameRequest, NewFabric, RenderWorker, WorkerEvent,
+    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, WorkerEvent,
 };
 use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
 
@@ -67,6 +72,8 @@ const RIGHT_PANEL_WIDTH: f32 = 310.0;
 const SLIDER_WIDTH: f32 = 120.0;
 /// The smallest viewport rendered, in pixels per side.
 const MIN_VIEWPORT_PX: u32 = 8;
+/// How long a fabric edit must rest before its bake starts (a drag restarts it each frame).
+const FABRIC_EDIT_SETTLE: Duration = Duration::from_millis(250);
 
 /// Severity of a message in the message list.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -105,6 +112,7 @@ impl Messages {
 #[derive(Debug, Clone, PartialEq)]
 struct ViewKey {
     fabric_id: u64,
+    shell_id: u64,
     camera: CameraSection,
     lights: Vec<Light>,
     components: Components,
@@ -119,6 +127,22 @@ impl ViewKey {
     }
 }
 
+/// What undo and redo restore: everything a user edits except the camera.
+#[derive(Debug, Clone, PartialEq)]
+struct Snapshot {
+    scene: SceneFile,
+    lights: Vec<LightEdit>,
+    gpu: GpuSection,
+}
+
+/// A bake sent to the worker and not yet on screen.
+struct Uploading {
+    fabric_id: u64,
+    bake_seconds: f64,
+    computed: Vec<Stage>,
+    baked: Arc<Baked>,
+}
+
 /// A script being played.
 struct ScriptRun {
     lines: Vec<ScriptLine>,
@@ -130,6 +154,8 @@ struct ScriptRun {
     errors_seen: usize,
     expected_error_seen: bool,
     finished: bool,
+    /// When a `spin` step ends.
+    spin_until: Option<Instant>,
 }
 
 /// The state of the last export.
@@ -157,9 +183,23 @@ pub struct ViewerApp {
     baker: Baker,
     worker: Option<RenderWorker>,
     next_fabric_id: u64,
-    /// Bakes sent to the worker and not yet uploaded: (fabric id, bake seconds, computed stages).
-    uploading: Vec<(u64, f64, usize)>,
+    uploading: Vec<Uploading>,
     fabric: Option<FabricInfo>,
+    /// The bake on screen (a material edit previews from it).
+    shown_bake: Option<Arc<Baked>>,
+    /// The scene whose fabric and materials the last bake was started for.
+    baked_scene: Option<SceneFile>,
+    /// A fabric edit waiting for [`FABRIC_EDIT_SETTLE`], and since when.
+    pending_fabric: Option<(SceneFile, Instant)>,
+    /// The mesh (and swatch size) last sent to the worker.
+    mesh_sent: Option<(twill_precompute::scene::MeshSection, [f64; 2])>,
+    shell_id: u64,
+
+    history: History<Snapshot>,
+    weave_form: WeaveForm,
+    mesh_form: MeshForm,
+    scene_path_field: String,
+    ui_timing: super::timing::UiTiming,
 
     generation: u64,
     /// The generation of the last edit (a fabric change is no edit).
@@ -247,10 +287,12 @@ impl ViewerApp {
             messages.error("eframe opened no wgpu device: nothing can be rendered");
             None
         };
-        let mut baker = Baker::new(cc.egui_ctx.clone());
+        let mut baker = Baker::new(cc.egui_ctx.clone(), options.cache_dir.clone());
         if let Some(file) = &scene_file {
             baker.start(file.clone(), bake_sequence(options.quality));
         }
+        let scene_path_field = options.scene.as_ref().map_or_else(String::new, |p| p.display().to_string());
+        let baked_scene = scene_file.clone();
         Self {
             source_text,
             source_path,
@@ -269,6 +311,16 @@ impl ViewerApp {
             next_fabric_id: 1,
             uploading: Vec::new(),
             fabric: None,
+            shown_bake: None,
+            baked_scene: baked_scene.clone(),
+            pending_fabric: None,
+            mesh_sent: baked_scene.as_ref().map(|f| (f.mesh.clone(), f.swatch.size_cm)),
+            shell_id: 0,
+            history: History::default(),
+            weave_form: WeaveForm::default(),
+            mesh_form: MeshForm::default(),
+            scene_path_field,
+            ui_timing: super::timing::UiTiming::default(),
             generation: 0,
             edit_generation: 0,
             view_key: None,
@@ -295,6 +347,7 @@ impl ViewerApp {
                 errors_seen: 0,
                 expected_error_seen: false,
                 finished: false,
+                spin_until: None,
             }),
             outcome,
         }
@@ -305,7 +358,153 @@ impl ViewerApp {
             let sequence = if self.fabric.is_none() { bake_sequence(quality) } else { vec![quality] };
             self.baker.start(file.clone(), sequence);
             self.final_quality = quality;
+            self.baked_scene = Some(file.clone());
+            self.pending_fabric = None;
         }
+    }
+
+    /// Starts what an edit of the fabric or its materials needs, once the edit has rested for
+    /// [`FABRIC_EDIT_SETTLE`] with no pointer button held: a material edit previews single
+    /// scattering from the bake on screen and then bakes in full (only the material stages are
+    /// not in the stage cache); a weave or yarn edit bakes a draft first, then the final quality.
+    /// A mesh or swatch edit goes to the render worker, which swaps the shell (no bake).
+    fn follow_scene_edits(&mut self, ctx: &egui::Context) {
+        let Some(scene) = &self.scene_file else { return };
+        if let Some(worker) = &self.worker {
+            let mesh = (scene.mesh.clone(), scene.swatch.size_cm);
+            if self.mesh_sent.as_ref() != Some(&mesh) {
+                worker.set_mesh(MeshRequest {
+                    mesh: mesh.0.clone(),
+                    swatch_cm: mesh.1,
+                    base_dir: scene.path.parent().unwrap_or(Path::new(".")).to_path_buf(),
+                });
+                self.mesh_sent = Some(mesh);
+            }
+        }
+        let baked = self.baked_scene.as_ref();
+        let geometry_changed = baked.is_none_or(|b| b.fabric != scene.fabric);
+        let materials_changed = baked.is_none_or(|b| b.materials != scene.materials);
+        if !geometry_changed && !materials_changed {
+            self.pending_fabric = None;
+            return;
+        }
+        match &self.pending_fabric {
+            Some((pending, _)) if pending == scene => {}
+            _ => self.pending_fabric = Some((scene.clone(), Instant::now())),
+        }
+        let rested = self.pending_fabric.as_ref().map_or(Duration::ZERO, |(_, at)| at.elapsed());
+        if rested < FABRIC_EDIT_SETTLE || ctx.input(|i| i.pointer.any_down()) {
+            ctx.request_repaint_after(FABRIC_EDIT_SETTLE.saturating_sub(rested));
+            return;
+        }
+        let scene = scene.clone();
+        match (&self.shown_bake, geometry_changed) {
+            (Some(previous), false) => {
+                self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous));
+            }
+            _ => self.baker.start(scene.clone(), bake_sequence(self.final_quality)),
+        }
+        self.baked_scene = Some(scene);
+        self.pending_fabric = None;
+    }
+
+    /// No bake running or waiting, the latest bake of the scene as edited on screen (not a
+    /// preview) and its picture current.
+    fn is_idle(&self) -> bool {
+        let baked_current = match (&self.scene_file, &self.baked_scene) {
+            (Some(scene), Some(baked)) => scene.fabric == baked.fabric && scene.materials == baked.materials,
+            _ => false,
+        };
+        baked_current
+            && self.pending_fabric.is_none()
+            && self.baker.progress().is_none()
+            && self.uploading.is_empty()
+            && self.fabric.as_ref().is_some_and(|f| !f.preview)
+            && self.picture_is_current()
+    }
+
+    /// The UI frame times recorded so far, as text.
+    fn frame_times_report(&self) -> String {
+        let mut text = String::new();
+        for (what, frames) in [("while baking", &self.ui_timing.baking), ("not baking", &self.ui_timing.idle)] {
+            let interval = FrameStats::of(frames.iter().map(|f| f.1));
+            let ui = FrameStats::of(frames.iter().map(|f| f.0));
+            match (interval, ui) {
+                (Some(interval), Some(ui)) => {
+                    text.push_str(&format!("{what}: frame interval {interval}; ui() CPU time {ui}\n"));
+                }
+                _ => text.push_str(&format!("{what}: no frames\n")),
+            }
+        }
+        text
+    }
+
+    fn snapshot(&self) -> Option<Snapshot> {
+        Some(Snapshot { scene: self.scene_file.clone()?, lights: self.lights.clone(), gpu: self.controls.gpu })
+    }
+
+    fn apply_snapshot(&mut self, snapshot: Snapshot) {
+        self.scene_file = Some(snapshot.scene);
+        self.lights = snapshot.lights;
+        self.selected_light = self.selected_light.min(self.lights.len().saturating_sub(1));
+        self.controls.gpu = snapshot.gpu;
+    }
+
+    fn undo(&mut self) -> bool {
+        let Some(current) = self.snapshot() else { return false };
+        self.history.undo(&current).map(|s| self.apply_snapshot(s)).is_some()
+    }
+
+    fn redo(&mut self) -> bool {
+        let Some(current) = self.snapshot() else { return false };
+        self.history.redo(&current).map(|s| self.apply_snapshot(s)).is_some()
+    }
+
+    /// The scene as it is on screen: the edited fabric, materials and mesh, the camera, lights
+    /// and render settings.
+    fn current_scene_file(&self) -> Result<SceneFile, String> {
+        let mut scene = self.scene_file.clone().ok_or("no scene is loaded")?;
+        scene.camera = self.camera.section();
+        scene.lights = self.lights.iter().map(LightEdit::section).collect();
+        scene.gpu = self.controls.gpu;
+        scene.render.spp = self.controls.target_spp;
+        scene.render.exposure = self.controls.exposure;
+        Ok(scene)
+    }
+
+    fn save_scene(&mut self, path: &Path) -> Result<(), String> {
+        let scene = self.current_scene_file()?;
+        scene.save(path).map_err(|e| format!("the scene could not be saved: {e}"))?;
+        self.messages.info(format!("saved {}", path.display()));
+        Ok(())
+    }
+
+    /// Opens another scene: its fabric is baked (draft first), its camera, lights and
+    /// settings replace the current ones, and undo starts afresh.
+    fn load_scene(&mut self, path: &Path) -> Result<(), String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("the scene could not be read: {}: {e}", path.display()))?;
+        let file = SceneFile::parse(&text, path).map_err(|e| format!("the scene could not be loaded: {e}"))?;
+        file.build().map_err(|e| format!("the scene cannot be built: {e}"))?;
+        self.camera = OrbitCamera::from_section(&file.camera);
+        self.initial_camera = self.camera;
+        self.lights = file.lights.iter().map(LightEdit::from_section).collect();
+        self.scene_lights = self.lights.clone();
+        self.selected_light = 0;
+        self.controls = default_controls(&file);
+        self.source_text = text;
+        self.source_path = path.to_path_buf();
+        self.scene_file = Some(file.clone());
+        self.shown_bake = None;
+        self.fabric = None;
+        self.baker.start(file.clone(), bake_sequence(self.final_quality));
+        self.baked_scene = Some(file);
+        self.pending_fabric = None;
+        if let Some(current) = self.snapshot() {
+            self.history.reset(&current);
+        }
+        self.messages.info(format!("loaded {}", path.display()));
+        Ok(())
     }
 
     fn handle_bake_events(&mut self) {
@@ -315,10 +514,16 @@ impl ViewerApp {
                     let Some(worker) = &self.worker else { continue };
                     let fabric_id = self.next_fabric_id;
                     self.next_fabric_id += 1;
-                    self.uploading.push((fabric_id, bake.seconds, bake.computed.len()));
+                    self.uploading.push(Uploading {
+                        fabric_id,
+                        bake_seconds: bake.seconds,
+                        computed: bake.computed.clone(),
+                        baked: Arc::clone(&bake.baked),
+                    });
                     worker.set_fabric(NewFabric {
                         fabric_id,
                         quality: bake.quality,
+                        preview: bake.preview,
                         baked: bake.baked,
                         scene: bake.scene,
                     });
@@ -332,16 +537,29 @@ impl ViewerApp {
         let Some(worker) = &self.worker else { return };
         for event in worker.poll() {
             match event {
-                WorkerEvent::FabricReady { fabric_id, quality, adapter, resident_bytes, bounds, seconds } => {
-                    let (bake_seconds, computed_stages) = self
-                        .uploading
-                        .iter()
-                        .find(|(id, ..)| *id == fabric_id)
-                        .map_or((0.0, 0), |(_, s, c)| (*s, *c));
-                    self.uploading.retain(|(id, ..)| *id > fabric_id);
+                WorkerEvent::FabricReady {
+                    fabric_id,
+                    quality,
+                    preview,
+                    adapter,
+                    resident_bytes,
+                    bounds,
+                    seconds,
+                } => {
+                    let uploaded = self.uploading.iter().position(|u| u.fabric_id == fabric_id);
+                    let (bake_seconds, computed_stages) = match uploaded {
+                        Some(i) => {
+                            let u = &self.uploading[i];
+                            self.shown_bake = Some(Arc::clone(&u.baked));
+                            (u.bake_seconds, u.computed.clone())
+                        }
+                        None => (0.0, Vec::new()),
+                    };
+                    self.uploading.retain(|u| u.fabric_id > fabric_id);
                     self.fabric = Some(FabricInfo {
                         id: fabric_id,
                         quality,
+                        preview,
                         bake_seconds,
                         computed_stages,
                         upload_seconds: seconds,
@@ -350,7 +568,16 @@ impl ViewerApp {
                         bounds,
                     });
                 }
-                WorkerEvent::FabricFailed { message } => self.messages.error(message),
+                WorkerEvent::FabricFailed { message } | WorkerEvent::MeshFailed { message } => {
+                    self.messages.error(message);
+                }
+                WorkerEvent::MeshReady { bounds, seconds } => {
+                    self.shell_id += 1;
+                    if let Some(f) = &mut self.fabric {
+                        f.bounds = bounds;
+                    }
+                    log::info!("new shell in {seconds:.2} s");
+                }
                 WorkerEvent::Frame(result) => {
                     if self.in_flight.as_ref() == Some(&result.request) {
                         self.in_flight = None;
@@ -436,6 +663,23 @@ impl ViewerApp {
         }
     }
 
+    fn shortcuts(&mut self, ctx: &egui::Context) {
+        if ctx.egui_wants_keyboard_input() {
+            return;
+        }
+        let (undo, redo) = ctx.input_mut(|i| {
+            let redo = i.consume_key(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z)
+                || i.consume_key(egui::Modifiers::COMMAND, egui::Key::Y);
+            (i.consume_key(egui::Modifiers::COMMAND, egui::Key::Z), redo)
+        });
+        if undo {
+            self.undo();
+        }
+        if redo {
+            self.redo();
+        }
+    }
+
     fn top_bar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label(egui::RichText::new("twill").strong());
@@ -451,6 +695,40 @@ impl ViewerApp {
             }
             if ui.button("Reset view").on_hover_text("The scene's camera").clicked() {
                 self.camera = self.initial_camera;
+            }
+            ui.separator();
+            let current = self.snapshot();
+            let can_undo = current.as_ref().is_some_and(|c| self.history.can_undo(c));
+            if ui.add_enabled(can_undo, egui::Button::new("Undo")).on_hover_text("Ctrl+Z").clicked() {
+                self.undo();
+            }
+            if ui
+                .add_enabled(self.history.can_redo(), egui::Button::new("Redo"))
+                .on_hover_text("Ctrl+Shift+Z or Ctrl+Y")
+                .clicked()
+            {
+                self.redo();
+            }
+            ui.separator();
+            ui.add(
+                egui::TextEdit::singleline(&mut self.scene_path_field)
+                    .hint_text("scene.toml")
+                    .desired_width(160.0),
+            );
+            let path = PathBuf::from(self.scene_path_field.trim());
+            let has_path = !self.scene_path_field.trim().is_empty();
+            if ui
+                .add_enabled(has_path && self.scene_file.is_some(), egui::Button::new("Save"))
+                .on_hover_text("Save the scene as shown (the CLI's format)")
+                .clicked()
+                && let Err(e) = self.save_scene(&path)
+            {
+                self.messages.error(e);
+            }
+            if ui.add_enabled(has_path, egui::Button::new("Open")).on_hover_text("Open a scene file").clicked()
+                && let Err(e) = self.load_scene(&path)
+            {
+                self.messages.error(e);
             }
             ui.separator();
             match (self.baker.progress(), &self.fabric) {
@@ -530,6 +808,23 @@ impl ViewerApp {
                     ui.colored_label(ui.visuals().error_fg_color, e);
                 }
             });
+            if let Some(scene) = self.scene_file.as_mut() {
+                egui::CollapsingHeader::new("Fibers").default_open(true).show(ui, |ui| {
+                    fibers_panel(ui, scene);
+                });
+                egui::CollapsingHeader::new("Weave").default_open(true).show(ui, |ui| {
+                    match weave_panel(ui, scene, &mut self.weave_form) {
+                        Some(WeaveAction::ImportWif(path)) => {
+                            self.weave_form.message = import_wif(scene, Path::new(&path)).err();
+                        }
+                        None => {}
+                    }
+                });
+                egui::CollapsingHeader::new("Mesh").default_open(false).show(ui, |ui| {
+                    let swatch = scene.swatch.size_cm;
+                    mesh_panel(ui, &mut scene.mesh, swatch, &mut self.mesh_form);
+                });
+            }
             egui::CollapsingHeader::new("Export").default_open(true).show(ui, |ui| {
                 let size = (self.viewport_px[0] > 0).then_some(self.viewport_px);
                 let can_export = self.fabric.is_some() && self.worker.is_some();
@@ -559,6 +854,8 @@ impl ViewerApp {
             current: self.picture_is_current(),
             full_size: self.viewport_px,
             interaction_scale: self.interaction_scale(),
+            ui_baking: FrameStats::of(self.ui_timing.baking.iter().map(|f| f.0)),
+            ui_idle: FrameStats::of(self.ui_timing.idle.iter().map(|f| f.0)),
         };
         let (controls, bake_choice) = (&mut self.controls, &mut self.bake_choice);
         let action =
@@ -661,6 +958,7 @@ impl ViewerApp {
         }
         let key = ViewKey {
             fabric_id: fabric.id,
+            shell_id: self.shell_id,
             camera: self.camera.section(),
             lights,
             components: self.controls.components,
@@ -972,11 +1270,79 @@ impl ViewerApp {
                 (ExportStatus::Idle, None) => Err("no export was started".into()),
             },
             Step::ExpectError(_) => Ok(run.expected_error_seen),
+            Step::Flip { .. }
+            | Step::Weave(_)
+            | Step::Repeat { .. }
+            | Step::ImportWif(_)
+            | Step::Fiber { .. }
+            | Step::Mesh(_) => {
+                let scene = self.scene_file.as_mut().ok_or("no scene is loaded")?;
+                edit_scene(scene, step)?;
+                Ok(true)
+            }
+            Step::Undo => self.undo().then_some(true).ok_or_else(|| "nothing to undo".into()),
+            Step::Redo => self.redo().then_some(true).ok_or_else(|| "nothing to redo".into()),
+            Step::Save(path) => self.save_scene(path).map(|()| true),
+            Step::Open(path) => self.load_scene(path).map(|()| true),
+            Step::WaitIdle => {
+                let idle = self.is_idle();
+                if let (true, Some(f)) = (idle, &self.fabric) {
+                    let names: Vec<&str> = f.computed_stages.iter().map(|s| s.name()).collect();
+                    eprintln!("idle: the {} bake on screen computed [{}]", f.quality.name(), names.join(", "));
+                }
+                Ok(idle)
+            }
+            Step::Spin(seconds) => {
+                let until = *run.spin_until.get_or_insert_with(|| Instant::now() + Duration::from_secs_f64(*seconds));
+                if Instant::now() >= until {
+                    run.spin_until = None;
+                    return Ok(true);
+                }
+                self.camera.orbit(0.5, 0.0);
+                ctx.request_repaint();
+                Ok(false)
+            }
+            Step::FrameTimes(path) => {
+                let text = self.frame_times_report();
+                twill_precompute::atomic_file::write_atomically(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                eprint!("{text}");
+                self.ui_timing.clear();
+                Ok(true)
+            }
             Step::Quit => {
                 run.next = run.lines.len() - 1;
                 Ok(true)
             }
         }
+    }
+}
+
+/// Applies a script's fabric or mesh edit through the panels' own functions.
+fn edit_scene(scene: &mut SceneFile, step: &Step) -> Result<(), String> {
+    use super::fabric::{flip_cell, resize_draft, set_fiber_field, set_weave_preset};
+    use super::mesh::{set_builtin, set_thickness};
+    use super::script::MeshEdit;
+    match step {
+        Step::Flip { row, col } => flip_cell(scene, *row, *col),
+        Step::Weave(name) => {
+            let preset = twill_precompute::fabric::weave::WeavePreset::ALL
+                .into_iter()
+                .find(|p| p.name() == name)
+                .ok_or_else(|| format!("unknown weave {name:?}"))?;
+            set_weave_preset(scene, preset)
+        }
+        Step::Repeat { rows, cols } => resize_draft(scene, *rows, *cols),
+        Step::ImportWif(path) => import_wif(scene, path),
+        Step::Fiber { slot, field } => set_fiber_field(scene, *slot, *field),
+        Step::Mesh(MeshEdit::Builtin(name)) => set_builtin(&mut scene.mesh, name),
+        Step::Mesh(MeshEdit::File(path)) => {
+            scene.mesh.builtin = None;
+            scene.mesh.path = Some(path.clone());
+            Ok(())
+        }
+        Step::Mesh(MeshEdit::Thickness(t)) => set_thickness(&mut scene.mesh, *t),
+        _ => Err("not a scene edit".into()),
     }
 }
 
@@ -1110,7 +1476,9 @@ fn write_screenshots(path: &Path, image: &egui::ColorImage, viewport_px: egui::R
 
 impl eframe::App for ViewerApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let frame_started = Instant::now();
         let ctx = ui.ctx().clone();
+        self.shortcuts(&ctx);
         self.handle_bake_events();
         self.handle_worker_events();
         self.refresh_texture(&ctx);
@@ -1139,7 +1507,14 @@ impl eframe::App for ViewerApp {
         );
         self.messages_overlay(&ctx, viewport);
 
+        self.follow_scene_edits(&ctx);
+        if !ctx.input(|i| i.pointer.any_down())
+            && let Some(current) = self.snapshot()
+        {
+            self.history.record(&current);
+        }
         self.schedule(&ctx);
         self.run_script(&ctx);
+        self.ui_timing.frame(frame_started, self.baker.progress().is_some());
     }
 }

@@ -12,6 +12,11 @@
 //! (a rough guide, not a promise). Finished bakes and failures arrive as [`BakeEvent`]s; the
 //! viewer forwards a finished bake to the render worker, and keeps showing the old picture until
 //! the new fabric's first frame is ready.
+//!
+//! A material edit ([`Baker::start_material_edit`]) first hands over a preview that recomputes
+//! only the single-scattering tables and keeps the previous bake's multiple scattering
+//! (`bake_material_preview`: a fraction of a second), then the full bake, whose transfer stage
+//! is the only slow one left (the geometry stages come from the stage cache).
 
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -19,7 +24,7 @@ use std::time::{Duration, Instant};
 
 use eframe::egui;
 use twill_precompute::bake::Cancel;
-use twill_precompute::bake::pipeline::{BakeError, BakeInputs, Baked, Stage, bake};
+use twill_precompute::bake::pipeline::{BakeError, BakeInputs, Baked, Stage, bake, bake_material_preview};
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::scene::{Scene, SceneFile};
 
@@ -38,6 +43,8 @@ pub struct FabricBake {
     pub seconds: f64,
     /// Stages computed rather than loaded from the cache.
     pub computed: Vec<Stage>,
+    /// A material preview: multiple scattering is still the previous bake's.
+    pub preview: bool,
 }
 
 /// What the bake thread reports.
@@ -86,6 +93,8 @@ struct Shared {
 
 /// Runs bakes in the background (see the module docs).
 pub struct Baker {
+    /// The stage cache's folder (None: the default one).
+    cache_dir: Option<std::path::PathBuf>,
     shared: Arc<Mutex<Shared>>,
     cancel: Option<Cancel>,
     next_id: u64,
@@ -95,14 +104,25 @@ pub struct Baker {
 }
 
 impl Baker {
+    /// A baker using the stage cache in `cache_dir` (default: the one `twill bake` uses).
     #[must_use]
-    pub fn new(repaint: egui::Context) -> Self {
+    pub fn new(repaint: egui::Context, cache_dir: Option<std::path::PathBuf>) -> Self {
         let (sender, receiver) = channel();
-        Self { shared: Arc::default(), cancel: None, next_id: 1, sender, receiver, repaint }
+        Self { cache_dir, shared: Arc::default(), cancel: None, next_id: 1, sender, receiver, repaint }
     }
 
     /// Bakes `scene`'s fabric at each of `qualities` in turn, cancelling any bake in flight.
     pub fn start(&mut self, scene: SceneFile, qualities: Vec<Quality>) {
+        self.spawn(scene, qualities, None);
+    }
+
+    /// After a material edit: a preview from `previous` (a bake of the same geometry at
+    /// `quality`), then the full bake at `quality`.
+    pub fn start_material_edit(&mut self, scene: SceneFile, quality: Quality, previous: Arc<Baked>) {
+        self.spawn(scene, vec![quality], Some(previous));
+    }
+
+    fn spawn(&mut self, scene: SceneFile, qualities: Vec<Quality>, preview_from: Option<Arc<Baked>>) {
         self.cancel();
         let id = self.next_id;
         self.next_id += 1;
@@ -110,8 +130,15 @@ impl Baker {
         self.cancel = Some(cancel.clone());
         lock(&self.shared).current = id;
         let (shared, sender, repaint) = (Arc::clone(&self.shared), self.sender.clone(), self.repaint.clone());
+        let cache_dir = self.cache_dir.clone();
         let spawned = std::thread::Builder::new().name("twill-bake".into()).spawn(move || {
-            run_bakes(id, &scene, &qualities, &cancel, &shared, &sender, &repaint);
+            let job = BakeJob {
+                id,
+                qualities: &qualities,
+                preview_from: preview_from.as_deref(),
+                cache_dir: cache_dir.as_deref(),
+            };
+            run_bakes(&job, &scene, &cancel, &shared, &sender, &repaint);
         });
         if let Err(e) = spawned {
             let message = format!("could not start the bake thread: {e}");
@@ -152,15 +179,24 @@ fn lock(shared: &Mutex<Shared>) -> std::sync::MutexGuard<'_, Shared> {
     shared.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-fn run_bakes(
+/// What one bake thread does.
+struct BakeJob<'a> {
     id: u64,
+    qualities: &'a [Quality],
+    /// Start with a material preview from this bake.
+    preview_from: Option<&'a Baked>,
+    cache_dir: Option<&'a std::path::Path>,
+}
+
+fn run_bakes(
+    job: &BakeJob<'_>,
     scene_file: &SceneFile,
-    qualities: &[Quality],
     cancel: &Cancel,
     shared: &Mutex<Shared>,
     sender: &Sender<(u64, BakeEvent)>,
     repaint: &egui::Context,
 ) {
+    let (id, qualities) = (job.id, job.qualities);
     let report = |event: BakeEvent| {
         let _ = sender.send((id, event));
         repaint.request_repaint();
@@ -187,7 +223,7 @@ fn run_bakes(
             return;
         }
     };
-    let cache = match crate::commands::open_cache(None, false) {
+    let cache = match crate::commands::open_cache(job.cache_dir, false) {
         Ok(cache) => cache,
         Err(e) => {
             log::warn!("baking without the stage cache: {e:#}");
@@ -217,6 +253,21 @@ fn run_bakes(
             materials: &scene.material_descs,
             settings: quality.settings(),
         };
+        if let Some(previous) = job.preview_from.filter(|p| p.settings == inputs.settings) {
+            match bake_material_preview(&inputs, previous, cache.as_ref(), cancel, &|_, _| {}) {
+                Ok(outcome) => report(BakeEvent::Ready(FabricBake {
+                    quality,
+                    computed: outcome.computed(),
+                    baked: Arc::new(outcome.baked),
+                    scene: Arc::clone(&scene),
+                    seconds: started.elapsed().as_secs_f64(),
+                    preview: true,
+                })),
+                Err(BakeError::Cancelled) => return,
+                // The full bake below says what is wrong.
+                Err(e) => log::warn!("no material preview: {e}"),
+            }
+        }
         match bake(&inputs, cache.as_ref(), cancel, &progress) {
             Ok(outcome) => {
                 let computed = outcome.computed();
@@ -226,6 +277,7 @@ fn run_bakes(
                     scene: Arc::clone(&scene),
                     seconds: started.elapsed().as_secs_f64(),
                     computed,
+                    preview: false,
                 }));
             }
             Err(BakeError::Cancelled) => return,

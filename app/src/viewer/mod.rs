@@ -10,6 +10,12 @@
 //!   showing the picture as an egui texture;
 //! - orbits, pans, zooms and fits the camera ([`camera`]);
 //! - edits lights ([`lights`]) and render settings ([`quality`]), which only restart the picture;
+//! - edits the fabric ([`fabric`]: fiber scattering parameters, the weave draft, WIF import,
+//!   yarns) and the base mesh ([`mesh`]); a material edit shows new single scattering at once
+//!   and rebakes multiple scattering in the background, a weave edit rebakes what depends on
+//!   geometry, a mesh edit only swaps the shell; undo and redo cover every edit ([`history`]);
+//! - saves and opens scenes in the CLI's format;
+//! - measures its own frame times, above all while a bake runs ([`timing`]);
 //! - exports the view at any size and sample count as PNG or EXR with its scene settings
 //!   ([`export`]);
 //! - plays scripts of edits and screenshots for tests ([`script`]).
@@ -22,10 +28,14 @@ mod app;
 mod bake;
 mod camera;
 mod export;
+mod fabric;
+mod history;
 mod lights;
+mod mesh;
 mod quality;
 mod render_worker;
 mod script;
+mod timing;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -45,6 +55,32 @@ pub struct ViewerOptions {
     pub script: Option<PathBuf>,
     /// Window's inner size in points.
     pub window_size: [u32; 2],
+    /// Stage cache folder (default: the one `twill bake` uses).
+    pub cache_dir: Option<PathBuf>,
+}
+
+/// `twill bench ui`: the viewer's own frame times while a bake of `quality` runs in the
+/// background from an empty stage cache (so every stage is computed), with the view orbiting
+/// every frame as if dragged. Runs the viewer with a script and returns its report.
+pub fn bench_ui(scene: Option<PathBuf>, quality: Quality, seconds: f64, window_size: [u32; 2]) -> Result<String> {
+    let dir = tempfile::tempdir().context("a temporary folder for the benchmark")?;
+    let report = dir.path().join("frame-times.txt");
+    let script = dir.path().join("bench.script");
+    let text = format!(
+        "wait-fabric draft\nframe-times {}\nbake {}\nspin {seconds}\nframe-times {}\nquit\n",
+        dir.path().join("warm-up.txt").display(),
+        quality.name(),
+        report.display()
+    );
+    std::fs::write(&script, text).context("writing the benchmark script")?;
+    run(ViewerOptions {
+        scene,
+        quality: Quality::Draft,
+        script: Some(script),
+        window_size,
+        cache_dir: Some(dir.path().join("cache")),
+    })?;
+    std::fs::read_to_string(&report).context("the benchmark wrote no report")
 }
 
 /// The device the viewer asks eframe for: Vulkan, the adapter's own limits, and timestamp

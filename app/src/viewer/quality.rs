@@ -20,6 +20,7 @@ use twill_renderer::plan::Components;
 
 use super::accumulate::Accumulation;
 use super::bake::BakeProgress;
+use super::timing::FrameStats;
 
 /// Render-time settings the panel edits.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,15 +46,19 @@ pub const INTERACTION_SCALE_RANGE: (f64, f64) = (0.125, 1.0);
 pub const INTERACTION_BUDGET_MS: f64 = 100.0;
 pub const VOLUME_SAMPLES_RANGE: (u32, u32) = (2, 1024);
 pub const SIGMA_GLO_RANGE_CM: (f64, f64) = (0.0, 1.0);
+pub const PCF_RADIUS_RANGE: (f64, f64) = (0.0, 8.0);
+pub const SHADOW_BIAS_RANGE: (f64, f64) = (0.0, 8.0);
 
 /// The fabric on screen.
 #[derive(Debug, Clone)]
 pub struct FabricInfo {
     pub id: u64,
     pub quality: Quality,
+    /// A material preview: multiple scattering is still the previous bake's.
+    pub preview: bool,
     pub bake_seconds: f64,
-    /// Stages computed (the rest came from the stage cache).
-    pub computed_stages: usize,
+    /// Stages computed (the rest came from the stage cache or, for a preview, the last bake).
+    pub computed_stages: Vec<Stage>,
     pub upload_seconds: f64,
     pub adapter: String,
     pub resident_bytes: u64,
@@ -71,6 +76,9 @@ pub struct QualityView<'a> {
     pub full_size: [u32; 2],
     /// The fraction of it rendered while the view changes.
     pub interaction_scale: f64,
+    /// CPU time of the viewer's recent frames, with and without a bake running.
+    pub ui_baking: Option<FrameStats>,
+    pub ui_idle: Option<FrameStats>,
 }
 
 /// What the user asked for.
@@ -95,16 +103,26 @@ pub fn quality_panel(
     egui::CollapsingHeader::new("Fabric and bake").default_open(true).show(ui, |ui| {
         match view.fabric {
             Some(f) => {
-                let stages = match f.computed_stages {
+                let stages = match f.computed_stages.len() {
                     0 => "every stage from the cache".to_owned(),
                     n if n >= Stage::ALL.len() => "every stage computed".to_owned(),
-                    n => format!("{n} of {} stages computed, the rest from the cache", Stage::ALL.len()),
+                    _ => {
+                        let names: Vec<&str> = f.computed_stages.iter().map(|s| s.name()).collect();
+                        format!("computed {}, the rest from the cache", names.join(", "))
+                    }
                 };
                 ui.label(format!(
                     "Showing the {} bake ({:.1} s, {stages}).",
                     f.quality.name(),
                     f.bake_seconds
                 ));
+                if f.preview {
+                    ui.colored_label(
+                        ui.visuals().warn_fg_color,
+                        "Material preview: single scattering is new, multiple scattering is the \
+                         previous bake's until the bake in progress finishes.",
+                    );
+                }
                 ui.label(format!(
                     "Uploaded in {:.2} s: {:.1} MB on the GPU.",
                     f.upload_seconds,
@@ -217,6 +235,15 @@ pub fn quality_panel(
         )
         .on_hover_text("Samples along each eye ray per shell tetrahedron (paper: 32, 64 or 128)");
         ui.add(
+            egui::Slider::new(&mut controls.gpu.pcf_radius_texels, PCF_RADIUS_RANGE.0..=PCF_RADIUS_RANGE.1)
+                .text("PCF radius (texels)"),
+        )
+        .on_hover_text("Shadow-map filter radius of directional lights (SG lights use PCSS, sized by λ)");
+        ui.add(
+            egui::Slider::new(&mut controls.gpu.shadow_bias_texels, SHADOW_BIAS_RANGE.0..=SHADOW_BIAS_RANGE.1)
+                .text("shadow bias (texels)"),
+        );
+        ui.add(
             egui::Slider::new(&mut controls.gpu.sigma_glo_cm, SIGMA_GLO_RANGE_CM.0..=SIGMA_GLO_RANGE_CM.1)
                 .clamping(egui::SliderClamping::Edits)
                 .text("σ_glo (cm)"),
@@ -258,6 +285,12 @@ pub fn quality_panel(
         }
         if let Some(f) = view.fabric {
             ui.label(egui::RichText::new(format!("Adapter: {}", f.adapter)).small().weak());
+        }
+        for (what, stats) in [("UI frames while baking", view.ui_baking), ("UI frames", view.ui_idle)] {
+            if let Some(stats) = stats {
+                ui.label(egui::RichText::new(format!("{what}: {stats}")).small().weak())
+                    .on_hover_text("CPU time of the viewer's own frames (layout and scheduling)");
+            }
         }
     });
     action

@@ -28,10 +28,11 @@ use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
-use twill_precompute::scene::{CameraSection, Scene};
+use twill_precompute::scene::{CameraSection, MeshSection, Scene};
 use twill_renderer::frame::{Frame, FrameSettings, Renderer};
 use twill_renderer::gpu::Gpu;
-use twill_renderer::headless::SceneRenderer;
+use twill_renderer::fabric_data::FabricData;
+use twill_renderer::headless::shell_for_mesh;
 
 use super::export::{ExportImage, write_export};
 
@@ -60,8 +61,20 @@ impl DeviceHandles {
 pub struct NewFabric {
     pub fabric_id: u64,
     pub quality: Quality,
+    /// A material preview (multiple scattering still the previous bake's).
+    pub preview: bool,
     pub baked: Arc<Baked>,
     pub scene: Arc<Scene>,
+}
+
+/// A new base surface for the fabric (a mesh edit; no rebake).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshRequest {
+    pub mesh: MeshSection,
+    /// Default size of a built-in surface (the scene's `[swatch] size_cm`).
+    pub swatch_cm: [f64; 2],
+    /// Folder a relative mesh path is resolved against.
+    pub base_dir: PathBuf,
 }
 
 /// One batch of samples of a view.
@@ -101,12 +114,20 @@ pub enum WorkerEvent {
     FabricReady {
         fabric_id: u64,
         quality: Quality,
+        preview: bool,
         adapter: String,
         resident_bytes: u64,
         bounds: (Vec3, Vec3),
         seconds: f64,
     },
     FabricFailed {
+        message: String,
+    },
+    MeshReady {
+        bounds: (Vec3, Vec3),
+        seconds: f64,
+    },
+    MeshFailed {
         message: String,
     },
     Frame(Box<FrameResult>),
@@ -130,6 +151,7 @@ pub enum WorkerEvent {
 #[derive(Default)]
 struct Inbox {
     fabric: Option<NewFabric>,
+    mesh: Option<MeshRequest>,
     export: Option<ExportRequest>,
     frame: Option<FrameRequest>,
     shutdown: bool,
@@ -174,6 +196,11 @@ impl RenderWorker {
         self.post(|inbox| inbox.fabric = Some(fabric));
     }
 
+    /// Replaces the base surface (kept for fabrics uploaded later too).
+    pub fn set_mesh(&self, mesh: MeshRequest) {
+        self.post(|inbox| inbox.mesh = Some(mesh));
+    }
+
     /// Asks for a viewport frame, replacing a frame request not yet started.
     pub fn request_frame(&self, request: FrameRequest) {
         self.post(|inbox| inbox.frame = Some(request));
@@ -214,6 +241,7 @@ impl Drop for RenderWorker {
 
 enum Work {
     Fabric(NewFabric),
+    Mesh(MeshRequest),
     Export(ExportRequest),
     Frame(FrameRequest),
 }
@@ -223,6 +251,9 @@ fn next_work(shared: &Shared) -> Option<Work> {
     loop {
         if inbox.shutdown {
             return None;
+        }
+        if let Some(mesh) = inbox.mesh.take() {
+            return Some(Work::Mesh(mesh));
         }
         if let Some(fabric) = inbox.fabric.take() {
             return Some(Work::Fabric(fabric));
@@ -257,24 +288,47 @@ fn worker_loop(
         repaint.request_repaint();
     };
     let mut renderer: Option<Renderer> = None;
+    // The mesh edited in the viewer, which replaces the scene's own for every later upload.
+    let mut edited_mesh: Option<MeshRequest> = None;
     while let Some(work) = next_work(shared) {
         match work {
+            Work::Mesh(request) => {
+                let started = Instant::now();
+                let outcome = renderer.as_mut().map(|r| {
+                    let shell = shell_for_mesh(&request.mesh, request.swatch_cm, &request.base_dir, r.fabric_z_range())
+                        .map_err(|e| format!("the mesh cannot be used: {e}"))?;
+                    r.set_shell(&shell);
+                    Ok::<_, String>(r.bounds())
+                });
+                match outcome {
+                    Some(Ok(bounds)) => {
+                        send(WorkerEvent::MeshReady { bounds, seconds: started.elapsed().as_secs_f64() });
+                        edited_mesh = Some(request);
+                    }
+                    Some(Err(message)) => send(WorkerEvent::MeshFailed { message }),
+                    // No fabric yet: the mesh applies to the first upload.
+                    None => edited_mesh = Some(request),
+                }
+            }
             Work::Fabric(fabric) => {
                 let started = Instant::now();
                 let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                    SceneRenderer::with_gpu(
-                        device.gpu(),
-                        &fabric.scene,
-                        &[fabric.baked.as_ref()],
-                        &PatternMap::uniform(0),
-                    )
+                    match upload(device, &fabric, edited_mesh.as_ref()) {
+                        // A bad edited mesh: say so and show the fabric on the scene's own.
+                        Err(message) if edited_mesh.is_some() => {
+                            send(WorkerEvent::MeshFailed { message });
+                            edited_mesh = None;
+                            upload(device, &fabric, None)
+                        }
+                        other => other,
+                    }
                 }));
                 match built {
-                    Ok(Ok(session)) => {
-                        let r = session.renderer;
+                    Ok(Ok(r)) => {
                         send(WorkerEvent::FabricReady {
                             fabric_id: fabric.fabric_id,
                             quality: fabric.quality,
+                            preview: fabric.preview,
                             adapter: r.adapter().to_owned(),
                             resident_bytes: r.resident_bytes(),
                             bounds: r.bounds(),
@@ -352,6 +406,21 @@ fn worker_loop(
             }
         }
     }
+}
+
+/// Uploads a bake with the scene's shell, or the edited mesh's.
+fn upload(device: &DeviceHandles, fabric: &NewFabric, mesh: Option<&MeshRequest>) -> Result<Renderer, String> {
+    let gpu = device.gpu();
+    let data = FabricData::upload(&gpu.device, &gpu.queue, &[fabric.baked.as_ref()], &PatternMap::uniform(0))
+        .map_err(|e| e.to_string())?;
+    let z = data.arrays.header.z_range;
+    let scene = &fabric.scene;
+    let shell = match mesh {
+        Some(m) => shell_for_mesh(&m.mesh, m.swatch_cm, &m.base_dir, z),
+        None => shell_for_mesh(&scene.mesh, scene.swatch.size_cm, &scene.base_dir, z),
+    }
+    .map_err(|e| format!("the mesh cannot be used: {e}"))?;
+    Renderer::new(&gpu, data, &shell).map_err(|e| e.to_string())
 }
 
 /// Renders an export in batches and writes its files; `None` when cancelled.

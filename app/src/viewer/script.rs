@@ -30,6 +30,22 @@
 //! export PATH WxH SPP                   # an off-screen export (PNG or EXR, with its TOML)
 //! wait-export                           # until the export is written
 //! expect-error TEXT                     # until an error containing TEXT is shown
+//! flip ROW COL                          # flip a crossing of the weave draft (pick, end)
+//! weave PRESET                          # a weave preset, e.g. weave twill_2_2
+//! repeat PICKS ENDS                     # the draft's repeat size
+//! import-wif PATH                       # the draft of a WIF file
+//! fiber warp|weft beta_r|beta_tt|gamma_tt DEGREES
+//! fiber warp|weft c_r|c_tt R G B
+//! mesh builtin swatch|drape|cushion
+//! mesh file PATH                        # an OBJ or glTF surface
+//! mesh thickness SCALE
+//! undo
+//! redo
+//! save PATH                             # the scene as shown, in the CLI's format
+//! open PATH                             # another scene
+//! wait-idle                             # until no bake runs and the latest one is on screen
+//! spin SECONDS                          # orbit a little every frame (a user dragging)
+//! frame-times PATH                      # the UI frame times so far, as text; then forget them
 //! quit
 //! ```
 
@@ -38,6 +54,7 @@ use std::time::Duration;
 
 use twill_precompute::bake::settings::Quality;
 
+use super::fabric::FiberField;
 use super::lights::LightKind;
 
 /// Longest a waiting step may wait.
@@ -82,7 +99,28 @@ pub enum Step {
     Export { path: PathBuf, width: u32, height: u32, spp: u32 },
     WaitExport,
     ExpectError(String),
+    Flip { row: usize, col: usize },
+    Weave(String),
+    Repeat { rows: usize, cols: usize },
+    ImportWif(PathBuf),
+    Fiber { slot: usize, field: FiberField },
+    Mesh(MeshEdit),
+    Undo,
+    Redo,
+    Save(PathBuf),
+    Open(PathBuf),
+    WaitIdle,
+    Spin(f64),
+    FrameTimes(PathBuf),
     Quit,
+}
+
+/// A mesh edit a script makes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MeshEdit {
+    Builtin(String),
+    File(PathBuf),
+    Thickness(f64),
 }
 
 /// A step and the line it came from.
@@ -189,6 +227,48 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             args = [].iter().copied();
             Step::ExpectError(text)
         }
+        "flip" => Step::Flip { row: number(args.next(), "pick (row)")?, col: number(args.next(), "end (column)")? },
+        "weave" => Step::Weave(args.next().ok_or("missing weave preset")?.to_owned()),
+        "repeat" => Step::Repeat { rows: number(args.next(), "pick count")?, cols: number(args.next(), "end count")? },
+        "import-wif" => Step::ImportWif(PathBuf::from(args.next().ok_or("missing WIF file")?)),
+        "fiber" => {
+            let slot = match args.next() {
+                Some("warp") => 0,
+                Some("weft") => 1,
+                other => return Err(format!("fiber takes warp or weft, not {other:?}")),
+            };
+            let colour = |args: &mut dyn Iterator<Item = &str>| -> Result<[f64; 3], String> {
+                Ok([number(args.next(), "red")?, number(args.next(), "green")?, number(args.next(), "blue")?])
+            };
+            let field = match args.next() {
+                Some("beta_r") => FiberField::BetaR(finite(number(args.next(), "beta_r")?, "beta_r")?),
+                Some("beta_tt") => FiberField::BetaTt(finite(number(args.next(), "beta_tt")?, "beta_tt")?),
+                Some("gamma_tt") => FiberField::GammaTt(finite(number(args.next(), "gamma_tt")?, "gamma_tt")?),
+                Some("c_r") => FiberField::ColourR(colour(&mut args)?),
+                Some("c_tt") => FiberField::ColourTt(colour(&mut args)?),
+                other => return Err(format!("unknown fiber parameter {other:?}")),
+            };
+            Step::Fiber { slot, field }
+        }
+        "mesh" => Step::Mesh(match args.next() {
+            Some("builtin") => MeshEdit::Builtin(args.next().ok_or("missing built-in mesh name")?.to_owned()),
+            Some("file") => MeshEdit::File(PathBuf::from(args.next().ok_or("missing mesh file")?)),
+            Some("thickness") => MeshEdit::Thickness(finite(number(args.next(), "thickness scale")?, "thickness")?),
+            other => return Err(format!("mesh takes builtin, file or thickness, not {other:?}")),
+        }),
+        "undo" => Step::Undo,
+        "redo" => Step::Redo,
+        "save" => Step::Save(PathBuf::from(args.next().ok_or("missing scene file")?)),
+        "open" => Step::Open(PathBuf::from(args.next().ok_or("missing scene file")?)),
+        "wait-idle" => Step::WaitIdle,
+        "spin" => {
+            let seconds: f64 = number(args.next(), "duration in seconds")?;
+            if !(seconds.is_finite() && seconds > 0.0 && seconds <= 600.0) {
+                return Err("spin takes 0 < seconds <= 600".into());
+            }
+            Step::Spin(seconds)
+        }
+        "frame-times" => Step::FrameTimes(PathBuf::from(args.next().ok_or("missing output file")?)),
         "quit" => Step::Quit,
         other => return Err(format!("unknown command {other:?}")),
     };
@@ -241,9 +321,28 @@ mod tests {
     }
 
     #[test]
+    fn the_editing_commands_parse() {
+        let text = "flip 1 2\nweave satin_4_1\nrepeat 4 6\nimport-wif a.wif\nfiber weft beta_tt 12.5\n\
+                    fiber warp c_r 0.1 0.2 0.3\nmesh builtin cushion\nmesh file m.obj\nmesh thickness 2\n\
+                    undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\n";
+        let steps: Vec<Step> = parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
+        assert_eq!(steps[0], Step::Flip { row: 1, col: 2 });
+        assert_eq!(steps[2], Step::Repeat { rows: 4, cols: 6 });
+        assert_eq!(steps[4], Step::Fiber { slot: 1, field: FiberField::BetaTt(12.5) });
+        assert_eq!(steps[5], Step::Fiber { slot: 0, field: FiberField::ColourR([0.1, 0.2, 0.3]) });
+        assert_eq!(steps[8], Step::Mesh(MeshEdit::Thickness(2.0)));
+        assert_eq!(steps[14], Step::Spin(2.5));
+        assert_eq!(steps.len(), 16);
+    }
+
+    #[test]
     fn errors_name_the_line() {
         for (text, needle) in [
-            ("fit\nspin 3\n", "s.txt:2: unknown command \"spin\""),
+            ("fit\nspinn 3\n", "s.txt:2: unknown command \"spinn\""),
+            ("spin 0\n", "0 < seconds"),
+            ("fiber silk beta_r 3\n", "warp or weft"),
+            ("fiber warp c_tt 1 1\n", "missing blue"),
+            ("mesh sphere\n", "builtin, file or thickness"),
             ("light 0 azimuth\n", "missing azimuth"),
             ("zoom -1\n", "positive"),
             ("fit now\n", "unexpected \"now\""),
