@@ -14,6 +14,7 @@ pub mod exemplar;
 pub mod fiber_io;
 pub mod presets;
 pub mod weave;
+pub mod wif;
 pub mod yarn;
 
 use glam::{Vec2, Vec3};
