@@ -185,11 +185,13 @@ fn a_mesh_edit_replaces_only_the_shell() {
         .expect("scene uploads");
     let before = session.render(&flat, &settings).expect("swatch renders");
     let z = session.renderer.fabric_z_range();
-    let shell = shell_for_mesh(&cushion.mesh, cushion.swatch.size_cm, &cushion.base_dir, z).expect("cushion shell");
+    let shell =
+        shell_for_mesh(&cushion.mesh, cushion.swatch.size_cm, &cushion.base_dir, z).expect("cushion shell");
     session.renderer.set_shell(&shell);
     let edited = session.render(&cushion, &settings).expect("cushion renders");
-    let mut fresh = SceneRenderer::with_gpu(session.gpu, &cushion, &[default_bake()], &PatternMap::uniform(0))
-        .expect("cushion uploads");
+    let mut fresh =
+        SceneRenderer::with_gpu(session.gpu, &cushion, &[default_bake()], &PatternMap::uniform(0))
+            .expect("cushion uploads");
     let reference = fresh.render(&cushion, &settings).expect("cushion renders");
     assert!(edited.radiance != before.radiance, "the mesh edit changed the picture");
     for (i, (a, b)) in edited.radiance.iter().zip(&reference.radiance).enumerate() {

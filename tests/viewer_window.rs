@@ -265,7 +265,11 @@ fn fabric_edits_rebake_only_what_they_change_and_undo_restores_them() {
         wait-idle\n\
         quit\n";
     std::fs::write(out.join("fabric.script"), script).unwrap();
-    let run = run_viewer(&xvfb, out, &["--quality", "draft", "--window-size", "900x600", "--script", "fabric.script"]);
+    let run = run_viewer(
+        &xvfb,
+        out,
+        &["--quality", "draft", "--window-size", "900x600", "--script", "fabric.script"],
+    );
     assert!(run.success, "the viewer failed:\n{}", run.stderr);
 
     let reports = idle_reports(&run.stderr);

@@ -41,14 +41,13 @@ use super::ViewerOptions;
 use super::accumulate::{Accumulation, Added};
 use super::bake::{BakeEvent, Baker};
 use super::camera::OrbitCamera;
-use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_panel};
-use super::history::History;
-use super::mesh::{MeshForm, mesh_panel};
-use super::timing::FrameStats;
 use super::export::{
     ExportAction, ExportForm, ExportFormat, ExportStatus, ViewSettings, export_panel, scene_toml,
 };
+use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_panel};
+use super::history::History;
 use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
+use super::mesh::{MeshForm, mesh_panel};
 use super::quality::{
     FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, VOLUME_SAMPLES_RANGE, quality_panel,
@@ -57,6 +56,7 @@ use super::render_worker::{
     DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, WorkerEvent,
 };
 use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
+use super::timing::FrameStats;
 
 /// How long after an edit the picture is still rendered at the reduced size.
 const INTERACTION_SETTLE: Duration = Duration::from_millis(300);
@@ -425,22 +425,30 @@ impl ViewerApp {
 
     /// The UI frame times recorded so far, as text.
     fn frame_times_report(&self) -> String {
+        use std::fmt::Write as _;
         let mut text = String::new();
-        for (what, frames) in [("while baking", &self.ui_timing.baking), ("not baking", &self.ui_timing.idle)] {
+        for (what, frames) in [("while baking", &self.ui_timing.baking), ("not baking", &self.ui_timing.idle)]
+        {
             let interval = FrameStats::of(frames.iter().map(|f| f.1));
             let ui = FrameStats::of(frames.iter().map(|f| f.0));
             match (interval, ui) {
                 (Some(interval), Some(ui)) => {
-                    text.push_str(&format!("{what}: frame interval {interval}; ui() CPU time {ui}\n"));
+                    let _ = writeln!(text, "{what}: frame interval {interval}; ui() CPU time {ui}");
                 }
-                _ => text.push_str(&format!("{what}: no frames\n")),
+                _ => {
+                    let _ = writeln!(text, "{what}: no frames");
+                }
             }
         }
         text
     }
 
     fn snapshot(&self) -> Option<Snapshot> {
-        Some(Snapshot { scene: self.scene_file.clone()?, lights: self.lights.clone(), gpu: self.controls.gpu })
+        Some(Snapshot {
+            scene: self.scene_file.clone()?,
+            lights: self.lights.clone(),
+            gpu: self.controls.gpu,
+        })
     }
 
     fn apply_snapshot(&mut self, snapshot: Snapshot) {
@@ -484,7 +492,8 @@ impl ViewerApp {
     fn load_scene(&mut self, path: &Path) -> Result<(), String> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| format!("the scene could not be read: {}: {e}", path.display()))?;
-        let file = SceneFile::parse(&text, path).map_err(|e| format!("the scene could not be loaded: {e}"))?;
+        let file =
+            SceneFile::parse(&text, path).map_err(|e| format!("the scene could not be loaded: {e}"))?;
         file.build().map_err(|e| format!("the scene cannot be built: {e}"))?;
         self.camera = OrbitCamera::from_section(&file.camera);
         self.initial_camera = self.camera;
@@ -725,7 +734,10 @@ impl ViewerApp {
             {
                 self.messages.error(e);
             }
-            if ui.add_enabled(has_path, egui::Button::new("Open")).on_hover_text("Open a scene file").clicked()
+            if ui
+                .add_enabled(has_path, egui::Button::new("Open"))
+                .on_hover_text("Open a scene file")
+                .clicked()
                 && let Err(e) = self.load_scene(&path)
             {
                 self.messages.error(e);
@@ -1288,12 +1300,17 @@ impl ViewerApp {
                 let idle = self.is_idle();
                 if let (true, Some(f)) = (idle, &self.fabric) {
                     let names: Vec<&str> = f.computed_stages.iter().map(|s| s.name()).collect();
-                    eprintln!("idle: the {} bake on screen computed [{}]", f.quality.name(), names.join(", "));
+                    eprintln!(
+                        "idle: the {} bake on screen computed [{}]",
+                        f.quality.name(),
+                        names.join(", ")
+                    );
                 }
                 Ok(idle)
             }
             Step::Spin(seconds) => {
-                let until = *run.spin_until.get_or_insert_with(|| Instant::now() + Duration::from_secs_f64(*seconds));
+                let until =
+                    *run.spin_until.get_or_insert_with(|| Instant::now() + Duration::from_secs_f64(*seconds));
                 if Instant::now() >= until {
                     run.spin_until = None;
                     return Ok(true);
@@ -1304,8 +1321,10 @@ impl ViewerApp {
             }
             Step::FrameTimes(path) => {
                 let text = self.frame_times_report();
-                twill_precompute::atomic_file::write_atomically(path, |w| std::io::Write::write_all(w, text.as_bytes()))
-                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                twill_precompute::atomic_file::write_atomically(path, |w| {
+                    std::io::Write::write_all(w, text.as_bytes())
+                })
+                .map_err(|e| format!("{}: {e}", path.display()))?;
                 eprint!("{text}");
                 self.ui_timing.clear();
                 Ok(true)

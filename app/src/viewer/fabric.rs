@@ -107,7 +107,9 @@ pub fn resize_draft(scene: &mut SceneFile, rows: usize, cols: usize) -> Result<(
     }
     let cells = (0..rows).flat_map(|r| (0..cols).map(move |c| (r, c))).map(|(r, c)| old.warp_over(r, c));
     let draft = WeaveDraft::new(rows, cols, cells.collect()).map_err(|e| {
-        format!("a {rows} x {cols} repeat of this draft does not weave ({e}); flip cells or pick a preset first")
+        format!(
+            "a {rows} x {cols} repeat of this draft does not weave ({e}); flip cells or pick a preset first"
+        )
     })?;
     spec.weave = WeaveSource::Draft(draft);
     set_woven(scene, spec);
@@ -310,7 +312,11 @@ pub fn weave_panel(ui: &mut egui::Ui, scene: &mut SceneFile, form: &mut WeaveFor
 }
 
 /// The draft as a grid of cells, pick 0 at the top; returns the cell clicked.
-fn draft_grid(ui: &mut egui::Ui, draft: &WeaveDraft, [warp, weft]: [egui::Color32; 2]) -> Option<(usize, usize)> {
+fn draft_grid(
+    ui: &mut egui::Ui,
+    draft: &WeaveDraft,
+    [warp, weft]: [egui::Color32; 2],
+) -> Option<(usize, usize)> {
     let (rows, cols) = (draft.rows(), draft.cols());
     let cell = CELL_POINTS.min((ui.available_width() - 4.0) / cols as f32).max(4.0);
     let size = egui::vec2(cell * cols as f32, cell * rows as f32);
@@ -363,7 +369,12 @@ fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) {
         ui.label("warp");
         ui.label("weft");
         ui.end_row();
-        let pair = |ui: &mut egui::Ui, label: &str, warp: &mut f64, weft: &mut f64, range: std::ops::RangeInclusive<f64>, speed| {
+        let pair = |ui: &mut egui::Ui,
+                    label: &str,
+                    warp: &mut f64,
+                    weft: &mut f64,
+                    range: std::ops::RangeInclusive<f64>,
+                    speed| {
             ui.label(label);
             for v in [warp, weft] {
                 ui.add(egui::DragValue::new(v).range(range.clone()).speed(speed).max_decimals(4));
@@ -372,9 +383,20 @@ fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) {
         };
         pair(ui, "width (cm)", &mut spec.warp.width, &mut spec.weft.width, 0.002..=0.5, 0.0005);
         pair(ui, "height (cm)", &mut spec.warp.height, &mut spec.weft.height, 0.001..=0.5, 0.0005);
-        pair(ui, "fiber radius (cm)", &mut spec.warp.fiber_radius, &mut spec.weft.fiber_radius, 0.0001..=0.01, 0.00005);
+        pair(
+            ui,
+            "fiber radius (cm)",
+            &mut spec.warp.fiber_radius,
+            &mut spec.weft.fiber_radius,
+            0.0001..=0.01,
+            0.00005,
+        );
         pair(ui, "ply twist (1/cm)", &mut spec.warp.ply_twist, &mut spec.weft.ply_twist, -50.0..=50.0, 0.1);
-        let counts = |ui: &mut egui::Ui, label: &str, warp: &mut u32, weft: &mut u32, range: std::ops::RangeInclusive<u32>| {
+        let counts = |ui: &mut egui::Ui,
+                      label: &str,
+                      warp: &mut u32,
+                      weft: &mut u32,
+                      range: std::ops::RangeInclusive<u32>| {
             ui.label(label);
             for v in [warp, weft] {
                 ui.add(egui::DragValue::new(v).range(range.clone()));
@@ -383,11 +405,15 @@ fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) {
         };
         counts(ui, "plies", &mut spec.warp.plies, &mut spec.weft.plies, 1..=6);
         counts(ui, "fibers per ply", &mut spec.warp.fibers_per_ply, &mut spec.weft.fibers_per_ply, 1..=200);
-        let mut spacing = [spec.spacing_warp.unwrap_or(spec.warp.width), spec.spacing_weft.unwrap_or(spec.weft.width)];
+        let mut spacing =
+            [spec.spacing_warp.unwrap_or(spec.warp.width), spec.spacing_weft.unwrap_or(spec.weft.width)];
         let before = spacing;
         let [a, b] = &mut spacing;
         pair(ui, "spacing (cm)", a, b, 0.002..=0.5, 0.0005);
-        if spacing != before {
+        // Exactly the values the widgets wrote: a change, not a tolerance.
+        #[allow(clippy::float_cmp)]
+        let changed = spacing != before;
+        if changed {
             spec.spacing_warp = Some(spacing[0]);
             spec.spacing_weft = Some(spacing[1]);
         }

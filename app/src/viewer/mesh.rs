@@ -22,7 +22,10 @@ pub struct MeshForm {
 /// Sets a built-in surface by name, refusing unknown names with the valid ones.
 pub fn set_builtin(mesh: &mut MeshSection, name: &str) -> Result<(), String> {
     if !BaseMesh::BUILTIN_NAMES.contains(&name) {
-        return Err(format!("unknown built-in mesh {name:?}; built-ins: {}", BaseMesh::BUILTIN_NAMES.join(", ")));
+        return Err(format!(
+            "unknown built-in mesh {name:?}; built-ins: {}",
+            BaseMesh::BUILTIN_NAMES.join(", ")
+        ));
     }
     mesh.path = None;
     mesh.builtin = Some(name.to_owned());
@@ -63,7 +66,10 @@ pub fn mesh_panel(ui: &mut egui::Ui, mesh: &mut MeshSection, swatch_cm: [f64; 2]
                 ui.add(egui::DragValue::new(s).range(range).speed(0.01).max_decimals(3));
             }
         });
-        if size != before {
+        // Exactly the values the widgets wrote: a change, not a tolerance.
+        #[allow(clippy::float_cmp)]
+        let changed = size != before;
+        if changed {
             mesh.size_cm = Some(size);
         }
     } else {
@@ -73,8 +79,14 @@ pub fn mesh_panel(ui: &mut egui::Ui, mesh: &mut MeshSection, swatch_cm: [f64; 2]
         });
     }
     ui.horizontal(|ui| {
-        ui.add(egui::TextEdit::singleline(&mut form.path).hint_text("mesh.obj or .gltf/.glb").desired_width(150.0));
-        if ui.button("Load mesh").on_hover_text("An OBJ or glTF surface with UVs").clicked() && !form.path.trim().is_empty() {
+        ui.add(
+            egui::TextEdit::singleline(&mut form.path)
+                .hint_text("mesh.obj or .gltf/.glb")
+                .desired_width(150.0),
+        );
+        if ui.button("Load mesh").on_hover_text("An OBJ or glTF surface with UVs").clicked()
+            && !form.path.trim().is_empty()
+        {
             mesh.builtin = None;
             mesh.path = Some(form.path.trim().into());
         }

@@ -62,7 +62,12 @@ pub struct ViewerOptions {
 /// `twill bench ui`: the viewer's own frame times while a bake of `quality` runs in the
 /// background from an empty stage cache (so every stage is computed), with the view orbiting
 /// every frame as if dragged. Runs the viewer with a script and returns its report.
-pub fn bench_ui(scene: Option<PathBuf>, quality: Quality, seconds: f64, window_size: [u32; 2]) -> Result<String> {
+pub fn bench_ui(
+    scene: Option<PathBuf>,
+    quality: Quality,
+    seconds: f64,
+    window_size: [u32; 2],
+) -> Result<String> {
     let dir = tempfile::tempdir().context("a temporary folder for the benchmark")?;
     let report = dir.path().join("frame-times.txt");
     let script = dir.path().join("bench.script");

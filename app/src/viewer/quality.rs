@@ -240,8 +240,11 @@ pub fn quality_panel(
         )
         .on_hover_text("Shadow-map filter radius of directional lights (SG lights use PCSS, sized by λ)");
         ui.add(
-            egui::Slider::new(&mut controls.gpu.shadow_bias_texels, SHADOW_BIAS_RANGE.0..=SHADOW_BIAS_RANGE.1)
-                .text("shadow bias (texels)"),
+            egui::Slider::new(
+                &mut controls.gpu.shadow_bias_texels,
+                SHADOW_BIAS_RANGE.0..=SHADOW_BIAS_RANGE.1,
+            )
+            .text("shadow bias (texels)"),
         );
         ui.add(
             egui::Slider::new(&mut controls.gpu.sigma_glo_cm, SIGMA_GLO_RANGE_CM.0..=SIGMA_GLO_RANGE_CM.1)

@@ -29,9 +29,9 @@ use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
+use twill_renderer::fabric_data::FabricData;
 use twill_renderer::frame::{Frame, FrameSettings, Renderer};
 use twill_renderer::gpu::Gpu;
-use twill_renderer::fabric_data::FabricData;
 use twill_renderer::headless::shell_for_mesh;
 
 use super::export::{ExportImage, write_export};
@@ -295,8 +295,13 @@ fn worker_loop(
             Work::Mesh(request) => {
                 let started = Instant::now();
                 let outcome = renderer.as_mut().map(|r| {
-                    let shell = shell_for_mesh(&request.mesh, request.swatch_cm, &request.base_dir, r.fabric_z_range())
-                        .map_err(|e| format!("the mesh cannot be used: {e}"))?;
+                    let shell = shell_for_mesh(
+                        &request.mesh,
+                        request.swatch_cm,
+                        &request.base_dir,
+                        r.fabric_z_range(),
+                    )
+                    .map_err(|e| format!("the mesh cannot be used: {e}"))?;
                     r.set_shell(&shell);
                     Ok::<_, String>(r.bounds())
                 });
@@ -409,7 +414,11 @@ fn worker_loop(
 }
 
 /// Uploads a bake with the scene's shell, or the edited mesh's.
-fn upload(device: &DeviceHandles, fabric: &NewFabric, mesh: Option<&MeshRequest>) -> Result<Renderer, String> {
+fn upload(
+    device: &DeviceHandles,
+    fabric: &NewFabric,
+    mesh: Option<&MeshRequest>,
+) -> Result<Renderer, String> {
     let gpu = device.gpu();
     let data = FabricData::upload(&gpu.device, &gpu.queue, &[fabric.baked.as_ref()], &PatternMap::uniform(0))
         .map_err(|e| e.to_string())?;

@@ -227,9 +227,13 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             args = [].iter().copied();
             Step::ExpectError(text)
         }
-        "flip" => Step::Flip { row: number(args.next(), "pick (row)")?, col: number(args.next(), "end (column)")? },
+        "flip" => {
+            Step::Flip { row: number(args.next(), "pick (row)")?, col: number(args.next(), "end (column)")? }
+        }
         "weave" => Step::Weave(args.next().ok_or("missing weave preset")?.to_owned()),
-        "repeat" => Step::Repeat { rows: number(args.next(), "pick count")?, cols: number(args.next(), "end count")? },
+        "repeat" => {
+            Step::Repeat { rows: number(args.next(), "pick count")?, cols: number(args.next(), "end count")? }
+        }
         "import-wif" => Step::ImportWif(PathBuf::from(args.next().ok_or("missing WIF file")?)),
         "fiber" => {
             let slot = match args.next() {
@@ -243,7 +247,9 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             let field = match args.next() {
                 Some("beta_r") => FiberField::BetaR(finite(number(args.next(), "beta_r")?, "beta_r")?),
                 Some("beta_tt") => FiberField::BetaTt(finite(number(args.next(), "beta_tt")?, "beta_tt")?),
-                Some("gamma_tt") => FiberField::GammaTt(finite(number(args.next(), "gamma_tt")?, "gamma_tt")?),
+                Some("gamma_tt") => {
+                    FiberField::GammaTt(finite(number(args.next(), "gamma_tt")?, "gamma_tt")?)
+                }
                 Some("c_r") => FiberField::ColourR(colour(&mut args)?),
                 Some("c_tt") => FiberField::ColourTt(colour(&mut args)?),
                 other => return Err(format!("unknown fiber parameter {other:?}")),
@@ -253,7 +259,9 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
         "mesh" => Step::Mesh(match args.next() {
             Some("builtin") => MeshEdit::Builtin(args.next().ok_or("missing built-in mesh name")?.to_owned()),
             Some("file") => MeshEdit::File(PathBuf::from(args.next().ok_or("missing mesh file")?)),
-            Some("thickness") => MeshEdit::Thickness(finite(number(args.next(), "thickness scale")?, "thickness")?),
+            Some("thickness") => {
+                MeshEdit::Thickness(finite(number(args.next(), "thickness scale")?, "thickness")?)
+            }
             other => return Err(format!("mesh takes builtin, file or thickness, not {other:?}")),
         }),
         "undo" => Step::Undo,
@@ -325,7 +333,8 @@ mod tests {
         let text = "flip 1 2\nweave satin_4_1\nrepeat 4 6\nimport-wif a.wif\nfiber weft beta_tt 12.5\n\
                     fiber warp c_r 0.1 0.2 0.3\nmesh builtin cushion\nmesh file m.obj\nmesh thickness 2\n\
                     undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\n";
-        let steps: Vec<Step> = parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
+        let steps: Vec<Step> =
+            parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
         assert_eq!(steps[0], Step::Flip { row: 1, col: 2 });
         assert_eq!(steps[2], Step::Repeat { rows: 4, cols: 6 });
         assert_eq!(steps[4], Step::Fiber { slot: 1, field: FiberField::BetaTt(12.5) });
