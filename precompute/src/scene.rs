@@ -5,6 +5,15 @@
 //! by the TOML parser), then [`SceneFile::build`] turns it into the objects the renderers use.
 //! The built-in default scene is `assets/scenes/default.toml`, compiled in; it doubles as the
 //! documented example of the format (see `docs/SCENE_FORMAT.md`).
+//!
+//! Patterned cloth (paper section 6.4): an optional `[pattern]` section lists alternative
+//! weaves and a map of which weave each block of the cloth uses. Exemplar 0 is `[fabric]`'s own
+//! weave, exemplar `k` the `k`-th of `[pattern] weaves`; all share `[fabric]`'s yarns, spacings,
+//! crimp and seed. Blocks of different exemplars sit side by side, so all must be the same size:
+//! [`pattern_blocks`] makes the block side, in yarns, the greatest common divisor of all the
+//! drafts' repeats along each axis. The built [`Scene`] then holds every exemplar and the map
+//! ([`ScenePattern`]); [`Scene::bake_inputs`] and [`Scene::pattern_map`] give callers one code
+//! path for plain and patterned cloth.
 
 use std::path::{Path, PathBuf};
 
@@ -12,8 +21,13 @@ use glam::{DVec3, Vec2};
 use serde::{Deserialize, Deserializer};
 
 use crate::Rgb;
+use crate::bake::pattern::{PatternError, PatternMap};
+use crate::bake::pipeline::BakeInputs;
+use crate::bake::settings::BakeSettings;
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::presets::{FabricSpec, fabric_preset, fabric_presets};
+use crate::fabric::presets::{FabricSpec, WeaveSource, WovenSpec, fabric_preset, fabric_presets};
+use crate::fabric::weave::{WeaveDraft, WeavePreset};
+use crate::fabric::wif::{WifError, read_wif};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
@@ -36,6 +50,11 @@ pub enum SceneError {
     Fabric { path: PathBuf, source: crate::fabric::presets::FabricError },
     #[error("{path}: {source}")]
     Param { path: PathBuf, source: ParamError },
+    #[error("{path}: [pattern]: {source}")]
+    Pattern { path: PathBuf, source: PatternError },
+    /// The WIF error names the WIF file, its line, key and value.
+    #[error("{path}: [pattern]: {source}")]
+    Wif { path: PathBuf, source: WifError },
 }
 
 /// A parsed scene file, before any geometry is built.
@@ -45,6 +64,9 @@ pub struct SceneFile {
     pub fabric: FabricSection,
     #[serde(default)]
     pub materials: MaterialsSection,
+    /// Patterned cloth: other weaves and the map of which one each block uses.
+    #[serde(default)]
+    pub pattern: Option<PatternSection>,
     #[serde(default)]
     pub swatch: SwatchSection,
     pub camera: CameraSection,
@@ -77,6 +99,109 @@ pub struct FabricSection {
 pub struct MaterialsSection {
     pub warp: Option<MaterialDesc>,
     pub weft: Option<MaterialDesc>,
+}
+
+/// Most weaves `[pattern]` may add to `[fabric]`'s (map indices go up to `z` = 35).
+pub const MAX_PATTERN_WEAVES: usize = 35;
+/// Largest side, in blocks, of a pattern map.
+pub const MAX_PATTERN_MAP_SIDE: usize = 4096;
+
+/// `[pattern]`: patterned cloth (paper section 6.4). `weaves` are exemplars 1, 2, ...
+/// (exemplar 0 being `[fabric]`'s own weave); the map says which exemplar each block uses.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "RawPatternSection")]
+pub struct PatternSection {
+    pub weaves: Vec<PatternWeave>,
+    pub map: PatternMapSource,
+}
+
+/// One of `[pattern] weaves`: `{ weave = "plain" }`, `{ rows = ["X.", ".X"] }` or
+/// `{ wif = "draft.wif" }` (relative to the scene file's folder).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "RawPatternWeave")]
+pub enum PatternWeave {
+    Preset(WeavePreset),
+    Draft(WeaveDraft),
+    Wif(PathBuf),
+}
+
+/// Where a pattern map comes from: `rows = ["0011", "0110"]` (top row first, one character per
+/// block, `0`-`9` then `a`-`z`) or `png = "map.png"` (gray levels, darkest = exemplar 0;
+/// relative to the scene file's folder). See [`PatternMap`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PatternMapSource {
+    Rows(Vec<String>),
+    Png(PathBuf),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPatternSection {
+    weaves: Vec<PatternWeave>,
+    rows: Option<Vec<String>>,
+    png: Option<PathBuf>,
+}
+
+impl TryFrom<RawPatternSection> for PatternSection {
+    type Error = String;
+
+    fn try_from(raw: RawPatternSection) -> Result<Self, String> {
+        check_count("pattern.weaves", raw.weaves.len(), 1, MAX_PATTERN_WEAVES)
+            .map_err(|e| format!("{e} (the weaves besides [fabric]'s own, which is exemplar 0)"))?;
+        let map = match (raw.rows, raw.png) {
+            (Some(rows), None) => {
+                PatternMap::from_rows(&rows).map_err(|e| format!("rows: {e}"))?;
+                PatternMapSource::Rows(rows)
+            }
+            (None, Some(png)) => PatternMapSource::Png(png),
+            _ => {
+                return Err("give exactly one of `rows = [\"0110\", ...]` and `png = \"map.png\"`: \
+                            the map of which exemplar each block uses"
+                    .into());
+            }
+        };
+        Ok(Self { weaves: raw.weaves, map })
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPatternWeave {
+    weave: Option<WeavePreset>,
+    rows: Option<Vec<String>>,
+    wif: Option<PathBuf>,
+}
+
+impl TryFrom<RawPatternWeave> for PatternWeave {
+    type Error = String;
+
+    fn try_from(raw: RawPatternWeave) -> Result<Self, String> {
+        match (raw.weave, raw.rows, raw.wif) {
+            (Some(preset), None, None) => Ok(Self::Preset(preset)),
+            (None, Some(rows), None) => {
+                WeaveDraft::from_rows(&rows).map(Self::Draft).map_err(|e| format!("rows: {e}"))
+            }
+            (None, None, Some(file)) => Ok(Self::Wif(file)),
+            _ => Err("each of `weaves` gives exactly one of `weave = \"plain\"`, `rows = [\"X.\", \".X\"]` \
+                      and `wif = \"draft.wif\"`"
+                .into()),
+        }
+    }
+}
+
+/// Block grid of each draft of a patterned cloth, `[nx, ny]`: the block side in yarns is the
+/// greatest common divisor of all the drafts' repeats, columns (warp ends, along x) and rows
+/// (weft picks, along y) separately, so with equal yarn spacings every block has the same size.
+/// E.g. a 2/2 twill (4 x 4) with a plain weave (2 x 2) gives 2-yarn blocks: `[2, 2]` and
+/// `[1, 1]`.
+#[must_use]
+pub fn pattern_blocks(drafts: &[WeaveDraft]) -> Vec<[u32; 2]> {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    let gx = drafts.iter().map(WeaveDraft::cols).fold(0, gcd).max(1);
+    let gy = drafts.iter().map(WeaveDraft::rows).fold(0, gcd).max(1);
+    drafts.iter().map(|d| [(d.cols() / gx) as u32, (d.rows() / gy) as u32]).collect()
 }
 
 /// `[swatch]`: the flat tiled piece of fabric that is rendered.
@@ -248,7 +373,10 @@ fn sg_sharpness<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 /// A scene ready to render: the fabric exemplar, the ray-traceable swatch with its materials
 /// and lights, the camera and the settings.
 pub struct Scene {
+    /// The fabric (exemplar 0 of a patterned cloth).
     pub exemplar: Exemplar,
+    /// Patterned cloth: every exemplar and the map; `None` for a plain fabric.
+    pub pattern: Option<ScenePattern>,
     /// Warp and weft material as described (slot 0 warp, slot 1 weft).
     pub material_descs: Vec<MaterialDesc>,
     /// The swatch as the path tracer sees it.
@@ -260,6 +388,38 @@ pub struct Scene {
     pub gpu: GpuSection,
     /// Folder of the scene file (relative mesh paths resolve against it).
     pub base_dir: PathBuf,
+}
+
+/// The built `[pattern]`: every exemplar (index 0, `[fabric]`'s weave, first; each with the
+/// blocks of [`pattern_blocks`]) and the map of which one each block uses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenePattern {
+    pub map: PatternMap,
+    pub exemplars: Vec<Exemplar>,
+}
+
+impl Scene {
+    /// Every exemplar: the pattern's, or just [`Scene::exemplar`].
+    #[must_use]
+    pub fn exemplars(&self) -> &[Exemplar] {
+        self.pattern.as_ref().map_or(std::slice::from_ref(&self.exemplar), |p| &p.exemplars)
+    }
+
+    /// The map of which exemplar each block uses (every block exemplar 0 without a pattern).
+    #[must_use]
+    pub fn pattern_map(&self) -> PatternMap {
+        self.pattern.as_ref().map_or_else(|| PatternMap::uniform(0), |p| p.map.clone())
+    }
+
+    /// What baking every exemplar needs (for `bake::pipeline::bake_set` with
+    /// [`Scene::pattern_map`]); all exemplars share the scene's materials.
+    #[must_use]
+    pub fn bake_inputs(&self, settings: BakeSettings) -> Vec<BakeInputs<'_>> {
+        self.exemplars()
+            .iter()
+            .map(|exemplar| BakeInputs { exemplar, materials: &self.material_descs, settings })
+            .collect()
+    }
 }
 
 /// Gap between the lowest fiber and the black ground plane, in cm.
@@ -315,8 +475,18 @@ impl SceneFile {
         warp = self.materials.warp.or(warp);
         weft = self.materials.weft.or(weft);
         let base_dir = path.parent().unwrap_or(Path::new("."));
-        let exemplar =
-            spec.build(base_dir).map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
+        let (exemplar, pattern) = match &self.pattern {
+            None => {
+                let exemplar = spec
+                    .build(base_dir)
+                    .map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
+                (exemplar, None)
+            }
+            Some(section) => {
+                let pattern = self.build_pattern(section, &spec, base_dir)?;
+                (pattern.exemplars[0].clone(), Some(pattern))
+            }
+        };
 
         // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft.
         let fallback = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
@@ -375,6 +545,7 @@ impl SceneFile {
         let path_scene = PathScene { fibers, yarn_materials, lights, ground_z };
         Ok(Scene {
             exemplar,
+            pattern,
             material_descs,
             path_scene,
             swatch: self.swatch,
@@ -384,6 +555,74 @@ impl SceneFile {
             gpu: self.gpu,
             base_dir: base_dir.to_path_buf(),
         })
+    }
+
+    /// Builds every exemplar of a patterned cloth and reads its map.
+    fn build_pattern(
+        &self,
+        section: &PatternSection,
+        spec: &FabricSpec,
+        base_dir: &Path,
+    ) -> Result<ScenePattern, SceneError> {
+        let path = &self.path;
+        let invalid = |message: String| SceneError::Invalid { path: path.clone(), message };
+        let FabricSpec::Woven(woven) = spec else {
+            return Err(invalid(
+                "[pattern]: patterned cloth needs a woven [fabric] (a preset, `weave` or `rows`); \
+                 imported fibers cannot be combined with other weaves"
+                    .into(),
+            ));
+        };
+        if woven.blocks != [1, 1] {
+            return Err(invalid(format!(
+                "[fabric.spec]: blocks = {:?}: with a [pattern] the blocks are set from the drafts; remove `blocks`",
+                woven.blocks
+            )));
+        }
+        let mut weaves = vec![woven.weave.clone()];
+        for weave in &section.weaves {
+            weaves.push(match weave {
+                PatternWeave::Preset(p) => WeaveSource::Preset(*p),
+                PatternWeave::Draft(d) => WeaveSource::Draft(d.clone()),
+                PatternWeave::Wif(file) => WeaveSource::Draft(
+                    read_wif(&base_dir.join(file))
+                        .map_err(|source| SceneError::Wif { path: path.clone(), source })?,
+                ),
+            });
+        }
+        let drafts: Vec<WeaveDraft> = weaves.iter().map(WeaveSource::draft).collect();
+        let mut exemplars = Vec::with_capacity(weaves.len());
+        for (k, (weave, blocks)) in weaves.into_iter().zip(pattern_blocks(&drafts)).enumerate() {
+            let spec = WovenSpec { weave, blocks, ..(**woven).clone() };
+            let exemplar = spec.woven_fabric().build().map_err(|e| {
+                let place =
+                    if k == 0 { "[fabric]".to_owned() } else { format!("[pattern] weaves[{}]", k - 1) };
+                invalid(format!("{place}: {e}"))
+            })?;
+            exemplars.push(exemplar);
+        }
+        let map = match &section.map {
+            PatternMapSource::Rows(rows) => PatternMap::from_rows(rows),
+            PatternMapSource::Png(png) => PatternMap::from_png(&base_dir.join(png)).map(|(map, _)| map),
+        }
+        .map_err(|source| SceneError::Pattern { path: path.clone(), source })?;
+        let param = |source: ParamError| SceneError::Param { path: path.clone(), source };
+        check_count("pattern map width", map.width as usize, 1, MAX_PATTERN_MAP_SIDE).map_err(param)?;
+        check_count("pattern map height", map.height as usize, 1, MAX_PATTERN_MAP_SIDE).map_err(param)?;
+        if map.exemplar_count() > exemplars.len() {
+            let what = match &section.map {
+                PatternMapSource::Rows(_) => "rows".to_owned(),
+                PatternMapSource::Png(png) => format!("{} (its gray levels, darkest first)", png.display()),
+            };
+            return Err(invalid(format!(
+                "[pattern]: the map ({what}) names exemplar {}, but there are only {} exemplars: \
+                 0 ([fabric]'s weave) to {} (the `weaves`)",
+                map.exemplar_count() - 1,
+                exemplars.len(),
+                exemplars.len() - 1
+            )));
+        }
+        Ok(ScenePattern { map, exemplars })
     }
 
     /// The camera for a film of `width` x `height`.
@@ -467,5 +706,166 @@ mod tests {
     fn a_missing_file_is_an_error_naming_it() {
         let msg = SceneFile::load(Path::new("/no/such/scene.toml")).unwrap_err().to_string();
         assert!(msg.contains("/no/such/scene.toml"), "{msg}");
+    }
+
+    const LIGHT: &str = "[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+
+    fn patterned(pattern: &str) -> String {
+        format!("[fabric]\npreset = \"default\"\n{pattern}{CAMERA}{LIGHT}")
+    }
+
+    fn patterned_scene_path() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/patterned.toml")
+    }
+
+    #[test]
+    fn pattern_blocks_are_the_gcd_of_the_repeats() {
+        let d = |p: WeavePreset| p.draft();
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Twill2_2), d(WeavePreset::Plain)]), [[2, 2], [1, 1]]);
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Twill2_1), d(WeavePreset::Plain)]), [[3, 3], [2, 2]]);
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Satin4_1), d(WeavePreset::Satin1_4)]), [[1, 1], [1, 1]]);
+        // Rows and columns separately: a 4-pick x 2-end draft with a 4 x 4 twill.
+        let tall = WeaveDraft::from_rows(&["X.", ".X", "X.", "X."]).unwrap();
+        assert_eq!(
+            pattern_blocks(&[tall, d(WeavePreset::Basket), d(WeavePreset::Twill2_2)]),
+            [[1, 1], [2, 1], [2, 1]]
+        );
+    }
+
+    #[test]
+    fn the_patterned_example_builds_with_equal_blocks() {
+        let file = SceneFile::load(&patterned_scene_path()).unwrap();
+        let scene = file.build().unwrap();
+        let pattern = scene.pattern.as_ref().expect("the example is patterned");
+        assert_eq!(pattern.exemplars.len(), 2);
+        assert_eq!(pattern.exemplars[0], scene.exemplar);
+        let blocks: Vec<_> = pattern.exemplars.iter().map(|e| [e.blocks.nx, e.blocks.ny]).collect();
+        assert_eq!(blocks, [[2, 2], [1, 1]]);
+        let block_size = |e: &Exemplar| match e.tiling {
+            Tiling::Periodic { period } => period / Vec2::new(e.blocks.nx as f32, e.blocks.ny as f32),
+            Tiling::AsIs => panic!("woven exemplars are periodic"),
+        };
+        let (a, b) = (block_size(&pattern.exemplars[0]), block_size(&pattern.exemplars[1]));
+        assert!((a - b).abs().max_element() < 1e-6 && (a.x - 0.07).abs() < 1e-6, "{a} vs {b}");
+        // Exemplar 1 is the plain weave of the same yarns: a 2 x 2 repeat of the same spacing.
+        assert_ne!(pattern.exemplars[1].fibers, scene.exemplar.fibers);
+        assert_eq!((pattern.map.width, pattern.map.height), (8, 8));
+        assert_eq!(pattern.map.exemplar_count(), 2);
+        assert_eq!(scene.pattern_map(), pattern.map);
+        assert_eq!(scene.exemplars().len(), 2);
+        let inputs = scene.bake_inputs(crate::bake::settings::Quality::Draft.settings());
+        assert_eq!(inputs.len(), 2);
+        assert_eq!(inputs[1].exemplar, &pattern.exemplars[1]);
+        assert_eq!(inputs[1].materials, scene.material_descs);
+
+        // Without a pattern: one exemplar, every block exemplar 0.
+        let plain = SceneFile::default_scene().build().unwrap();
+        assert!(plain.pattern.is_none());
+        assert_eq!(plain.pattern_map(), PatternMap::uniform(0));
+        assert_eq!(plain.bake_inputs(crate::bake::settings::Quality::Draft.settings()).len(), 1);
+        assert_eq!(plain.exemplars(), std::slice::from_ref(&plain.exemplar));
+    }
+
+    #[test]
+    fn pattern_weaves_from_rows_and_wif_files_and_a_png_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let wif = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/weaves/twill_2_2.wif");
+        std::fs::copy(&wif, dir.path().join("t.wif")).unwrap();
+        // A 2 x 1 PNG: gray 40 (exemplar 0) then 200 (exemplar 2); 120 unused in between.
+        let png = dir.path().join("map.png");
+        let mut enc = png::Encoder::new(std::fs::File::create(&png).unwrap(), 3, 1);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&[40, 120, 200]).unwrap();
+        let text = format!(
+            "[fabric]\nspec = {{ weave = \"plain\" }}\n\
+             [pattern]\nweaves = [{{ wif = \"t.wif\" }}, {{ rows = [\"XX..\", \".XX.\", \"..XX\", \"X..X\"] }}]\n\
+             png = \"map.png\"\n{CAMERA}{LIGHT}"
+        );
+        let path = dir.path().join("s.toml");
+        let scene = SceneFile::parse(&text, &path).unwrap().build().unwrap();
+        let pattern = scene.pattern.unwrap();
+        assert_eq!(pattern.map.exemplar_of_block, [0, 1, 2]);
+        // The WIF twill and the same draft given as rows build the same exemplar.
+        assert_eq!(pattern.exemplars[1], pattern.exemplars[2]);
+        assert_eq!(pattern.exemplars[1].blocks, crate::fabric::BlockGrid { nx: 2, ny: 2 });
+        assert_eq!(pattern.exemplars[0].blocks, crate::fabric::BlockGrid { nx: 1, ny: 1 });
+
+        // A broken WIF file is named with its line.
+        std::fs::write(dir.path().join("t.wif"), "[WEAVING]\nShafts=x\n").unwrap();
+        let msg = SceneFile::parse(&text, &path).unwrap().build().err().unwrap().to_string();
+        assert!(msg.contains("s.toml: [pattern]:") && msg.contains("t.wif:2: [WEAVING] Shafts=x"), "{msg}");
+        std::fs::copy(&wif, dir.path().join("t.wif")).unwrap();
+        std::fs::remove_file(&png).unwrap();
+        let msg = SceneFile::parse(&text, &path).unwrap().build().err().unwrap().to_string();
+        assert!(msg.contains("map.png"), "{msg}");
+    }
+
+    #[test]
+    fn pattern_errors_name_the_place_and_the_valid_values() {
+        let cases: Vec<(String, Vec<&str>)> = vec![
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"0120\"]\n"),
+                vec![
+                    "bad.toml: [pattern]",
+                    "names exemplar 2",
+                    "only 2 exemplars",
+                    "0 ([fabric]'s weave) to 1",
+                ],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\"]\npng = \"m.png\"\n"),
+                vec!["line 3", "exactly one of `rows"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\n"),
+                vec!["line 3", "exactly one of `rows"],
+            ),
+            (
+                patterned("[pattern]\nweaves = []\nrows = [\"0\"]\n"),
+                vec!["line 3", "1 <= pattern.weaves <= 35"],
+            ),
+            (
+                patterned(
+                    "[pattern]\nweaves = [{ weave = \"plain\", rows = [\"X.\", \".X\"] }]\nrows = [\"01\"]\n",
+                ),
+                vec!["line 4", "exactly one of `weave"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ rows = [\"XX\", \".X\"] }]\nrows = [\"01\"]\n"),
+                vec!["line 4", "row 0", "never interlaces"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\", \"0-\"]\n"),
+                vec!["line 3", "pattern row 1, column 1", "'-'"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plian\" }]\nrows = [\"01\"]\n"),
+                vec!["line 4", "plian"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\"]\ncolour = 1\n"),
+                vec!["line 6", "colour"],
+            ),
+            (
+                format!(
+                    "[fabric]\nspec = {{ file = \"f.txt\" }}\n[pattern]\nweaves = [{{ weave = \"plain\" }}]\nrows = [\"01\"]\n{CAMERA}{LIGHT}"
+                ),
+                vec!["[pattern]", "woven [fabric]", "imported fibers"],
+            ),
+            (
+                format!(
+                    "[fabric]\nspec = {{ weave = \"plain\", blocks = [2, 2] }}\n[pattern]\nweaves = [{{ weave = \"basket\" }}]\nrows = [\"01\"]\n{CAMERA}{LIGHT}"
+                ),
+                vec!["blocks = [2, 2]", "remove `blocks`"],
+            ),
+        ];
+        for (text, needles) in cases {
+            let msg = parse_err(&text);
+            assert!(msg.starts_with("bad.toml"), "{msg}");
+            for needle in needles {
+                assert!(msg.contains(needle), "{msg:?} lacks {needle:?}\n{text}");
+            }
+        }
     }
 }
