@@ -3,8 +3,10 @@
 //! A scene file is parsed with serde into [`SceneFile`] (unknown fields are errors, and every
 //! range check runs during parsing, so a bad value is reported with its file, line and column
 //! by the TOML parser), then [`SceneFile::build`] turns it into the objects the renderers use.
-//! The built-in default scene is `assets/scenes/default.toml`, compiled in; it doubles as the
-//! documented example of the format (see `docs/SCENE_FORMAT.md`).
+//! [`SceneFile::to_toml`] writes a scene back out (every section, defaults included, floats
+//! exact) so that parsing the text gives the same [`SceneFile`]; [`SceneFile::save`] writes it
+//! atomically. The built-in default scene is `assets/scenes/default.toml`, compiled in; it
+//! doubles as the documented example of the format (see `docs/SCENE_FORMAT.md`).
 //!
 //! Patterned cloth (paper section 6.4): an optional `[pattern]` section lists alternative
 //! weaves and a map of which weave each block of the cloth uses. Exemplar 0 is `[fabric]`'s own
@@ -18,7 +20,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec2};
-use serde::{Deserialize, Deserializer};
+use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::Rgb;
 use crate::bake::pattern::{PatternError, PatternMap};
@@ -36,11 +38,15 @@ use crate::raycast::{Extent, FiberScene};
 /// The built-in default scene (its text).
 pub const DEFAULT_SCENE_TOML: &str = include_str!("../../assets/scenes/default.toml");
 
-/// Errors reading or building a scene; each names the file.
+/// Errors reading, building or writing a scene; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("{path}: {source}")]
     Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: could not write the scene: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error("{path}: the scene cannot be written as TOML: {message}")]
+    Serialize { path: PathBuf, message: String },
     /// The TOML parser's message already names the line, column and field.
     #[error("{path}: {message}")]
     Parse { path: PathBuf, message: String },
@@ -58,14 +64,14 @@ pub enum SceneError {
 }
 
 /// A parsed scene file, before any geometry is built.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub fabric: FabricSection,
     #[serde(default)]
     pub materials: MaterialsSection,
     /// Patterned cloth: other weaves and the map of which one each block uses.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pattern: Option<PatternSection>,
     #[serde(default)]
     pub swatch: SwatchSection,
@@ -84,20 +90,24 @@ pub struct SceneFile {
 }
 
 /// `[fabric]`: a built-in preset by name, or a full fabric specification.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FabricSection {
     /// Name of a built-in fabric preset (`twill fabric presets` lists them).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub preset: Option<String>,
     /// A full specification (procedural weave or imported fiber file): `[fabric.spec]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub spec: Option<FabricSpec>,
 }
 
 /// `[materials]`: material of warp and weft yarns (defaults: the preset's).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialsSection {
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub warp: Option<MaterialDesc>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub weft: Option<MaterialDesc>,
 }
 
@@ -108,8 +118,8 @@ pub const MAX_PATTERN_MAP_SIDE: usize = 4096;
 
 /// `[pattern]`: patterned cloth (paper section 6.4). `weaves` are exemplars 1, 2, ...
 /// (exemplar 0 being `[fabric]`'s own weave); the map says which exemplar each block uses.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(try_from = "RawPatternSection")]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawPatternSection", into = "RawPatternSection")]
 pub struct PatternSection {
     pub weaves: Vec<PatternWeave>,
     pub map: PatternMapSource,
@@ -117,8 +127,8 @@ pub struct PatternSection {
 
 /// One of `[pattern] weaves`: `{ weave = "plain" }`, `{ rows = ["X.", ".X"] }` or
 /// `{ wif = "draft.wif" }` (relative to the scene file's folder).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(try_from = "RawPatternWeave")]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawPatternWeave", into = "RawPatternWeave")]
 pub enum PatternWeave {
     Preset(WeavePreset),
     Draft(WeaveDraft),
@@ -134,12 +144,24 @@ pub enum PatternMapSource {
     Png(PathBuf),
 }
 
-#[derive(Deserialize)]
+#[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawPatternSection {
-    weaves: Vec<PatternWeave>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     rows: Option<Vec<String>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     png: Option<PathBuf>,
+    weaves: Vec<PatternWeave>,
+}
+
+impl From<PatternSection> for RawPatternSection {
+    fn from(section: PatternSection) -> Self {
+        let (rows, png) = match section.map {
+            PatternMapSource::Rows(rows) => (Some(rows), None),
+            PatternMapSource::Png(png) => (None, Some(png)),
+        };
+        Self { rows, png, weaves: section.weaves }
+    }
 }
 
 impl TryFrom<RawPatternSection> for PatternSection {
@@ -164,12 +186,25 @@ impl TryFrom<RawPatternSection> for PatternSection {
     }
 }
 
-#[derive(Deserialize)]
+#[derive(Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawPatternWeave {
+    #[serde(skip_serializing_if = "Option::is_none")]
     weave: Option<WeavePreset>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     rows: Option<Vec<String>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     wif: Option<PathBuf>,
+}
+
+impl From<PatternWeave> for RawPatternWeave {
+    fn from(weave: PatternWeave) -> Self {
+        match weave {
+            PatternWeave::Preset(p) => Self { weave: Some(p), ..Self::default() },
+            PatternWeave::Draft(d) => Self { rows: Some(d.to_rows()), ..Self::default() },
+            PatternWeave::Wif(file) => Self { wif: Some(file), ..Self::default() },
+        }
+    }
 }
 
 impl TryFrom<RawPatternWeave> for PatternWeave {
@@ -205,7 +240,7 @@ pub fn pattern_blocks(drafts: &[WeaveDraft]) -> Vec<[u32; 2]> {
 }
 
 /// `[swatch]`: the flat tiled piece of fabric that is rendered.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SwatchSection {
     /// Size along x and y in cm, centred on the origin (ignored for fabrics used as-is).
@@ -221,7 +256,7 @@ impl Default for SwatchSection {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ProjectionKind {
     Perspective,
@@ -229,7 +264,7 @@ pub enum ProjectionKind {
 }
 
 /// `[camera]`.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSection {
     pub projection: ProjectionKind,
@@ -256,7 +291,7 @@ fn default_height() -> f64 {
 }
 
 /// `[[lights]]`: a directional or a normalized SG light.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum LightSection {
     /// Irradiance perpendicular to the beam, arriving from `direction` (toward the light).
@@ -271,7 +306,7 @@ pub enum LightSection {
 }
 
 /// `[render]`: resolution and sampling.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderSection {
     pub width: usize,
@@ -291,14 +326,17 @@ impl Default for RenderSection {
 
 /// `[mesh]`: the base surface the fabric is shell-mapped onto (GPU renderer). Give at most one
 /// of `builtin` and `path`; with neither, the flat swatch of `[swatch]` is used.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MeshSection {
     /// A built-in surface: `swatch`, `drape` or `cushion` (UVs in cm).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub builtin: Option<String>,
     /// An OBJ or glTF file with UVs (relative to the scene file's folder).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub path: Option<PathBuf>,
     /// Size in cm of a built-in surface (default: `[swatch] size_cm`).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub size_cm: Option<[f64; 2]>,
     /// Centimetres of fabric per unit of the mesh's UV coordinates (1 for the built-ins).
     pub cm_per_uv: f64,
@@ -313,7 +351,7 @@ impl Default for MeshSection {
 }
 
 /// `[gpu]`: settings of the GPU renderer (`twill render`, the viewer).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpuSection {
     /// Volume samples per shell tetrahedron along each eye ray (paper: 32, 64 or 128).
@@ -448,6 +486,57 @@ impl SceneFile {
     pub fn default_scene() -> Self {
         Self::parse(DEFAULT_SCENE_TOML, Path::new("<built-in default scene>"))
             .expect("the built-in default scene parses (tested)")
+    }
+
+    /// The scene as TOML text, every section written out (defaults included), such that
+    /// [`SceneFile::parse`] gives this scene back exactly (floats keep every bit). The `path`
+    /// is not written; relative paths inside are kept as they are.
+    pub fn to_toml(&self) -> Result<String, SceneError> {
+        let body = toml::to_string(self)
+            .map_err(|e| SceneError::Serialize { path: self.path.clone(), message: e.to_string() })?;
+        Ok(format!("# twill scene (docs/SCENE_FORMAT.md)\n\n{body}"))
+    }
+
+    /// Writes the scene to `path` atomically (see [`crate::atomic_file`]). Relative paths inside
+    /// it (fiber file, mesh, pattern map and WIF files) are resolved against the folder of the
+    /// scene's own `path`; when `path` is in another folder they are written as absolute paths,
+    /// so the saved scene still finds them.
+    pub fn save(&self, path: &Path) -> Result<(), SceneError> {
+        let text = self.rebased(path).to_toml()?;
+        crate::atomic_file::write_atomically(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+            .map_err(|source| SceneError::Write { path: path.into(), source })
+    }
+
+    /// This scene with its relative paths made absolute if `target` is in another folder.
+    fn rebased(&self, target: &Path) -> SceneFile {
+        let folder = |p: &Path| std::path::absolute(p.parent().unwrap_or(Path::new("")));
+        let (Ok(from), Ok(to)) = (folder(&self.path), folder(target)) else { return self.clone() };
+        let mut out = self.clone();
+        if from == to {
+            return out;
+        }
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = from.join(&*p);
+            }
+        };
+        if let Some(FabricSpec::Imported(spec)) = &mut out.fabric.spec {
+            fix(&mut spec.file);
+        }
+        if let Some(p) = &mut out.mesh.path {
+            fix(p);
+        }
+        if let Some(pattern) = &mut out.pattern {
+            if let PatternMapSource::Png(p) = &mut pattern.map {
+                fix(p);
+            }
+            for weave in &mut pattern.weaves {
+                if let PatternWeave::Wif(p) = weave {
+                    fix(p);
+                }
+            }
+        }
+        out
     }
 
     /// Loads `path`, or the built-in default scene when `None`.
@@ -867,5 +956,85 @@ mod tests {
                 assert!(msg.contains(needle), "{msg:?} lacks {needle:?}\n{text}");
             }
         }
+    }
+
+    /// `to_toml` then `parse` gives the scene back, `path` aside.
+    fn assert_round_trip(scene: &SceneFile) -> String {
+        let text = scene.to_toml().unwrap();
+        let back = SceneFile::parse(&text, &scene.path).unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(&back, scene, "{text}");
+        text
+    }
+
+    #[test]
+    fn scenes_round_trip_through_toml() {
+        let default = SceneFile::default_scene();
+        let text = assert_round_trip(&default);
+        assert!(text.starts_with("# twill scene"), "{text}");
+        for section in ["[fabric]", "[swatch]", "[camera]", "[[lights]]", "[render]", "[mesh]", "[gpu]"] {
+            assert!(text.contains(section), "{section} missing from\n{text}");
+        }
+
+        let patterned = SceneFile::load(&patterned_scene_path()).unwrap();
+        let text = assert_round_trip(&patterned);
+        assert!(text.contains("[pattern]") && text.contains("plain"), "{text}");
+
+        // A procedural spec with draft rows, material overrides, a mesh file, a PNG map and a WIF
+        // weave, and floats that need every digit.
+        let text = format!(
+            "[fabric.spec]\nrows = [\"X..\", \".X.\", \"..X\"]\nspacing_warp = 0.1\ncrimp = 0.0123456789012345678\nseed = 3\n\
+             warp = {{ width = 0.03, height = 0.015 }}\n\
+             [materials]\nwarp = {{ model = \"lambert\", albedo = [0.1, 0.2, 0.3] }}\n\
+             weft = {{ model = \"fiber\", c_r = [0.04, 0.04, 0.04], beta_r_deg = 5.0, c_tt = [0.8, 0.3, 0.2], beta_tt_deg = 10.0, gamma_tt_deg = 25.0 }}\n\
+             [pattern]\nweaves = [{{ rows = [\"X.\", \".X\"] }}, {{ wif = \"w.wif\" }}, {{ weave = \"satin_4_1\" }}]\npng = \"maps/m.png\"\n\
+             [mesh]\npath = \"cloth.obj\"\nsize_cm = [3, 4]\n\
+             {CAMERA}{LIGHT}\
+             [[lights]]\ntype = \"sg\"\naxis = [0.1, 0.2, 0.3]\nsharpness = 1e-4\nintensity = [1e300, 5e-324, 0.30000000000000004]\n\
+             [render]\nseed = 9007199254740993\nexposure = -1.25\n[gpu]\nvolume_samples = 32\n"
+        );
+        let mut spec = SceneFile::parse(&text, Path::new("/some/dir/spec.toml")).unwrap();
+        spec.camera.eye = [0.1 + 0.2, 1.0 / 3.0, -2.0_f64.sqrt()];
+        spec.camera.fov_y_deg = std::f64::consts::PI * 10.0;
+        spec.gpu.sigma_glo_cm = f64::MIN_POSITIVE;
+        let text = assert_round_trip(&spec);
+        assert!(text.contains("rows = [\"X..\", \".X.\", \"..X\"]"), "{text}");
+        let fabric = text.split("[fabric").nth(1).unwrap();
+        assert!(!fabric.contains("preset"), "{text}");
+    }
+
+    #[test]
+    fn save_writes_atomically_and_keeps_relative_paths_working() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene_dir = dir.path().join("scenes");
+        std::fs::create_dir(&scene_dir).unwrap();
+        let text = format!(
+            "[fabric]\npreset = \"default\"\n[pattern]\nweaves = [{{ wif = \"w.wif\" }}]\nrows = [\"01\"]\n[mesh]\npath = \"m.obj\"\n{CAMERA}{LIGHT}"
+        );
+        let scene = SceneFile::parse(&text, &scene_dir.join("a.toml")).unwrap();
+        // Same folder: saved as is.
+        let same = scene_dir.join("b.toml");
+        scene.save(&same).unwrap();
+        let mut back = SceneFile::load(&same).unwrap();
+        back.path.clone_from(&scene.path);
+        assert_eq!(back, scene);
+        // Another folder: relative paths become absolute, pointing at the same files.
+        let other = dir.path().join("c.toml");
+        scene.save(&other).unwrap();
+        let moved = SceneFile::load(&other).unwrap();
+        assert_eq!(moved.mesh.path.unwrap(), scene_dir.join("m.obj"));
+        let Some(PatternSection { weaves, .. }) = moved.pattern else { panic!("no pattern") };
+        assert_eq!(weaves, [PatternWeave::Wif(scene_dir.join("w.wif"))]);
+        // Nothing but the saved files (no temporaries) is left; an unwritable place is an error.
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 2, "{names:?}");
+        let msg = scene.save(Path::new("/nonexistent-dir/s.toml")).unwrap_err().to_string();
+        assert!(msg.starts_with("/nonexistent-dir/s.toml: could not write"), "{msg}");
+    }
+
+    #[test]
+    fn the_largest_seed_round_trips() {
+        let mut scene = SceneFile::default_scene();
+        scene.render.seed = u64::MAX;
+        assert_round_trip(&scene);
     }
 }
