@@ -8,13 +8,11 @@ use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::file::Cache;
-use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{
-    BakeInputs, BakeSet, Stage, StageSource, bake as run_bake, write_bake,
+    BakeInputs, BakeOutcome, Baked, Stage, StageSource, bake as run_bake, bake_set, read_bake, write_bake,
 };
-use twill_precompute::bake::pipeline::{Baked, read_bake};
 use twill_precompute::bake::settings::{BakeSettings, Quality};
-use twill_precompute::fabric::{exemplar::volume_fraction, fiber_io, presets};
+use twill_precompute::fabric::{Exemplar, exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::image::Image;
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
@@ -104,6 +102,17 @@ pub fn fabric_info(scene_path: Option<&Path>, mfp_samples: usize) -> Result<()> 
         mfp.samples,
         100.0 * mfp.escaped_fraction
     );
+    if let Some(pattern) = &scene.pattern {
+        let blocks: Vec<String> =
+            pattern.exemplars.iter().map(|e| format!("{}x{}", e.blocks.nx, e.blocks.ny)).collect();
+        println!(
+            "pattern          {} exemplars (blocks per exemplar {}), map of {}x{} blocks (the numbers above are exemplar 0's)",
+            pattern.exemplars.len(),
+            blocks.join(", "),
+            pattern.map.width,
+            pattern.map.height
+        );
+    }
     Ok(())
 }
 
@@ -112,6 +121,17 @@ pub fn fabric_export(scene_path: Option<&Path>, hair: bool, output: &Path) -> Re
     let format = if hair { fiber_io::FiberFormat::Hair } else { fiber_io::FiberFormat::Mitsuba };
     fiber_io::write_fibers(output, &scene.exemplar.fibers, Some(format))?;
     eprintln!("wrote {} fibers to {}", scene.exemplar.fibers.len(), output.display());
+    Ok(())
+}
+
+/// Refuses a patterned scene for a command that traces only one exemplar.
+fn refuse_pattern(file: &SceneFile, command: &str) -> Result<()> {
+    anyhow::ensure!(
+        file.pattern.is_none(),
+        "{}: [pattern]: {command} cannot trace patterned cloth: the path tracer holds one exemplar; \
+         render it with `twill render`, or remove [pattern] to trace [fabric]'s weave alone",
+        file.path.display()
+    );
     Ok(())
 }
 
@@ -128,6 +148,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let render = &mut file.render;
     render.max_depth = options.max_depth.unwrap_or(render.max_depth);
     render.seed = options.seed.unwrap_or(render.seed);
+    refuse_pattern(&file, "`twill reference` (the path tracer)")?;
     let scene = file.build()?;
     let camera = file.camera(file.render.width, file.render.height)?;
     let settings = file.render_settings(options.only);
@@ -169,7 +190,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     Ok(())
 }
 
-/// Options of `twill bake`.
+/// Options of `twill render`.
 #[allow(clippy::struct_excessive_bools)]
 pub struct RenderOptions {
     pub image: ImageOptions,
@@ -209,14 +230,10 @@ pub fn render(options: &RenderOptions) -> Result<()> {
         (loaded.exemplars, loaded.pattern)
     } else {
         let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
-        let inputs = BakeInputs {
-            exemplar: &scene.exemplar,
-            materials: &scene.material_descs,
-            settings: options.quality.settings(),
-        };
-        let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
+        let inputs = scene.bake_inputs(options.quality.settings());
+        let set = bake_set(&inputs, scene.pattern_map(), cache.as_ref(), &Cancel::new(), &|_, _| {})
             .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-        (vec![outcome.baked], PatternMap::uniform(0))
+        (set.exemplars.into_iter().map(|o| o.baked).collect(), set.pattern)
     };
     let bake_seconds = started.elapsed().as_secs_f64();
     let refs: Vec<&Baked> = exemplars.iter().collect();
@@ -270,6 +287,7 @@ pub fn render(options: &RenderOptions) -> Result<()> {
     Ok(())
 }
 
+/// Options of `twill bake`.
 pub struct BakeOptions {
     pub scene: Option<PathBuf>,
     pub quality: Quality,
@@ -349,25 +367,38 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
         }
         bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
     };
-    let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
+    let inputs = scene.bake_inputs(settings);
     let started = Instant::now();
-    let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &progress);
+    let set = bake_set(&inputs, scene.pattern_map(), cache.as_ref(), &Cancel::new(), &progress);
     bar.finish_and_clear();
-    let outcome = outcome.map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-    let set = BakeSet::single(outcome);
+    let set = set.map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
     write_bake(&output, &set)?;
-    let outcome = &set.exemplars[0];
 
-    let b = &outcome.baked;
+    let segments: usize = scene.exemplars().iter().map(Exemplar::segment_count).sum();
+    let exemplars = match set.exemplars.len() {
+        1 => String::new(),
+        n => format!("{n} exemplars, "),
+    };
     eprintln!(
-        "baked {} ({} quality, {} segments) in {:.2} s -> {} ({:.1} MB)",
+        "baked {} ({} quality, {exemplars}{segments} segments) in {:.2} s -> {} ({:.1} MB)",
         file.path.display(),
         options.quality.name(),
-        scene.exemplar.segment_count(),
         started.elapsed().as_secs_f64(),
         output.display(),
         std::fs::metadata(&output).map_or(0.0, |m| m.len() as f64 / 1e6)
     );
+    for (k, outcome) in set.exemplars.iter().enumerate() {
+        if set.exemplars.len() > 1 {
+            eprintln!("exemplar {k} ({} segments):", inputs[k].exemplar.segment_count());
+        }
+        report_bake(outcome);
+    }
+    Ok(())
+}
+
+/// Prints one exemplar's stages and the bake's key numbers.
+fn report_bake(outcome: &BakeOutcome) {
+    let b = &outcome.baked;
     for run in &outcome.stages {
         let how = match run.source {
             StageSource::Cached => "cached",
@@ -393,7 +424,6 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
         pca.rms_error,
         100.0 * pca.sign_agreement
     );
-    Ok(())
 }
 
 /// Bakes `scene`'s fabric at `quality` through the default stage cache (no progress bar).
@@ -421,8 +451,19 @@ pub fn bench_passes(
     anyhow::ensure!(frames >= 1, "--frames must be at least 1");
     let file = SceneFile::load_or_default(scene)?;
     let scene = file.build()?;
-    let (baked, bake_seconds) = bake_scene(&scene, quality)?;
-    let mut session = SceneRenderer::new(&scene, &[&baked], &PatternMap::uniform(0))?;
+    let cache = open_cache(None, false)?;
+    let started = Instant::now();
+    let set = bake_set(
+        &scene.bake_inputs(quality.settings()),
+        scene.pattern_map(),
+        cache.as_ref(),
+        &Cancel::new(),
+        &|_, _| {},
+    )
+    .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    let bake_seconds = started.elapsed().as_secs_f64();
+    let baked: Vec<&Baked> = set.exemplars.iter().map(|o| &o.baked).collect();
+    let mut session = SceneRenderer::new(&scene, &baked, &set.pattern)?;
     let mut settings = frame_settings(&scene, Components::All);
     (settings.width, settings.height, settings.spp) = (width as u32, height as u32, spp);
     let plan = session.renderer.plan(&scene.path_scene.lights, &settings);
@@ -473,6 +514,7 @@ pub fn bench_accuracy(
     settings: &twill_renderer::accuracy::ExperimentSettings,
 ) -> Result<()> {
     let mut file = SceneFile::load_or_default(scene)?;
+    refuse_pattern(&file, "`twill bench accuracy` (against path-traced references)")?;
     // A flat swatch over a black ground, large enough for grazing views of a 0.4 cm film.
     file.mesh = twill_precompute::scene::MeshSection::default();
     file.swatch.size_cm = [2.0, 2.0];

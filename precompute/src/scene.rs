@@ -3,17 +3,33 @@
 //! A scene file is parsed with serde into [`SceneFile`] (unknown fields are errors, and every
 //! range check runs during parsing, so a bad value is reported with its file, line and column
 //! by the TOML parser), then [`SceneFile::build`] turns it into the objects the renderers use.
-//! The built-in default scene is `assets/scenes/default.toml`, compiled in; it doubles as the
-//! documented example of the format (see `docs/SCENE_FORMAT.md`).
+//! [`SceneFile::to_toml`] writes a scene back out (every section, defaults included, floats
+//! exact) so that parsing the text gives the same [`SceneFile`]; [`SceneFile::save`] writes it
+//! atomically. The built-in default scene is `assets/scenes/default.toml`, compiled in; it
+//! doubles as the documented example of the format (see `docs/SCENE_FORMAT.md`).
+//!
+//! Patterned cloth (paper section 6.4): an optional `[pattern]` section lists alternative
+//! weaves and a map of which weave each block of the cloth uses. Exemplar 0 is `[fabric]`'s own
+//! weave, exemplar `k` the `k`-th of `[pattern] weaves`; all share `[fabric]`'s yarns, spacings,
+//! crimp and seed. Blocks of different exemplars sit side by side, so all must be the same size:
+//! [`pattern_blocks`] makes the block side, in yarns, the greatest common divisor of all the
+//! drafts' repeats along each axis. The built [`Scene`] then holds every exemplar and the map
+//! ([`ScenePattern`]); [`Scene::bake_inputs`] and [`Scene::pattern_map`] give callers one code
+//! path for plain and patterned cloth.
 
 use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec2};
-use serde::{Deserialize, Deserializer};
+use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::Rgb;
+use crate::bake::pattern::{PatternError, PatternMap};
+use crate::bake::pipeline::BakeInputs;
+use crate::bake::settings::BakeSettings;
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::presets::{FabricSpec, fabric_preset, fabric_presets};
+use crate::fabric::presets::{FabricSpec, WeaveSource, WovenSpec, fabric_preset, fabric_presets};
+use crate::fabric::weave::{WeaveDraft, WeavePreset};
+use crate::fabric::wif::{WifError, read_wif};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
@@ -22,11 +38,15 @@ use crate::raycast::{Extent, FiberScene};
 /// The built-in default scene (its text).
 pub const DEFAULT_SCENE_TOML: &str = include_str!("../../assets/scenes/default.toml");
 
-/// Errors reading or building a scene; each names the file.
+/// Errors reading, building or writing a scene; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("{path}: {source}")]
     Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: could not write the scene: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error("{path}: the scene cannot be written as TOML: {message}")]
+    Serialize { path: PathBuf, message: String },
     /// The TOML parser's message already names the line, column and field.
     #[error("{path}: {message}")]
     Parse { path: PathBuf, message: String },
@@ -36,15 +56,23 @@ pub enum SceneError {
     Fabric { path: PathBuf, source: crate::fabric::presets::FabricError },
     #[error("{path}: {source}")]
     Param { path: PathBuf, source: ParamError },
+    #[error("{path}: [pattern]: {source}")]
+    Pattern { path: PathBuf, source: PatternError },
+    /// The WIF error names the WIF file, its line, key and value.
+    #[error("{path}: [pattern]: {source}")]
+    Wif { path: PathBuf, source: WifError },
 }
 
 /// A parsed scene file, before any geometry is built.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub fabric: FabricSection,
     #[serde(default)]
     pub materials: MaterialsSection,
+    /// Patterned cloth: other weaves and the map of which one each block uses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pattern: Option<PatternSection>,
     #[serde(default)]
     pub swatch: SwatchSection,
     pub camera: CameraSection,
@@ -62,25 +90,157 @@ pub struct SceneFile {
 }
 
 /// `[fabric]`: a built-in preset by name, or a full fabric specification.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FabricSection {
     /// Name of a built-in fabric preset (`twill fabric presets` lists them).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub preset: Option<String>,
     /// A full specification (procedural weave or imported fiber file): `[fabric.spec]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub spec: Option<FabricSpec>,
 }
 
 /// `[materials]`: material of warp and weft yarns (defaults: the preset's).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialsSection {
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub warp: Option<MaterialDesc>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub weft: Option<MaterialDesc>,
 }
 
+/// Most weaves `[pattern]` may add to `[fabric]`'s (map indices go up to `z` = 35).
+pub const MAX_PATTERN_WEAVES: usize = 35;
+/// Largest side, in blocks, of a pattern map.
+pub const MAX_PATTERN_MAP_SIDE: usize = 4096;
+
+/// `[pattern]`: patterned cloth (paper section 6.4). `weaves` are exemplars 1, 2, ...
+/// (exemplar 0 being `[fabric]`'s own weave); the map says which exemplar each block uses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawPatternSection", into = "RawPatternSection")]
+pub struct PatternSection {
+    pub weaves: Vec<PatternWeave>,
+    pub map: PatternMapSource,
+}
+
+/// One of `[pattern] weaves`: `{ weave = "plain" }`, `{ rows = ["X.", ".X"] }` or
+/// `{ wif = "draft.wif" }` (relative to the scene file's folder).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawPatternWeave", into = "RawPatternWeave")]
+pub enum PatternWeave {
+    Preset(WeavePreset),
+    Draft(WeaveDraft),
+    Wif(PathBuf),
+}
+
+/// Where a pattern map comes from: `rows = ["0011", "0110"]` (top row first, one character per
+/// block, `0`-`9` then `a`-`z`) or `png = "map.png"` (gray levels, darkest = exemplar 0;
+/// relative to the scene file's folder). See [`PatternMap`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PatternMapSource {
+    Rows(Vec<String>),
+    Png(PathBuf),
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPatternSection {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rows: Option<Vec<String>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    png: Option<PathBuf>,
+    weaves: Vec<PatternWeave>,
+}
+
+impl From<PatternSection> for RawPatternSection {
+    fn from(section: PatternSection) -> Self {
+        let (rows, png) = match section.map {
+            PatternMapSource::Rows(rows) => (Some(rows), None),
+            PatternMapSource::Png(png) => (None, Some(png)),
+        };
+        Self { rows, png, weaves: section.weaves }
+    }
+}
+
+impl TryFrom<RawPatternSection> for PatternSection {
+    type Error = String;
+
+    fn try_from(raw: RawPatternSection) -> Result<Self, String> {
+        check_count("pattern.weaves", raw.weaves.len(), 1, MAX_PATTERN_WEAVES)
+            .map_err(|e| format!("{e} (the weaves besides [fabric]'s own, which is exemplar 0)"))?;
+        let map = match (raw.rows, raw.png) {
+            (Some(rows), None) => {
+                PatternMap::from_rows(&rows).map_err(|e| format!("rows: {e}"))?;
+                PatternMapSource::Rows(rows)
+            }
+            (None, Some(png)) => PatternMapSource::Png(png),
+            _ => {
+                return Err("give exactly one of `rows = [\"0110\", ...]` and `png = \"map.png\"`: \
+                            the map of which exemplar each block uses"
+                    .into());
+            }
+        };
+        Ok(Self { weaves: raw.weaves, map })
+    }
+}
+
+#[derive(Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPatternWeave {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    weave: Option<WeavePreset>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rows: Option<Vec<String>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    wif: Option<PathBuf>,
+}
+
+impl From<PatternWeave> for RawPatternWeave {
+    fn from(weave: PatternWeave) -> Self {
+        match weave {
+            PatternWeave::Preset(p) => Self { weave: Some(p), ..Self::default() },
+            PatternWeave::Draft(d) => Self { rows: Some(d.to_rows()), ..Self::default() },
+            PatternWeave::Wif(file) => Self { wif: Some(file), ..Self::default() },
+        }
+    }
+}
+
+impl TryFrom<RawPatternWeave> for PatternWeave {
+    type Error = String;
+
+    fn try_from(raw: RawPatternWeave) -> Result<Self, String> {
+        match (raw.weave, raw.rows, raw.wif) {
+            (Some(preset), None, None) => Ok(Self::Preset(preset)),
+            (None, Some(rows), None) => {
+                WeaveDraft::from_rows(&rows).map(Self::Draft).map_err(|e| format!("rows: {e}"))
+            }
+            (None, None, Some(file)) => Ok(Self::Wif(file)),
+            _ => Err("each of `weaves` gives exactly one of `weave = \"plain\"`, `rows = [\"X.\", \".X\"]` \
+                      and `wif = \"draft.wif\"`"
+                .into()),
+        }
+    }
+}
+
+/// Block grid of each draft of a patterned cloth, `[nx, ny]`: the block side in yarns is the
+/// greatest common divisor of all the drafts' repeats, columns (warp ends, along x) and rows
+/// (weft picks, along y) separately, so with equal yarn spacings every block has the same size.
+/// E.g. a 2/2 twill (4 x 4) with a plain weave (2 x 2) gives 2-yarn blocks: `[2, 2]` and
+/// `[1, 1]`.
+#[must_use]
+pub fn pattern_blocks(drafts: &[WeaveDraft]) -> Vec<[u32; 2]> {
+    fn gcd(a: usize, b: usize) -> usize {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    let gx = drafts.iter().map(WeaveDraft::cols).fold(0, gcd).max(1);
+    let gy = drafts.iter().map(WeaveDraft::rows).fold(0, gcd).max(1);
+    drafts.iter().map(|d| [(d.cols() / gx) as u32, (d.rows() / gy) as u32]).collect()
+}
+
 /// `[swatch]`: the flat tiled piece of fabric that is rendered.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SwatchSection {
     /// Size along x and y in cm, centred on the origin (ignored for fabrics used as-is).
@@ -96,7 +256,7 @@ impl Default for SwatchSection {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ProjectionKind {
     Perspective,
@@ -104,7 +264,7 @@ pub enum ProjectionKind {
 }
 
 /// `[camera]`.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSection {
     pub projection: ProjectionKind,
@@ -131,7 +291,7 @@ fn default_height() -> f64 {
 }
 
 /// `[[lights]]`: a directional or a normalized SG light.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum LightSection {
     /// Irradiance perpendicular to the beam, arriving from `direction` (toward the light).
@@ -146,7 +306,7 @@ pub enum LightSection {
 }
 
 /// `[render]`: resolution and sampling.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderSection {
     pub width: usize,
@@ -166,14 +326,17 @@ impl Default for RenderSection {
 
 /// `[mesh]`: the base surface the fabric is shell-mapped onto (GPU renderer). Give at most one
 /// of `builtin` and `path`; with neither, the flat swatch of `[swatch]` is used.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MeshSection {
     /// A built-in surface: `swatch`, `drape` or `cushion` (UVs in cm).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub builtin: Option<String>,
     /// An OBJ or glTF file with UVs (relative to the scene file's folder).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub path: Option<PathBuf>,
     /// Size in cm of a built-in surface (default: `[swatch] size_cm`).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub size_cm: Option<[f64; 2]>,
     /// Centimetres of fabric per unit of the mesh's UV coordinates (1 for the built-ins).
     pub cm_per_uv: f64,
@@ -188,7 +351,7 @@ impl Default for MeshSection {
 }
 
 /// `[gpu]`: settings of the GPU renderer (`twill render`, the viewer).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpuSection {
     /// Volume samples per shell tetrahedron along each eye ray (paper: 32, 64 or 128).
@@ -248,7 +411,10 @@ fn sg_sharpness<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 /// A scene ready to render: the fabric exemplar, the ray-traceable swatch with its materials
 /// and lights, the camera and the settings.
 pub struct Scene {
+    /// The fabric (exemplar 0 of a patterned cloth).
     pub exemplar: Exemplar,
+    /// Patterned cloth: every exemplar and the map; `None` for a plain fabric.
+    pub pattern: Option<ScenePattern>,
     /// Warp and weft material as described (slot 0 warp, slot 1 weft).
     pub material_descs: Vec<MaterialDesc>,
     /// The swatch as the path tracer sees it.
@@ -260,6 +426,38 @@ pub struct Scene {
     pub gpu: GpuSection,
     /// Folder of the scene file (relative mesh paths resolve against it).
     pub base_dir: PathBuf,
+}
+
+/// The built `[pattern]`: every exemplar (index 0, `[fabric]`'s weave, first; each with the
+/// blocks of [`pattern_blocks`]) and the map of which one each block uses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenePattern {
+    pub map: PatternMap,
+    pub exemplars: Vec<Exemplar>,
+}
+
+impl Scene {
+    /// Every exemplar: the pattern's, or just [`Scene::exemplar`].
+    #[must_use]
+    pub fn exemplars(&self) -> &[Exemplar] {
+        self.pattern.as_ref().map_or(std::slice::from_ref(&self.exemplar), |p| &p.exemplars)
+    }
+
+    /// The map of which exemplar each block uses (every block exemplar 0 without a pattern).
+    #[must_use]
+    pub fn pattern_map(&self) -> PatternMap {
+        self.pattern.as_ref().map_or_else(|| PatternMap::uniform(0), |p| p.map.clone())
+    }
+
+    /// What baking every exemplar needs (for `bake::pipeline::bake_set` with
+    /// [`Scene::pattern_map`]); all exemplars share the scene's materials.
+    #[must_use]
+    pub fn bake_inputs(&self, settings: BakeSettings) -> Vec<BakeInputs<'_>> {
+        self.exemplars()
+            .iter()
+            .map(|exemplar| BakeInputs { exemplar, materials: &self.material_descs, settings })
+            .collect()
+    }
 }
 
 /// Gap between the lowest fiber and the black ground plane, in cm.
@@ -290,6 +488,57 @@ impl SceneFile {
             .expect("the built-in default scene parses (tested)")
     }
 
+    /// The scene as TOML text, every section written out (defaults included), such that
+    /// [`SceneFile::parse`] gives this scene back exactly (floats keep every bit). The `path`
+    /// is not written; relative paths inside are kept as they are.
+    pub fn to_toml(&self) -> Result<String, SceneError> {
+        let body = toml::to_string(self)
+            .map_err(|e| SceneError::Serialize { path: self.path.clone(), message: e.to_string() })?;
+        Ok(format!("# twill scene (docs/SCENE_FORMAT.md)\n\n{body}"))
+    }
+
+    /// Writes the scene to `path` atomically (see [`crate::atomic_file`]). Relative paths inside
+    /// it (fiber file, mesh, pattern map and WIF files) are resolved against the folder of the
+    /// scene's own `path`; when `path` is in another folder they are written as absolute paths,
+    /// so the saved scene still finds them.
+    pub fn save(&self, path: &Path) -> Result<(), SceneError> {
+        let text = self.rebased(path).to_toml()?;
+        crate::atomic_file::write_atomically(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+            .map_err(|source| SceneError::Write { path: path.into(), source })
+    }
+
+    /// This scene with its relative paths made absolute if `target` is in another folder.
+    fn rebased(&self, target: &Path) -> SceneFile {
+        let folder = |p: &Path| std::path::absolute(p.parent().unwrap_or(Path::new("")));
+        let (Ok(from), Ok(to)) = (folder(&self.path), folder(target)) else { return self.clone() };
+        let mut out = self.clone();
+        if from == to {
+            return out;
+        }
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = from.join(&*p);
+            }
+        };
+        if let Some(FabricSpec::Imported(spec)) = &mut out.fabric.spec {
+            fix(&mut spec.file);
+        }
+        if let Some(p) = &mut out.mesh.path {
+            fix(p);
+        }
+        if let Some(pattern) = &mut out.pattern {
+            if let PatternMapSource::Png(p) = &mut pattern.map {
+                fix(p);
+            }
+            for weave in &mut pattern.weaves {
+                if let PatternWeave::Wif(p) = weave {
+                    fix(p);
+                }
+            }
+        }
+        out
+    }
+
     /// Loads `path`, or the built-in default scene when `None`.
     pub fn load_or_default(path: Option<&Path>) -> Result<Self, SceneError> {
         path.map_or_else(|| Ok(Self::default_scene()), Self::load)
@@ -315,8 +564,18 @@ impl SceneFile {
         warp = self.materials.warp.or(warp);
         weft = self.materials.weft.or(weft);
         let base_dir = path.parent().unwrap_or(Path::new("."));
-        let exemplar =
-            spec.build(base_dir).map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
+        let (exemplar, pattern) = match &self.pattern {
+            None => {
+                let exemplar = spec
+                    .build(base_dir)
+                    .map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
+                (exemplar, None)
+            }
+            Some(section) => {
+                let pattern = self.build_pattern(section, &spec, base_dir)?;
+                (pattern.exemplars[0].clone(), Some(pattern))
+            }
+        };
 
         // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft.
         let fallback = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
@@ -375,6 +634,7 @@ impl SceneFile {
         let path_scene = PathScene { fibers, yarn_materials, lights, ground_z };
         Ok(Scene {
             exemplar,
+            pattern,
             material_descs,
             path_scene,
             swatch: self.swatch,
@@ -384,6 +644,74 @@ impl SceneFile {
             gpu: self.gpu,
             base_dir: base_dir.to_path_buf(),
         })
+    }
+
+    /// Builds every exemplar of a patterned cloth and reads its map.
+    fn build_pattern(
+        &self,
+        section: &PatternSection,
+        spec: &FabricSpec,
+        base_dir: &Path,
+    ) -> Result<ScenePattern, SceneError> {
+        let path = &self.path;
+        let invalid = |message: String| SceneError::Invalid { path: path.clone(), message };
+        let FabricSpec::Woven(woven) = spec else {
+            return Err(invalid(
+                "[pattern]: patterned cloth needs a woven [fabric] (a preset, `weave` or `rows`); \
+                 imported fibers cannot be combined with other weaves"
+                    .into(),
+            ));
+        };
+        if woven.blocks != [1, 1] {
+            return Err(invalid(format!(
+                "[fabric.spec]: blocks = {:?}: with a [pattern] the blocks are set from the drafts; remove `blocks`",
+                woven.blocks
+            )));
+        }
+        let mut weaves = vec![woven.weave.clone()];
+        for weave in &section.weaves {
+            weaves.push(match weave {
+                PatternWeave::Preset(p) => WeaveSource::Preset(*p),
+                PatternWeave::Draft(d) => WeaveSource::Draft(d.clone()),
+                PatternWeave::Wif(file) => WeaveSource::Draft(
+                    read_wif(&base_dir.join(file))
+                        .map_err(|source| SceneError::Wif { path: path.clone(), source })?,
+                ),
+            });
+        }
+        let drafts: Vec<WeaveDraft> = weaves.iter().map(WeaveSource::draft).collect();
+        let mut exemplars = Vec::with_capacity(weaves.len());
+        for (k, (weave, blocks)) in weaves.into_iter().zip(pattern_blocks(&drafts)).enumerate() {
+            let spec = WovenSpec { weave, blocks, ..(**woven).clone() };
+            let exemplar = spec.woven_fabric().build().map_err(|e| {
+                let place =
+                    if k == 0 { "[fabric]".to_owned() } else { format!("[pattern] weaves[{}]", k - 1) };
+                invalid(format!("{place}: {e}"))
+            })?;
+            exemplars.push(exemplar);
+        }
+        let map = match &section.map {
+            PatternMapSource::Rows(rows) => PatternMap::from_rows(rows),
+            PatternMapSource::Png(png) => PatternMap::from_png(&base_dir.join(png)).map(|(map, _)| map),
+        }
+        .map_err(|source| SceneError::Pattern { path: path.clone(), source })?;
+        let param = |source: ParamError| SceneError::Param { path: path.clone(), source };
+        check_count("pattern map width", map.width as usize, 1, MAX_PATTERN_MAP_SIDE).map_err(param)?;
+        check_count("pattern map height", map.height as usize, 1, MAX_PATTERN_MAP_SIDE).map_err(param)?;
+        if map.exemplar_count() > exemplars.len() {
+            let what = match &section.map {
+                PatternMapSource::Rows(_) => "rows".to_owned(),
+                PatternMapSource::Png(png) => format!("{} (its gray levels, darkest first)", png.display()),
+            };
+            return Err(invalid(format!(
+                "[pattern]: the map ({what}) names exemplar {}, but there are only {} exemplars: \
+                 0 ([fabric]'s weave) to {} (the `weaves`)",
+                map.exemplar_count() - 1,
+                exemplars.len(),
+                exemplars.len() - 1
+            )));
+        }
+        Ok(ScenePattern { map, exemplars })
     }
 
     /// The camera for a film of `width` x `height`.
@@ -467,5 +795,246 @@ mod tests {
     fn a_missing_file_is_an_error_naming_it() {
         let msg = SceneFile::load(Path::new("/no/such/scene.toml")).unwrap_err().to_string();
         assert!(msg.contains("/no/such/scene.toml"), "{msg}");
+    }
+
+    const LIGHT: &str = "[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+
+    fn patterned(pattern: &str) -> String {
+        format!("[fabric]\npreset = \"default\"\n{pattern}{CAMERA}{LIGHT}")
+    }
+
+    fn patterned_scene_path() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/patterned.toml")
+    }
+
+    #[test]
+    fn pattern_blocks_are_the_gcd_of_the_repeats() {
+        let d = |p: WeavePreset| p.draft();
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Twill2_2), d(WeavePreset::Plain)]), [[2, 2], [1, 1]]);
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Twill2_1), d(WeavePreset::Plain)]), [[3, 3], [2, 2]]);
+        assert_eq!(pattern_blocks(&[d(WeavePreset::Satin4_1), d(WeavePreset::Satin1_4)]), [[1, 1], [1, 1]]);
+        // Rows and columns separately: a 4-pick x 2-end draft with a 4 x 4 twill.
+        let tall = WeaveDraft::from_rows(&["X.", ".X", "X.", "X."]).unwrap();
+        assert_eq!(
+            pattern_blocks(&[tall, d(WeavePreset::Basket), d(WeavePreset::Twill2_2)]),
+            [[1, 1], [2, 1], [2, 1]]
+        );
+    }
+
+    #[test]
+    fn the_patterned_example_builds_with_equal_blocks() {
+        let file = SceneFile::load(&patterned_scene_path()).unwrap();
+        let scene = file.build().unwrap();
+        let pattern = scene.pattern.as_ref().expect("the example is patterned");
+        assert_eq!(pattern.exemplars.len(), 2);
+        assert_eq!(pattern.exemplars[0], scene.exemplar);
+        let blocks: Vec<_> = pattern.exemplars.iter().map(|e| [e.blocks.nx, e.blocks.ny]).collect();
+        assert_eq!(blocks, [[2, 2], [1, 1]]);
+        let block_size = |e: &Exemplar| match e.tiling {
+            Tiling::Periodic { period } => period / Vec2::new(e.blocks.nx as f32, e.blocks.ny as f32),
+            Tiling::AsIs => panic!("woven exemplars are periodic"),
+        };
+        let (a, b) = (block_size(&pattern.exemplars[0]), block_size(&pattern.exemplars[1]));
+        assert!((a - b).abs().max_element() < 1e-6 && (a.x - 0.07).abs() < 1e-6, "{a} vs {b}");
+        // Exemplar 1 is the plain weave of the same yarns: a 2 x 2 repeat of the same spacing.
+        assert_ne!(pattern.exemplars[1].fibers, scene.exemplar.fibers);
+        assert_eq!((pattern.map.width, pattern.map.height), (8, 8));
+        assert_eq!(pattern.map.exemplar_count(), 2);
+        assert_eq!(scene.pattern_map(), pattern.map);
+        assert_eq!(scene.exemplars().len(), 2);
+        let inputs = scene.bake_inputs(crate::bake::settings::Quality::Draft.settings());
+        assert_eq!(inputs.len(), 2);
+        assert_eq!(inputs[1].exemplar, &pattern.exemplars[1]);
+        assert_eq!(inputs[1].materials, scene.material_descs);
+
+        // Without a pattern: one exemplar, every block exemplar 0.
+        let plain = SceneFile::default_scene().build().unwrap();
+        assert!(plain.pattern.is_none());
+        assert_eq!(plain.pattern_map(), PatternMap::uniform(0));
+        assert_eq!(plain.bake_inputs(crate::bake::settings::Quality::Draft.settings()).len(), 1);
+        assert_eq!(plain.exemplars(), std::slice::from_ref(&plain.exemplar));
+    }
+
+    #[test]
+    fn pattern_weaves_from_rows_and_wif_files_and_a_png_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let wif = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/weaves/twill_2_2.wif");
+        std::fs::copy(&wif, dir.path().join("t.wif")).unwrap();
+        // A 2 x 1 PNG: gray 40 (exemplar 0) then 200 (exemplar 2); 120 unused in between.
+        let png = dir.path().join("map.png");
+        let mut enc = png::Encoder::new(std::fs::File::create(&png).unwrap(), 3, 1);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&[40, 120, 200]).unwrap();
+        let text = format!(
+            "[fabric]\nspec = {{ weave = \"plain\" }}\n\
+             [pattern]\nweaves = [{{ wif = \"t.wif\" }}, {{ rows = [\"XX..\", \".XX.\", \"..XX\", \"X..X\"] }}]\n\
+             png = \"map.png\"\n{CAMERA}{LIGHT}"
+        );
+        let path = dir.path().join("s.toml");
+        let scene = SceneFile::parse(&text, &path).unwrap().build().unwrap();
+        let pattern = scene.pattern.unwrap();
+        assert_eq!(pattern.map.exemplar_of_block, [0, 1, 2]);
+        // The WIF twill and the same draft given as rows build the same exemplar.
+        assert_eq!(pattern.exemplars[1], pattern.exemplars[2]);
+        assert_eq!(pattern.exemplars[1].blocks, crate::fabric::BlockGrid { nx: 2, ny: 2 });
+        assert_eq!(pattern.exemplars[0].blocks, crate::fabric::BlockGrid { nx: 1, ny: 1 });
+
+        // A broken WIF file is named with its line.
+        std::fs::write(dir.path().join("t.wif"), "[WEAVING]\nShafts=x\n").unwrap();
+        let msg = SceneFile::parse(&text, &path).unwrap().build().err().unwrap().to_string();
+        assert!(msg.contains("s.toml: [pattern]:") && msg.contains("t.wif:2: [WEAVING] Shafts=x"), "{msg}");
+        std::fs::copy(&wif, dir.path().join("t.wif")).unwrap();
+        std::fs::remove_file(&png).unwrap();
+        let msg = SceneFile::parse(&text, &path).unwrap().build().err().unwrap().to_string();
+        assert!(msg.contains("map.png"), "{msg}");
+    }
+
+    #[test]
+    fn pattern_errors_name_the_place_and_the_valid_values() {
+        let cases: Vec<(String, Vec<&str>)> = vec![
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"0120\"]\n"),
+                vec![
+                    "bad.toml: [pattern]",
+                    "names exemplar 2",
+                    "only 2 exemplars",
+                    "0 ([fabric]'s weave) to 1",
+                ],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\"]\npng = \"m.png\"\n"),
+                vec!["line 3", "exactly one of `rows"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\n"),
+                vec!["line 3", "exactly one of `rows"],
+            ),
+            (
+                patterned("[pattern]\nweaves = []\nrows = [\"0\"]\n"),
+                vec!["line 3", "1 <= pattern.weaves <= 35"],
+            ),
+            (
+                patterned(
+                    "[pattern]\nweaves = [{ weave = \"plain\", rows = [\"X.\", \".X\"] }]\nrows = [\"01\"]\n",
+                ),
+                vec!["line 4", "exactly one of `weave"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ rows = [\"XX\", \".X\"] }]\nrows = [\"01\"]\n"),
+                vec!["line 4", "row 0", "never interlaces"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\", \"0-\"]\n"),
+                vec!["line 3", "pattern row 1, column 1", "'-'"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plian\" }]\nrows = [\"01\"]\n"),
+                vec!["line 4", "plian"],
+            ),
+            (
+                patterned("[pattern]\nweaves = [{ weave = \"plain\" }]\nrows = [\"01\"]\ncolour = 1\n"),
+                vec!["line 6", "colour"],
+            ),
+            (
+                format!(
+                    "[fabric]\nspec = {{ file = \"f.txt\" }}\n[pattern]\nweaves = [{{ weave = \"plain\" }}]\nrows = [\"01\"]\n{CAMERA}{LIGHT}"
+                ),
+                vec!["[pattern]", "woven [fabric]", "imported fibers"],
+            ),
+            (
+                format!(
+                    "[fabric]\nspec = {{ weave = \"plain\", blocks = [2, 2] }}\n[pattern]\nweaves = [{{ weave = \"basket\" }}]\nrows = [\"01\"]\n{CAMERA}{LIGHT}"
+                ),
+                vec!["blocks = [2, 2]", "remove `blocks`"],
+            ),
+        ];
+        for (text, needles) in cases {
+            let msg = parse_err(&text);
+            assert!(msg.starts_with("bad.toml"), "{msg}");
+            for needle in needles {
+                assert!(msg.contains(needle), "{msg:?} lacks {needle:?}\n{text}");
+            }
+        }
+    }
+
+    /// `to_toml` then `parse` gives the scene back, `path` aside.
+    fn assert_round_trip(scene: &SceneFile) -> String {
+        let text = scene.to_toml().unwrap();
+        let back = SceneFile::parse(&text, &scene.path).unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(&back, scene, "{text}");
+        text
+    }
+
+    #[test]
+    fn scenes_round_trip_through_toml() {
+        let default = SceneFile::default_scene();
+        let text = assert_round_trip(&default);
+        assert!(text.starts_with("# twill scene"), "{text}");
+        for section in ["[fabric]", "[swatch]", "[camera]", "[[lights]]", "[render]", "[mesh]", "[gpu]"] {
+            assert!(text.contains(section), "{section} missing from\n{text}");
+        }
+
+        let patterned = SceneFile::load(&patterned_scene_path()).unwrap();
+        let text = assert_round_trip(&patterned);
+        assert!(text.contains("[pattern]") && text.contains("plain"), "{text}");
+
+        // A procedural spec with draft rows, material overrides, a mesh file, a PNG map and a WIF
+        // weave, and floats that need every digit.
+        let text = format!(
+            "[fabric.spec]\nrows = [\"X..\", \".X.\", \"..X\"]\nspacing_warp = 0.1\ncrimp = 0.0123456789012345678\nseed = 3\n\
+             warp = {{ width = 0.03, height = 0.015 }}\n\
+             [materials]\nwarp = {{ model = \"lambert\", albedo = [0.1, 0.2, 0.3] }}\n\
+             weft = {{ model = \"fiber\", c_r = [0.04, 0.04, 0.04], beta_r_deg = 5.0, c_tt = [0.8, 0.3, 0.2], beta_tt_deg = 10.0, gamma_tt_deg = 25.0 }}\n\
+             [pattern]\nweaves = [{{ rows = [\"X.\", \".X\"] }}, {{ wif = \"w.wif\" }}, {{ weave = \"satin_4_1\" }}]\npng = \"maps/m.png\"\n\
+             [mesh]\npath = \"cloth.obj\"\nsize_cm = [3, 4]\n\
+             {CAMERA}{LIGHT}\
+             [[lights]]\ntype = \"sg\"\naxis = [0.1, 0.2, 0.3]\nsharpness = 1e-4\nintensity = [1e300, 5e-324, 0.30000000000000004]\n\
+             [render]\nseed = 9007199254740993\nexposure = -1.25\n[gpu]\nvolume_samples = 32\n"
+        );
+        let mut spec = SceneFile::parse(&text, Path::new("/some/dir/spec.toml")).unwrap();
+        spec.camera.eye = [0.1 + 0.2, 1.0 / 3.0, -2.0_f64.sqrt()];
+        spec.camera.fov_y_deg = std::f64::consts::PI * 10.0;
+        spec.gpu.sigma_glo_cm = f64::MIN_POSITIVE;
+        let text = assert_round_trip(&spec);
+        assert!(text.contains("rows = [\"X..\", \".X.\", \"..X\"]"), "{text}");
+        let fabric = text.split("[fabric").nth(1).unwrap();
+        assert!(!fabric.contains("preset"), "{text}");
+    }
+
+    #[test]
+    fn save_writes_atomically_and_keeps_relative_paths_working() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene_dir = dir.path().join("scenes");
+        std::fs::create_dir(&scene_dir).unwrap();
+        let text = format!(
+            "[fabric]\npreset = \"default\"\n[pattern]\nweaves = [{{ wif = \"w.wif\" }}]\nrows = [\"01\"]\n[mesh]\npath = \"m.obj\"\n{CAMERA}{LIGHT}"
+        );
+        let scene = SceneFile::parse(&text, &scene_dir.join("a.toml")).unwrap();
+        // Same folder: saved as is.
+        let same = scene_dir.join("b.toml");
+        scene.save(&same).unwrap();
+        let mut back = SceneFile::load(&same).unwrap();
+        back.path.clone_from(&scene.path);
+        assert_eq!(back, scene);
+        // Another folder: relative paths become absolute, pointing at the same files.
+        let other = dir.path().join("c.toml");
+        scene.save(&other).unwrap();
+        let moved = SceneFile::load(&other).unwrap();
+        assert_eq!(moved.mesh.path.unwrap(), scene_dir.join("m.obj"));
+        let Some(PatternSection { weaves, .. }) = moved.pattern else { panic!("no pattern") };
+        assert_eq!(weaves, [PatternWeave::Wif(scene_dir.join("w.wif"))]);
+        // Nothing but the saved files (no temporaries) is left; an unwritable place is an error.
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 2, "{names:?}");
+        let msg = scene.save(Path::new("/nonexistent-dir/s.toml")).unwrap_err().to_string();
+        assert!(msg.starts_with("/nonexistent-dir/s.toml: could not write"), "{msg}");
+    }
+
+    #[test]
+    fn the_largest_seed_round_trips() {
+        let mut scene = SceneFile::default_scene();
+        scene.render.seed = u64::MAX;
+        assert_round_trip(&scene);
     }
 }
