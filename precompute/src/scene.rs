@@ -508,7 +508,8 @@ impl SceneFile {
     }
 
     /// This scene with its relative paths made absolute if `target` is in another folder.
-    fn rebased(&self, target: &Path) -> SceneFile {
+    #[must_use]
+    pub fn rebased(&self, target: &Path) -> SceneFile {
         let folder = |p: &Path| std::path::absolute(p.parent().unwrap_or(Path::new("")));
         let (Ok(from), Ok(to)) = (folder(&self.path), folder(target)) else { return self.clone() };
         let mut out = self.clone();

@@ -28,7 +28,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use eframe::egui;
-use twill_precompute::bake::pipeline::{Baked, Stage};
+use twill_precompute::bake::pipeline::Stage;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::pathtrace::light::SG_SHARPNESS_RANGE;
@@ -39,11 +39,9 @@ use twill_renderer::plan::Components;
 
 use super::ViewerOptions;
 use super::accumulate::{Accumulation, Added};
-use super::bake::{BakeEvent, Baker};
+use super::bake::{BakeEvent, BakedSet, Baker};
 use super::camera::OrbitCamera;
-use super::export::{
-    ExportAction, ExportForm, ExportFormat, ExportStatus, ViewSettings, export_panel, scene_toml,
-};
+use super::export::{ExportAction, ExportForm, ExportFormat, ExportStatus, export_panel, export_toml};
 use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_panel};
 use super::history::History;
 use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
@@ -140,7 +138,7 @@ struct Uploading {
     fabric_id: u64,
     bake_seconds: f64,
     computed: Vec<Stage>,
-    baked: Arc<Baked>,
+    baked: Arc<BakedSet>,
 }
 
 /// A script being played.
@@ -186,7 +184,7 @@ pub struct ViewerApp {
     uploading: Vec<Uploading>,
     fabric: Option<FabricInfo>,
     /// The bake on screen (a material edit previews from it).
-    shown_bake: Option<Arc<Baked>>,
+    shown_bake: Option<Arc<BakedSet>>,
     /// The scene whose fabric and materials the last bake was started for.
     baked_scene: Option<SceneFile>,
     /// A fabric edit waiting for [`FABRIC_EDIT_SETTLE`], and since when.
@@ -382,7 +380,7 @@ impl ViewerApp {
             }
         }
         let baked = self.baked_scene.as_ref();
-        let geometry_changed = baked.is_none_or(|b| b.fabric != scene.fabric);
+        let geometry_changed = baked.is_none_or(|b| b.fabric != scene.fabric || b.pattern != scene.pattern);
         let materials_changed = baked.is_none_or(|b| b.materials != scene.materials);
         if !geometry_changed && !materials_changed {
             self.pending_fabric = None;
@@ -412,7 +410,11 @@ impl ViewerApp {
     /// preview) and its picture current.
     fn is_idle(&self) -> bool {
         let baked_current = match (&self.scene_file, &self.baked_scene) {
-            (Some(scene), Some(baked)) => scene.fabric == baked.fabric && scene.materials == baked.materials,
+            (Some(scene), Some(baked)) => {
+                scene.fabric == baked.fabric
+                    && scene.materials == baked.materials
+                    && scene.pattern == baked.pattern
+            }
             _ => false,
         };
         baked_current
@@ -1079,12 +1081,11 @@ impl ViewerApp {
         if matches!(self.export_status, ExportStatus::Running { .. }) {
             return Err("an export is already running".into());
         }
-        let scene = self.scene_file.as_ref().ok_or("no scene")?;
+        let scene = self.current_scene_file()?;
         let path = PathBuf::from(form.path.trim());
         ExportFormat::of(&path)?;
         let lights = self.current_lights()?;
-        let sections: Vec<_> = self.lights.iter().map(LightEdit::section).collect();
-        let camera = self.camera.section();
+        let camera = scene.camera;
         let c = &self.controls;
         let render = RenderSection {
             width: form.width as usize,
@@ -1093,8 +1094,7 @@ impl ViewerApp {
             exposure: c.exposure,
             ..scene.render
         };
-        let view = ViewSettings { camera, lights: &sections, render, gpu: c.gpu };
-        let mut toml = scene_toml(&self.source_text, &self.source_path, &view)?;
+        let mut toml = export_toml(&scene, &path, render)?;
         if c.components != Components::All {
             let only = if c.components == Components::SingleOnly { "single" } else { "multiple" };
             toml = format!("# Exported with only {only} scattering: twill render --only {only}\n{toml}");

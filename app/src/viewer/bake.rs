@@ -24,7 +24,8 @@ use std::time::{Duration, Instant};
 
 use eframe::egui;
 use twill_precompute::bake::Cancel;
-use twill_precompute::bake::pipeline::{BakeError, BakeInputs, Baked, Stage, bake, bake_material_preview};
+use twill_precompute::bake::pattern::PatternMap;
+use twill_precompute::bake::pipeline::{BakeError, BakeOutcome, Baked, Stage, bake, bake_material_preview};
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::scene::{Scene, SceneFile};
 
@@ -37,7 +38,7 @@ const PROGRESS_REPAINT: Duration = Duration::from_millis(250);
 /// A finished bake of the scene's fabric.
 pub struct FabricBake {
     pub quality: Quality,
-    pub baked: Arc<Baked>,
+    pub baked: Arc<BakedSet>,
     pub scene: Arc<Scene>,
     /// Wall time of this quality's bake (cached stages load in milliseconds).
     pub seconds: f64,
@@ -83,6 +84,18 @@ pub fn overall_fraction(stage: Stage, fraction: f64) -> f64 {
     (before + STAGE_WEIGHTS[index] * fraction.clamp(0.0, 1.0)).min(1.0)
 }
 
+/// The stages computed by any of several bakes, in pipeline order.
+fn union_of(lists: impl Iterator<Item = Vec<Stage>>) -> Vec<Stage> {
+    let all: Vec<Stage> = lists.flatten().collect();
+    Stage::ALL.into_iter().filter(|s| all.contains(s)).collect()
+}
+
+/// A baked fabric: one exemplar, or every exemplar of patterned cloth and its block map.
+pub struct BakedSet {
+    pub exemplars: Vec<Baked>,
+    pub pattern: PatternMap,
+}
+
 /// Shared between the bake thread and the viewer: which bake is current, and its progress.
 #[derive(Default)]
 struct Shared {
@@ -118,11 +131,11 @@ impl Baker {
 
     /// After a material edit: a preview from `previous` (a bake of the same geometry at
     /// `quality`), then the full bake at `quality`.
-    pub fn start_material_edit(&mut self, scene: SceneFile, quality: Quality, previous: Arc<Baked>) {
+    pub fn start_material_edit(&mut self, scene: SceneFile, quality: Quality, previous: Arc<BakedSet>) {
         self.spawn(scene, vec![quality], Some(previous));
     }
 
-    fn spawn(&mut self, scene: SceneFile, qualities: Vec<Quality>, preview_from: Option<Arc<Baked>>) {
+    fn spawn(&mut self, scene: SceneFile, qualities: Vec<Quality>, preview_from: Option<Arc<BakedSet>>) {
         self.cancel();
         let id = self.next_id;
         self.next_id += 1;
@@ -184,7 +197,7 @@ struct BakeJob<'a> {
     id: u64,
     qualities: &'a [Quality],
     /// Start with a material preview from this bake.
-    preview_from: Option<&'a Baked>,
+    preview_from: Option<&'a BakedSet>,
     cache_dir: Option<&'a std::path::Path>,
 }
 
@@ -248,45 +261,66 @@ fn run_bakes(
                 repaint.request_repaint_after(PROGRESS_REPAINT);
             }
         };
-        let inputs = BakeInputs {
-            exemplar: &scene.exemplar,
-            materials: &scene.material_descs,
-            settings: quality.settings(),
+        let all_inputs = scene.bake_inputs(quality.settings());
+        let count = all_inputs.len() as f64;
+        let pattern = scene.pattern_map();
+        let set = |exemplars: Vec<Baked>, computed: Vec<Stage>, preview: bool| FabricBake {
+            quality,
+            baked: Arc::new(BakedSet { exemplars, pattern: pattern.clone() }),
+            scene: Arc::clone(&scene),
+            seconds: started.elapsed().as_secs_f64(),
+            computed,
+            preview,
         };
-        if let Some(previous) = job.preview_from.filter(|p| p.settings == inputs.settings) {
-            match bake_material_preview(&inputs, previous, cache.as_ref(), cancel, &|_, _| {}) {
-                Ok(outcome) => report(BakeEvent::Ready(FabricBake {
-                    quality,
-                    computed: outcome.computed(),
-                    baked: Arc::new(outcome.baked),
-                    scene: Arc::clone(&scene),
-                    seconds: started.elapsed().as_secs_f64(),
-                    preview: true,
-                })),
+        if let Some(previous) = job.preview_from {
+            let previews: Result<Vec<_>, BakeError> = all_inputs
+                .iter()
+                .zip(&previous.exemplars)
+                .map(|(inputs, prev)| bake_material_preview(inputs, prev, cache.as_ref(), cancel, &|_, _| {}))
+                .collect();
+            match previews {
+                Ok(outcomes) if outcomes.len() == all_inputs.len() => {
+                    let computed = union_of(outcomes.iter().map(BakeOutcome::computed));
+                    report(BakeEvent::Ready(set(
+                        outcomes.into_iter().map(|o| o.baked).collect(),
+                        computed,
+                        true,
+                    )));
+                }
                 Err(BakeError::Cancelled) => return,
                 // The full bake below says what is wrong.
+                Ok(_) => log::warn!("no material preview: the pattern's exemplar count changed"),
                 Err(e) => log::warn!("no material preview: {e}"),
             }
         }
-        match bake(&inputs, cache.as_ref(), cancel, &progress) {
-            Ok(outcome) => {
-                let computed = outcome.computed();
-                report(BakeEvent::Ready(FabricBake {
-                    quality,
-                    baked: Arc::new(outcome.baked),
-                    scene: Arc::clone(&scene),
-                    seconds: started.elapsed().as_secs_f64(),
-                    computed,
-                    preview: false,
-                }));
-            }
-            Err(BakeError::Cancelled) => return,
-            Err(e) => {
-                set_progress(None);
-                report(BakeEvent::Failed { message: format!("the {} bake failed: {e}", quality.name()) });
-                return;
+        let mut exemplars = Vec::with_capacity(all_inputs.len());
+        let mut computed = Vec::new();
+        for (i, inputs) in all_inputs.iter().enumerate() {
+            let exemplar_progress = |stage: Stage, fraction: f64| {
+                progress(stage, fraction);
+                let mut s = lock(shared);
+                if let (true, Some(p)) = (s.current == id, s.progress.as_mut()) {
+                    p.overall = (i as f64 + p.overall) / count;
+                }
+            };
+            match bake(inputs, cache.as_ref(), cancel, &exemplar_progress) {
+                Ok(outcome) => {
+                    computed.push(outcome.computed());
+                    exemplars.push(outcome.baked);
+                }
+                Err(BakeError::Cancelled) => return,
+                Err(e) => {
+                    set_progress(None);
+                    let which =
+                        if all_inputs.len() > 1 { format!(" (pattern exemplar {i})") } else { String::new() };
+                    report(BakeEvent::Failed {
+                        message: format!("the {} bake failed{which}: {e}", quality.name()),
+                    });
+                    return;
+                }
             }
         }
+        report(BakeEvent::Ready(set(exemplars, union_of(computed.into_iter()), false)));
     }
     set_progress(None);
     repaint.request_repaint();

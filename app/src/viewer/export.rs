@@ -5,17 +5,18 @@
 //! How it works: the export panel ([`export_panel`]) collects the file, size and samples; the
 //! viewer sends the render worker an export request with the current camera, lights and GPU
 //! settings, and the worker renders it with the viewport's own renderer in small batches and
-//! calls [`write_export`]. The TOML ([`scene_toml`]) is the scene file the viewer was started
-//! with, with `[camera]`, `[[lights]]`, `[render]` and `[gpu]` replaced by what is on screen
-//! and relative file paths made absolute, so `twill render SHOT.toml -o SHOT.png` renders the
-//! same view again. Writes are atomic: a failed export leaves no partial file.
+//! calls [`write_export`]. The TOML ([`export_toml`]) is the scene as shown — edited fabric,
+//! materials and mesh, camera, lights, render and GPU settings — in the scene format, with
+//! relative file paths made absolute when the TOML lands in another folder, so
+//! `twill render SHOT.toml -o SHOT.png` renders the same view again. Writes are atomic: a failed
+//! export leaves no partial file.
 
 use std::path::{Path, PathBuf};
 
 use eframe::egui;
 use twill_precompute::atomic_file::write_atomically;
 use twill_precompute::image::Image;
-use twill_precompute::scene::{CameraSection, GpuSection, LightSection, ProjectionKind, RenderSection};
+use twill_precompute::scene::{RenderSection, SceneFile};
 use twill_renderer::export::{write_image, write_rgb8_png};
 
 use super::accumulate::{display_settings, tone_map_rgba8};
@@ -85,115 +86,19 @@ pub fn write_export(path: &Path, image: &ExportImage<'_>, scene_toml: &str) -> R
     Ok(vec![path.to_path_buf(), settings])
 }
 
-/// What the viewer shows, for [`scene_toml`].
-pub struct ViewSettings<'a> {
-    pub camera: CameraSection,
-    pub lights: &'a [LightSection],
-    pub render: RenderSection,
-    pub gpu: GpuSection,
-}
-
-fn float_array(values: &[f64]) -> toml::Value {
-    toml::Value::Array(values.iter().map(|v| toml::Value::Float(*v)).collect())
-}
-
-fn table(entries: Vec<(&str, toml::Value)>) -> toml::Value {
-    toml::Value::Table(entries.into_iter().map(|(k, v)| (k.to_owned(), v)).collect())
-}
-
-fn light_value(light: &LightSection) -> toml::Value {
-    match *light {
-        LightSection::Directional { direction, irradiance } => table(vec![
-            ("type", toml::Value::String("directional".into())),
-            ("direction", float_array(&direction)),
-            ("irradiance", float_array(&irradiance)),
-        ]),
-        LightSection::Sg { axis, sharpness, intensity } => table(vec![
-            ("type", toml::Value::String("sg".into())),
-            ("axis", float_array(&axis)),
-            ("sharpness", toml::Value::Float(sharpness)),
-            ("intensity", float_array(&intensity)),
-        ]),
-    }
-}
-
-fn integer(value: u64) -> toml::Value {
-    toml::Value::Integer(i64::try_from(value).unwrap_or(i64::MAX))
-}
-
-/// Makes the path at `keys` inside `root` absolute (against `base`) when it is relative.
-fn absolutize(root: &mut toml::Table, keys: &[&str], base: &Path) {
-    let Some((last, parents)) = keys.split_last() else { return };
-    let mut table = root;
-    for key in parents {
-        match table.get_mut(*key) {
-            Some(toml::Value::Table(t)) => table = t,
-            _ => return,
-        }
-    }
-    if let Some(toml::Value::String(path)) = table.get_mut(*last)
-        && Path::new(path.as_str()).is_relative()
-    {
-        *path = base.join(path.as_str()).to_string_lossy().into_owned();
-    }
-}
-
-/// The scene file `source_text` (read from `source_path`) with the viewer's camera, lights,
-/// render and GPU settings (see the module docs).
-pub fn scene_toml(source_text: &str, source_path: &Path, view: &ViewSettings<'_>) -> Result<String, String> {
-    let mut root: toml::Table = source_text.parse().map_err(|e| format!("{}: {e}", source_path.display()))?;
-    let c = &view.camera;
-    let projection = match c.projection {
-        ProjectionKind::Perspective => "perspective",
-        ProjectionKind::Orthographic => "orthographic",
-    };
-    root.insert(
-        "camera".into(),
-        table(vec![
-            ("projection", toml::Value::String(projection.into())),
-            ("eye", float_array(&c.eye)),
-            ("target", float_array(&c.target)),
-            ("up", float_array(&c.up)),
-            ("fov_y_deg", toml::Value::Float(c.fov_y_deg)),
-            ("height_cm", toml::Value::Float(c.height_cm)),
-        ]),
-    );
-    root.insert("lights".into(), toml::Value::Array(view.lights.iter().map(light_value).collect()));
-    let r = &view.render;
-    root.insert(
-        "render".into(),
-        table(vec![
-            ("width", integer(r.width as u64)),
-            ("height", integer(r.height as u64)),
-            ("spp", integer(u64::from(r.spp))),
-            ("max_depth", integer(u64::from(r.max_depth))),
-            ("seed", integer(r.seed)),
-            ("exposure", toml::Value::Float(r.exposure)),
-        ]),
-    );
-    let g = &view.gpu;
-    root.insert(
-        "gpu".into(),
-        table(vec![
-            ("volume_samples", integer(u64::from(g.volume_samples))),
-            ("sigma_glo_cm", toml::Value::Float(g.sigma_glo_cm)),
-            ("shadow_map_size", integer(u64::from(g.shadow_map_size))),
-            ("visibility_texture_size", integer(u64::from(g.visibility_texture_size))),
-            ("pcf_radius_texels", toml::Value::Float(g.pcf_radius_texels)),
-            ("shadow_bias_texels", toml::Value::Float(g.shadow_bias_texels)),
-        ]),
-    );
-    if source_path.is_file() {
-        let base = source_path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let base = std::path::absolute(base).unwrap_or_else(|_| base.to_path_buf());
-        absolutize(&mut root, &["mesh", "path"], &base);
-        absolutize(&mut root, &["fabric", "spec", "file"], &base);
-    }
-    let body = toml::to_string(&root).map_err(|e| format!("the scene settings do not serialize: {e}"))?;
+/// The scene settings written beside an image exported to `image`: `scene` (the scene as shown:
+/// edited fabric, materials, mesh, camera, lights, render settings) with `[render]` sized like
+/// the export and relative file paths rebased for the TOML's folder, so
+/// `twill render SHOT.toml -o SHOT.png` renders the same view again.
+pub fn export_toml(scene: &SceneFile, image: &Path, render: RenderSection) -> Result<String, String> {
+    let toml_path = settings_path(image);
+    let mut scene = scene.rebased(&toml_path);
+    scene.render = render;
+    let body = scene.to_toml().map_err(|e| format!("the scene settings do not serialize: {e}"))?;
     Ok(format!(
         "# Scene settings of an image exported by the twill viewer (from {}).\n\
          # Render it again: twill render THIS_FILE -o OUT.png\n\n{body}",
-        source_path.display()
+        scene.path.display()
     ))
 }
 
@@ -298,40 +203,30 @@ pub fn export_panel(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use twill_precompute::scene::{DEFAULT_SCENE_TOML, SceneFile};
 
     #[test]
-    fn the_saved_settings_load_back_as_the_same_view() {
-        let scene = SceneFile::default_scene();
-        let lights = [
-            LightSection::Sg { axis: [0.0, 0.6, 0.8], sharpness: 30.0, intensity: [1.0, 2.0, 3.0] },
-            LightSection::Directional { direction: [1.0, 0.0, 1.0], irradiance: [0.5, 0.5, 0.5] },
-        ];
-        let mut gpu = scene.gpu;
-        gpu.volume_samples = 32;
-        let render = RenderSection { width: 320, height: 200, spp: 16, exposure: -1.5, ..scene.render };
-        let view = ViewSettings { camera: scene.camera, lights: &lights, render, gpu };
-        let text = scene_toml(DEFAULT_SCENE_TOML, Path::new("<built-in default scene>"), &view).unwrap();
-        let back = SceneFile::parse(&text, Path::new("saved.toml")).unwrap();
-        assert_eq!(back.lights, lights);
-        assert_eq!(back.camera, scene.camera);
-        assert_eq!(back.render, render);
-        assert_eq!(back.gpu, gpu);
-        assert_eq!(back.fabric, scene.fabric);
-        back.build().unwrap();
-    }
-
-    #[test]
-    fn relative_paths_become_absolute() {
-        let text = "[fabric]\npreset = \"default\"\n[mesh]\npath = \"meshes/cloth.obj\"\n[camera]\nprojection = \"perspective\"\neye = [0, 0, 1]\ntarget = [0, 0, 0]\n";
-        let scene = SceneFile::default_scene();
-        let view = ViewSettings { camera: scene.camera, lights: &[], render: scene.render, gpu: scene.gpu };
+    fn the_exported_settings_load_back_as_the_same_scene_with_paths_that_still_resolve() {
         let dir = tempfile::tempdir().unwrap();
+        let text = "[fabric]\npreset = \"default\"\n[mesh]\npath = \"meshes/cloth.obj\"\n\
+                    [camera]\nprojection = \"perspective\"\neye = [0, 0, 1]\ntarget = [0, 0, 0]\n\
+                    [[lights]]\ntype = \"sg\"\naxis = [0, 0.6, 0.8]\nsharpness = 30.0\nintensity = [1, 2, 3]\n";
         let source = dir.path().join("scene.toml");
-        std::fs::write(&source, text).unwrap();
-        let out = scene_toml(text, &source, &view).unwrap();
-        let back = SceneFile::parse(&out, Path::new("x.toml")).unwrap();
+        let scene = SceneFile::parse(text, &source).unwrap();
+        let render = RenderSection { width: 320, height: 200, spp: 16, exposure: -1.5, ..scene.render };
+        std::fs::create_dir(dir.path().join("shots")).unwrap();
+        let image = dir.path().join("shots/shot.png");
+        let out = export_toml(&scene, &image, render).unwrap();
+        let back = SceneFile::parse(&out, &settings_path(&image)).unwrap();
+        assert_eq!(back.render, render);
+        assert_eq!(
+            (back.lights.clone(), back.camera, back.fabric.clone()),
+            (scene.lights.clone(), scene.camera, scene.fabric.clone())
+        );
         assert_eq!(back.mesh.path.unwrap(), dir.path().join("meshes/cloth.obj"));
+        // Beside the scene, the path stays relative.
+        let beside = export_toml(&scene, &dir.path().join("shot.png"), render).unwrap();
+        let back = SceneFile::parse(&beside, Path::new("x.toml")).unwrap();
+        assert_eq!(back.mesh.path.unwrap(), Path::new("meshes/cloth.obj"));
     }
 
     #[test]

@@ -9,6 +9,11 @@
 //! material edit: a quick single-scattering preview, then the full bake; a weave or yarn edit:
 //! everything that depends on geometry). Edits that would make an invalid draft (a row or column
 //! that no longer interlaces) are refused with the reason shown under the grid.
+//!
+//! Patterned cloth ([`pattern_panel`]) edits the scene's `[pattern]`: the other weaves (exemplars
+//! 1, 2, ...) and the block map, painted block by block with one exemplar as the brush, or
+//! loaded from a grayscale PNG. Block sizes follow from the drafts (the scene format's rule), so
+//! the panel never sets them.
 
 use std::path::Path;
 
@@ -18,7 +23,9 @@ use twill_precompute::bcsdf::{BETA_RANGE_DEG, FiberParams, GAMMA_RANGE_DEG, Mate
 use twill_precompute::fabric::presets::{FabricSpec, WeaveSource, WovenSpec, fabric_preset};
 use twill_precompute::fabric::weave::{WeaveDraft, WeavePreset};
 use twill_precompute::fabric::yarn::YarnParams;
-use twill_precompute::scene::{FabricSection, SceneFile};
+use twill_precompute::scene::{
+    FabricSection, MAX_PATTERN_WEAVES, PatternMapSource, PatternSection, PatternWeave, SceneFile,
+};
 
 /// The two yarn roles and their material slots.
 pub const YARNS: [(&str, usize); 2] = [("warp", 0), ("weft", 1)];
@@ -239,6 +246,9 @@ pub enum WeaveAction {
 #[derive(Default)]
 pub struct WeaveForm {
     pub wif_path: String,
+    pub png_path: String,
+    /// The exemplar painted into the pattern map.
+    pub brush: usize,
     pub message: Option<String>,
 }
 
@@ -301,6 +311,9 @@ pub fn weave_panel(ui: &mut egui::Ui, scene: &mut SceneFile, form: &mut WeaveFor
         }
     });
 
+    egui::CollapsingHeader::new("Pattern").default_open(false).show(ui, |ui| {
+        pattern_panel(ui, scene, form);
+    });
     egui::CollapsingHeader::new("Yarns").default_open(false).show(ui, |ui| {
         let mut edited = woven_spec(scene).unwrap_or(spec);
         yarn_controls(ui, &mut edited);
@@ -428,6 +441,206 @@ fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) {
     }
 }
 
+/// Largest side of a painted pattern map, in blocks.
+pub const MAX_PAINTED_MAP: usize = 32;
+
+/// Turns patterned cloth on (a checkerboard of the fabric's weave and a plain weave) or off.
+pub fn set_patterned(scene: &mut SceneFile, on: bool) -> Result<(), String> {
+    if !on {
+        scene.pattern = None;
+        return Ok(());
+    }
+    let spec = woven_spec(scene).ok_or("only a procedural weave can be patterned")?;
+    if scene.pattern.is_none() {
+        // The pattern sets the blocks from the drafts.
+        let mut spec = spec;
+        spec.blocks = [1, 1];
+        set_woven(scene, spec);
+        scene.pattern = Some(PatternSection {
+            weaves: vec![PatternWeave::Preset(WeavePreset::Plain)],
+            map: PatternMapSource::Rows(vec!["01".into(), "10".into()]),
+        });
+    }
+    Ok(())
+}
+
+/// Paints block (`row` from the top, `col`) of the pattern map with exemplar `exemplar`.
+pub fn paint_block(scene: &mut SceneFile, row: usize, col: usize, exemplar: usize) -> Result<(), String> {
+    let pattern = scene.pattern.as_mut().ok_or("the cloth is not patterned")?;
+    if exemplar > pattern.weaves.len() {
+        return Err(format!("exemplar {exemplar}: the pattern has exemplars 0..={}", pattern.weaves.len()));
+    }
+    let PatternMapSource::Rows(rows) = &mut pattern.map else {
+        return Err("the map is a PNG file: paint a new map first (New map)".into());
+    };
+    let width = rows.first().map_or(0, |r| r.chars().count());
+    if row >= rows.len() || col >= width {
+        return Err(format!("block ({row}, {col}) is outside the {width} x {} map", rows.len()));
+    }
+    let glyph = char::from_digit(exemplar as u32, 36).ok_or("too many exemplars")?;
+    rows[row] = rows[row].chars().enumerate().map(|(c, g)| if c == col { glyph } else { g }).collect();
+    Ok(())
+}
+
+/// Resizes a painted map to `height` x `width` blocks, repeating the old one.
+pub fn resize_map(scene: &mut SceneFile, height: usize, width: usize) -> Result<(), String> {
+    let pattern = scene.pattern.as_mut().ok_or("the cloth is not patterned")?;
+    if !(1..=MAX_PAINTED_MAP).contains(&height) || !(1..=MAX_PAINTED_MAP).contains(&width) {
+        return Err(format!("a painted map has 1..={MAX_PAINTED_MAP} blocks per side"));
+    }
+    let old: Vec<Vec<char>> = match &pattern.map {
+        PatternMapSource::Rows(rows) => rows.iter().map(|r| r.chars().collect()).collect(),
+        PatternMapSource::Png(_) => vec![vec!['0']],
+    };
+    let at = |r: usize, c: usize| old[r % old.len()][c % old[r % old.len()].len()];
+    pattern.map =
+        PatternMapSource::Rows((0..height).map(|r| (0..width).map(|c| at(r, c)).collect()).collect());
+    Ok(())
+}
+
+/// The patterned-cloth panel (inside the weave panel).
+fn pattern_panel(ui: &mut egui::Ui, scene: &mut SceneFile, form: &mut WeaveForm) {
+    let mut on = scene.pattern.is_some();
+    if ui
+        .checkbox(&mut on, "patterned cloth")
+        .on_hover_text("Blocks of different weaves of the same yarns (paper section 6.4)")
+        .changed()
+    {
+        form.message = set_patterned(scene, on).err();
+    }
+    let Some(pattern) = scene.pattern.as_mut() else { return };
+    let palette = |k: usize| {
+        let hue = (k as f32 * 0.61803).fract();
+        egui::Color32::from(egui::ecolor::Hsva::new(hue, 0.55, 0.85, 1.0))
+    };
+    ui.horizontal_wrapped(|ui| {
+        ui.label("exemplar 0: the weave above");
+    });
+    let mut remove = None;
+    for (i, weave) in pattern.weaves.iter_mut().enumerate() {
+        let k = i + 1;
+        ui.horizontal(|ui| {
+            ui.colored_label(palette(k), "■");
+            let name = match weave {
+                PatternWeave::Preset(p) => p.name().to_owned(),
+                PatternWeave::Draft(d) => format!("draft {} x {}", d.rows(), d.cols()),
+                PatternWeave::Wif(path) => path.display().to_string(),
+            };
+            egui::ComboBox::from_id_salt(("twill.pattern.weave", k)).selected_text(name).show_ui(ui, |ui| {
+                for p in WeavePreset::ALL {
+                    if ui.selectable_label(*weave == PatternWeave::Preset(p), p.name()).clicked() {
+                        *weave = PatternWeave::Preset(p);
+                    }
+                }
+            });
+            ui.label(format!("exemplar {k}"));
+            if ui.small_button("×").on_hover_text("Remove (its blocks become exemplar 0)").clicked() {
+                remove = Some(k);
+            }
+        });
+    }
+    if let Some(k) = remove {
+        pattern.weaves.remove(k - 1);
+        if let PatternMapSource::Rows(rows) = &mut pattern.map {
+            // Blocks of the removed exemplar become 0, later ones move down by one.
+            for row in rows.iter_mut() {
+                *row = row
+                    .chars()
+                    .map(|g| match g.to_digit(36).map(|d| d as usize) {
+                        Some(d) if d == k => '0',
+                        Some(d) if d > k => char::from_digit((d - 1) as u32, 36).unwrap_or('0'),
+                        _ => g,
+                    })
+                    .collect();
+            }
+        }
+        form.brush = form.brush.min(pattern.weaves.len());
+    }
+    if pattern.weaves.len() < MAX_PATTERN_WEAVES && ui.button("Add a weave").clicked() {
+        pattern.weaves.push(PatternWeave::Preset(WeavePreset::Satin4_1));
+    }
+
+    ui.horizontal(|ui| {
+        ui.label("brush");
+        for k in 0..=pattern.weaves.len() {
+            let text = egui::RichText::new(k.to_string()).color(palette(k));
+            if ui.selectable_label(form.brush == k, text).clicked() {
+                form.brush = k;
+            }
+        }
+    });
+    match &pattern.map {
+        PatternMapSource::Rows(rows) => {
+            let cells: Vec<Vec<usize>> = rows
+                .iter()
+                .map(|r| r.chars().map(|g| g.to_digit(36).unwrap_or(0) as usize).collect())
+                .collect();
+            let (h, w) = (cells.len(), cells.first().map_or(0, Vec::len));
+            let (mut new_h, mut new_w) = (h, w);
+            ui.horizontal(|ui| {
+                ui.label("map");
+                ui.add(egui::DragValue::new(&mut new_w).range(1..=MAX_PAINTED_MAP).suffix(" wide"));
+                ui.add(egui::DragValue::new(&mut new_h).range(1..=MAX_PAINTED_MAP).suffix(" high"));
+            });
+            if let Some((r, c)) = block_grid(ui, &cells, palette) {
+                form.message = paint_block(scene, r, c, form.brush).err();
+            } else if (new_h, new_w) != (h, w) {
+                form.message = resize_map(scene, new_h, new_w).err();
+            }
+        }
+        PatternMapSource::Png(path) => {
+            ui.label(format!("map: {} (gray levels, darkest = exemplar 0)", path.display()));
+            if ui.button("New painted map").clicked() {
+                pattern.map = PatternMapSource::Rows(vec!["01".into(), "10".into()]);
+            }
+        }
+    }
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut form.png_path).hint_text("map.png").desired_width(140.0));
+        if ui.button("Load PNG map").on_hover_text("A grayscale image, one pixel per block").clicked()
+            && let Some(pattern) = scene.pattern.as_mut()
+            && !form.png_path.trim().is_empty()
+        {
+            pattern.map = PatternMapSource::Png(form.png_path.trim().into());
+        }
+    });
+}
+
+/// The pattern map as a grid of blocks, top row first; returns the block clicked or dragged over.
+fn block_grid(
+    ui: &mut egui::Ui,
+    cells: &[Vec<usize>],
+    palette: impl Fn(usize) -> egui::Color32,
+) -> Option<(usize, usize)> {
+    let (rows, cols) = (cells.len(), cells.first().map_or(0, Vec::len));
+    if rows == 0 || cols == 0 {
+        return None;
+    }
+    let cell = CELL_POINTS.min((ui.available_width() - 4.0) / cols as f32).max(4.0);
+    let (rect, response) = ui.allocate_exact_size(
+        egui::vec2(cell * cols as f32, cell * rows as f32),
+        egui::Sense::click_and_drag(),
+    );
+    let painter = ui.painter_at(rect);
+    for (r, row) in cells.iter().enumerate() {
+        for (c, &k) in row.iter().enumerate() {
+            let min = rect.min + egui::vec2(c as f32 * cell, r as f32 * cell);
+            painter.rect_filled(
+                egui::Rect::from_min_size(min, egui::vec2(cell, cell)).shrink(0.5),
+                1.0,
+                palette(k),
+            );
+        }
+    }
+    let response = response.on_hover_text("Click or drag to paint blocks with the brush");
+    if !(response.clicked() || response.dragged()) {
+        return None;
+    }
+    let p = response.interact_pointer_pos()?;
+    let v = (p - rect.min) / cell;
+    (v.x >= 0.0 && v.y >= 0.0).then(|| ((v.y as usize).min(rows - 1), (v.x as usize).min(cols - 1)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -481,6 +694,27 @@ mod tests {
                 assert_eq!(draft.warp_over(r, c), (r + c) % 2 == 0, "({r}, {c})");
             }
         }
+    }
+
+    #[test]
+    fn patterned_cloth_is_painted_block_by_block_and_builds() {
+        let mut scene = default_scene();
+        set_patterned(&mut scene, true).unwrap();
+        resize_map(&mut scene, 4, 4).unwrap();
+        paint_block(&mut scene, 0, 0, 1).unwrap();
+        paint_block(&mut scene, 0, 1, 1).unwrap();
+        let Some(PatternSection { map: PatternMapSource::Rows(rows), .. }) = &scene.pattern else {
+            panic!("rows")
+        };
+        assert_eq!(rows, &["11".to_owned() + "01", "1010".into(), "0101".into(), "1010".into()]);
+        assert!(paint_block(&mut scene, 0, 0, 2).unwrap_err().contains("0..=1"));
+        assert!(paint_block(&mut scene, 4, 0, 1).unwrap_err().contains("outside"));
+        assert!(resize_map(&mut scene, 0, 3).is_err());
+        let built = scene.build().unwrap();
+        assert_eq!(built.exemplars().len(), 2);
+        assert_eq!((built.pattern_map().width, built.pattern_map().height), (4, 4));
+        set_patterned(&mut scene, false).unwrap();
+        assert!(scene.pattern.is_none());
     }
 
     #[test]

@@ -24,7 +24,6 @@ use std::time::Instant;
 
 use eframe::egui;
 use glam::Vec3;
-use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
@@ -34,6 +33,7 @@ use twill_renderer::frame::{Frame, FrameSettings, Renderer};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
 
+use super::bake::BakedSet;
 use super::export::{ExportImage, write_export};
 
 /// Samples per export batch.
@@ -63,7 +63,7 @@ pub struct NewFabric {
     pub quality: Quality,
     /// A material preview (multiple scattering still the previous bake's).
     pub preview: bool,
-    pub baked: Arc<Baked>,
+    pub baked: Arc<BakedSet>,
     pub scene: Arc<Scene>,
 }
 
@@ -420,7 +420,8 @@ fn upload(
     mesh: Option<&MeshRequest>,
 ) -> Result<Renderer, String> {
     let gpu = device.gpu();
-    let data = FabricData::upload(&gpu.device, &gpu.queue, &[fabric.baked.as_ref()], &PatternMap::uniform(0))
+    let exemplars: Vec<&Baked> = fabric.baked.exemplars.iter().collect();
+    let data = FabricData::upload(&gpu.device, &gpu.queue, &exemplars, &fabric.baked.pattern)
         .map_err(|e| e.to_string())?;
     let z = data.arrays.header.z_range;
     let scene = &fabric.scene;
