@@ -419,7 +419,7 @@ impl ViewerApp {
         };
         baked_current
             && self.pending_fabric.is_none()
-            && self.baker.progress().is_none()
+            && !self.baker.busy()
             && self.uploading.is_empty()
             && self.fabric.as_ref().is_some_and(|f| !f.preview)
             && self.picture_is_current()

@@ -102,6 +102,8 @@ struct Shared {
     /// Id of the current bake; an older thread's reports are ignored.
     current: u64,
     progress: Option<BakeProgress>,
+    /// Events of the current bake sent and not yet taken by [`Baker::poll`].
+    unpolled: usize,
 }
 
 /// Runs bakes in the background (see the module docs).
@@ -136,12 +138,25 @@ impl Baker {
     }
 
     fn spawn(&mut self, scene: SceneFile, qualities: Vec<Quality>, preview_from: Option<Arc<BakedSet>>) {
+        log::info!("bake {qualities:?} (material preview first: {})", preview_from.is_some());
         self.cancel();
         let id = self.next_id;
         self.next_id += 1;
         let cancel = Cancel::new();
         self.cancel = Some(cancel.clone());
-        lock(&self.shared).current = id;
+        {
+            // In flight from now on, before the thread runs (a check in between must not see an
+            // idle baker).
+            let mut shared = lock(&self.shared);
+            shared.current = id;
+            shared.progress = Some(BakeProgress {
+                quality: qualities.first().copied().unwrap_or(Quality::Draft),
+                stage: None,
+                stage_fraction: 0.0,
+                overall: 0.0,
+                started: Instant::now(),
+            });
+        }
         let (shared, sender, repaint) = (Arc::clone(&self.shared), self.sender.clone(), self.repaint.clone());
         let cache_dir = self.cache_dir.clone();
         let spawned = std::thread::Builder::new().name("twill-bake".into()).spawn(move || {
@@ -167,6 +182,14 @@ impl Baker {
         let mut shared = lock(&self.shared);
         shared.current = 0;
         shared.progress = None;
+        shared.unpolled = 0;
+    }
+
+    /// Whether a bake is in flight or has results not yet taken by [`Baker::poll`].
+    #[must_use]
+    pub fn busy(&self) -> bool {
+        let shared = lock(&self.shared);
+        shared.progress.is_some() || shared.unpolled > 0
     }
 
     /// The progress of the bake in flight.
@@ -177,8 +200,12 @@ impl Baker {
 
     /// Events of the current bake since the last call (those of superseded bakes are dropped).
     pub fn poll(&self) -> Vec<BakeEvent> {
-        let current = lock(&self.shared).current;
-        self.receiver.try_iter().filter(|(id, _)| *id == current).map(|(_, e)| e).collect()
+        let mut shared = lock(&self.shared);
+        let current = shared.current;
+        let events: Vec<BakeEvent> =
+            self.receiver.try_iter().filter(|(id, _)| *id == current).map(|(_, e)| e).collect();
+        shared.unpolled = shared.unpolled.saturating_sub(events.len());
+        events
     }
 }
 
@@ -211,7 +238,13 @@ fn run_bakes(
 ) {
     let (id, qualities) = (job.id, job.qualities);
     let report = |event: BakeEvent| {
+        // Counted and sent under the lock, so `poll` never takes an event it has not counted.
+        let mut s = lock(shared);
+        if s.current == id {
+            s.unpolled += 1;
+        }
         let _ = sender.send((id, event));
+        drop(s);
         repaint.request_repaint();
     };
     let set_progress = |progress: Option<BakeProgress>| {

@@ -172,8 +172,7 @@ pub fn fibers_panel(ui: &mut egui::Ui, scene: &mut SceneFile) {
         match resolved[slot] {
             Some(MaterialDesc::Fiber(p)) => {
                 let mut edited = p;
-                fiber_controls(ui, slot, &mut edited);
-                if edited != p {
+                if fiber_controls(ui, slot, &mut edited) {
                     set_material(scene, slot, MaterialDesc::Fiber(edited));
                 }
             }
@@ -209,32 +208,59 @@ pub fn fibers_panel(ui: &mut egui::Ui, scene: &mut SceneFile) {
     );
 }
 
-fn fiber_controls(ui: &mut egui::Ui, slot: usize, p: &mut FiberParams) {
-    egui::Grid::new(("twill.fibers", slot)).num_columns(2).show(ui, |ui| {
-        colour_row(ui, "C_R (sheen)", &mut p.c_r, "Reflectance of the R lobe at normal incidence");
-        angle_row(ui, "β_R", &mut p.beta_r_deg, BETA_RANGE_DEG, "Longitudinal width of the R lobe");
-        ui.end_row();
-        colour_row(ui, "C_TT (colour)", &mut p.c_tt, "Transmission colour of the TT lobe");
-        angle_row(ui, "β_TT", &mut p.beta_tt_deg, BETA_RANGE_DEG, "Longitudinal width of the TT lobe");
-        ui.end_row();
-        angle_row(ui, "γ_TT", &mut p.gamma_tt_deg, GAMMA_RANGE_DEG, "Azimuthal width of the TT lobe");
-        ui.end_row();
-    });
+/// The fiber parameters' widgets; true when the user changed one (showing them never does).
+fn fiber_controls(ui: &mut egui::Ui, slot: usize, p: &mut FiberParams) -> bool {
+    egui::Grid::new(("twill.fibers", slot))
+        .num_columns(2)
+        .show(ui, |ui| {
+            let mut changed =
+                colour_row(ui, "C_R (sheen)", &mut p.c_r, "Reflectance of the R lobe at normal incidence");
+            changed |=
+                angle_row(ui, "β_R", &mut p.beta_r_deg, BETA_RANGE_DEG, "Longitudinal width of the R lobe");
+            changed |= colour_row(ui, "C_TT (colour)", &mut p.c_tt, "Transmission colour of the TT lobe");
+            changed |= angle_row(
+                ui,
+                "β_TT",
+                &mut p.beta_tt_deg,
+                BETA_RANGE_DEG,
+                "Longitudinal width of the TT lobe",
+            );
+            changed |=
+                angle_row(ui, "γ_TT", &mut p.gamma_tt_deg, GAMMA_RANGE_DEG, "Azimuthal width of the TT lobe");
+            changed
+        })
+        .inner
 }
 
-fn colour_row(ui: &mut egui::Ui, label: &str, colour: &mut Rgb, hover: &str) {
+fn colour_row(ui: &mut egui::Ui, label: &str, colour: &mut Rgb, hover: &str) -> bool {
     ui.label(label).on_hover_text(hover);
     let mut rgb = colour.to_array().map(|c| c as f32);
     // egui's picker edits linear RGB here, as the scene format stores it.
-    if ui.color_edit_button_rgb(&mut rgb).changed() {
+    let changed = ui.color_edit_button_rgb(&mut rgb).changed();
+    if changed {
         *colour = Rgb::from_array(rgb.map(|c| f64::from(c).clamp(0.0, 1.0)));
     }
     ui.end_row();
+    changed
 }
 
-fn angle_row(ui: &mut egui::Ui, label: &str, degrees: &mut f64, (lo, hi): (f64, f64), hover: &str) {
+fn angle_row(ui: &mut egui::Ui, label: &str, degrees: &mut f64, (lo, hi): (f64, f64), hover: &str) -> bool {
     ui.label(label).on_hover_text(hover);
-    ui.add(egui::Slider::new(degrees, lo..=hi).logarithmic(true).suffix("°").max_decimals(2));
+    let mut value = *degrees;
+    let changed = ui
+        .add(
+            egui::Slider::new(&mut value, lo..=hi)
+                .logarithmic(true)
+                .clamping(egui::SliderClamping::Edits)
+                .suffix("°")
+                .max_decimals(2),
+        )
+        .changed();
+    if changed {
+        *degrees = value;
+    }
+    ui.end_row();
+    changed
 }
 
 /// What the weave panel asks of the viewer.
@@ -278,9 +304,19 @@ pub fn weave_panel(ui: &mut egui::Ui, scene: &mut SceneFile, form: &mut WeaveFor
     let (mut rows, mut cols) = (draft.rows(), draft.cols());
     ui.horizontal(|ui| {
         ui.label("repeat");
-        let r = ui.add(egui::DragValue::new(&mut cols).range(2..=MAX_EDITOR_REPEAT).suffix(" ends"));
+        let r = ui.add(
+            egui::DragValue::new(&mut cols)
+                .range(2..=MAX_EDITOR_REPEAT)
+                .clamp_existing_to_range(false)
+                .suffix(" ends"),
+        );
         ui.label("×");
-        let c = ui.add(egui::DragValue::new(&mut rows).range(2..=MAX_EDITOR_REPEAT).suffix(" picks"));
+        let c = ui.add(
+            egui::DragValue::new(&mut rows)
+                .range(2..=MAX_EDITOR_REPEAT)
+                .clamp_existing_to_range(false)
+                .suffix(" picks"),
+        );
         if r.changed() || c.changed() {
             form.message = resize_draft(scene, rows, cols).err();
         }
@@ -316,8 +352,7 @@ pub fn weave_panel(ui: &mut egui::Ui, scene: &mut SceneFile, form: &mut WeaveFor
     });
     egui::CollapsingHeader::new("Yarns").default_open(false).show(ui, |ui| {
         let mut edited = woven_spec(scene).unwrap_or(spec);
-        yarn_controls(ui, &mut edited);
-        if Some(&edited) != woven_spec(scene).as_ref() {
+        if yarn_controls(ui, &mut edited) {
             set_woven(scene, edited);
         }
     });
@@ -374,71 +409,83 @@ fn srgb(linear: [f64; 3]) -> egui::Color32 {
     egui::Color32::from_rgb(r, g, b)
 }
 
-/// Spacing, crimp and each yarn's main parameters. Values are range-limited here; the bake
-/// validates the whole fabric and reports anything else.
-fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) {
-    egui::Grid::new("twill.yarns").num_columns(3).show(ui, |ui| {
-        ui.label("");
-        ui.label("warp");
-        ui.label("weft");
-        ui.end_row();
-        let pair = |ui: &mut egui::Ui,
-                    label: &str,
-                    warp: &mut f64,
-                    weft: &mut f64,
-                    range: std::ops::RangeInclusive<f64>,
-                    speed| {
-            ui.label(label);
-            for v in [warp, weft] {
-                ui.add(egui::DragValue::new(v).range(range.clone()).speed(speed).max_decimals(4));
-            }
+/// Spacing and each yarn's main parameters; true when the user changed one (showing them never
+/// does: values outside the widgets' ranges are left alone until edited). The bake validates the
+/// whole fabric and reports anything else.
+fn yarn_controls(ui: &mut egui::Ui, spec: &mut WovenSpec) -> bool {
+    let mut changed = egui::Grid::new("twill.yarns")
+        .num_columns(3)
+        .show(ui, |ui| {
+            ui.label("");
+            ui.label("warp");
+            ui.label("weft");
             ui.end_row();
-        };
-        pair(ui, "width (cm)", &mut spec.warp.width, &mut spec.weft.width, 0.002..=0.5, 0.0005);
-        pair(ui, "height (cm)", &mut spec.warp.height, &mut spec.weft.height, 0.001..=0.5, 0.0005);
-        pair(
-            ui,
-            "fiber radius (cm)",
-            &mut spec.warp.fiber_radius,
-            &mut spec.weft.fiber_radius,
-            0.0001..=0.01,
-            0.00005,
-        );
-        pair(ui, "ply twist (1/cm)", &mut spec.warp.ply_twist, &mut spec.weft.ply_twist, -50.0..=50.0, 0.1);
-        let counts = |ui: &mut egui::Ui,
-                      label: &str,
-                      warp: &mut u32,
-                      weft: &mut u32,
-                      range: std::ops::RangeInclusive<u32>| {
-            ui.label(label);
-            for v in [warp, weft] {
-                ui.add(egui::DragValue::new(v).range(range.clone()));
+            let pair = |ui: &mut egui::Ui,
+                        label: &str,
+                        values: [&mut f64; 2],
+                        range: std::ops::RangeInclusive<f64>,
+                        speed: f64| {
+                ui.label(label);
+                let mut changed = false;
+                for v in values {
+                    let drag = egui::DragValue::new(v)
+                        .range(range.clone())
+                        .clamp_existing_to_range(false)
+                        .speed(speed)
+                        .max_decimals(5);
+                    changed |= ui.add(drag).changed();
+                }
+                ui.end_row();
+                changed
+            };
+            let (w, f) = (&mut spec.warp, &mut spec.weft);
+            let mut changed = pair(ui, "width (cm)", [&mut w.width, &mut f.width], 0.002..=0.5, 0.0005);
+            changed |= pair(ui, "height (cm)", [&mut w.height, &mut f.height], 0.001..=0.5, 0.0005);
+            changed |= pair(
+                ui,
+                "fiber radius (cm)",
+                [&mut w.fiber_radius, &mut f.fiber_radius],
+                0.0001..=0.01,
+                0.00005,
+            );
+            changed |= pair(ui, "ply twist (1/cm)", [&mut w.ply_twist, &mut f.ply_twist], -50.0..=50.0, 0.1);
+            let counts = |ui: &mut egui::Ui,
+                          label: &str,
+                          values: [&mut u32; 2],
+                          range: std::ops::RangeInclusive<u32>| {
+                ui.label(label);
+                let mut changed = false;
+                for v in values {
+                    changed |= ui
+                        .add(egui::DragValue::new(v).range(range.clone()).clamp_existing_to_range(false))
+                        .changed();
+                }
+                ui.end_row();
+                changed
+            };
+            changed |= counts(ui, "plies", [&mut w.plies, &mut f.plies], 1..=6);
+            changed |= counts(ui, "fibers per ply", [&mut w.fibers_per_ply, &mut f.fibers_per_ply], 1..=200);
+            let mut spacing =
+                [spec.spacing_warp.unwrap_or(spec.warp.width), spec.spacing_weft.unwrap_or(spec.weft.width)];
+            let [a, b] = &mut spacing;
+            if pair(ui, "spacing (cm)", [a, b], 0.002..=0.5, 0.0005) {
+                spec.spacing_warp = Some(spacing[0]);
+                spec.spacing_weft = Some(spacing[1]);
+                changed = true;
             }
-            ui.end_row();
-        };
-        counts(ui, "plies", &mut spec.warp.plies, &mut spec.weft.plies, 1..=6);
-        counts(ui, "fibers per ply", &mut spec.warp.fibers_per_ply, &mut spec.weft.fibers_per_ply, 1..=200);
-        let mut spacing =
-            [spec.spacing_warp.unwrap_or(spec.warp.width), spec.spacing_weft.unwrap_or(spec.weft.width)];
-        let before = spacing;
-        let [a, b] = &mut spacing;
-        pair(ui, "spacing (cm)", a, b, 0.002..=0.5, 0.0005);
-        // Exactly the values the widgets wrote: a change, not a tolerance.
-        #[allow(clippy::float_cmp)]
-        let changed = spacing != before;
-        if changed {
-            spec.spacing_warp = Some(spacing[0]);
-            spec.spacing_weft = Some(spacing[1]);
-        }
-    });
-    let default = YarnParams::default();
+            changed
+        })
+        .inner;
     if ui.small_button("Reset yarns").on_hover_text("The scene format's default yarn").clicked() {
+        let default = YarnParams::default();
         spec.warp = default;
         spec.weft = default;
         spec.spacing_warp = None;
         spec.spacing_weft = None;
         spec.crimp = None;
+        changed = true;
     }
+    changed
 }
 
 /// Largest side of a painted pattern map, in blocks.
@@ -715,6 +762,44 @@ mod tests {
         assert_eq!((built.pattern_map().width, built.pattern_map().height), (4, 4));
         set_patterned(&mut scene, false).unwrap();
         assert!(scene.pattern.is_none());
+    }
+
+    #[test]
+    fn showing_the_panels_changes_nothing() {
+        // A scene with values outside the widgets' ranges (yarns and mesh) and a pattern: the
+        // panels must show them without writing anything (a write would start a bake).
+        let mut scenes = vec![default_scene()];
+        let mut odd = default_scene();
+        let mut spec = woven_spec(&odd).unwrap();
+        spec.warp.fibers_per_ply = 400;
+        spec.weft.fiber_radius = 0.02;
+        set_woven(&mut odd, spec);
+        odd.mesh.thickness_scale = 40.0;
+        odd.mesh.builtin = Some("cushion".into());
+        set_patterned(&mut odd, true).unwrap();
+        scenes.push(odd);
+        let ctx = egui::Context::default();
+        for scene in scenes {
+            let mut shown = scene.clone();
+            let mut form = WeaveForm::default();
+            let mut mesh_form = super::super::mesh::MeshForm::default();
+            for _ in 0..3 {
+                let mut output = ctx.run_ui(egui::RawInput::default(), |ui| {
+                    fibers_panel(ui, &mut shown);
+                    let _ = weave_panel(ui, &mut shown, &mut form);
+                    // The collapsed sections' contents, directly.
+                    pattern_panel(ui, &mut shown, &mut form);
+                    let mut spec = woven_spec(&shown).unwrap();
+                    assert!(!yarn_controls(ui, &mut spec), "showing the yarns is no edit");
+                    assert_eq!(Some(spec), woven_spec(&shown));
+                    let swatch = shown.swatch.size_cm;
+                    super::super::mesh::mesh_panel(ui, &mut shown.mesh, swatch, &mut mesh_form);
+                });
+                output.textures_delta.clear();
+            }
+            assert_eq!(shown, scene);
+            assert!(form.message.is_none(), "{:?}", form.message);
+        }
     }
 
     #[test]

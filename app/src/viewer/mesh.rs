@@ -63,7 +63,13 @@ pub fn mesh_panel(ui: &mut egui::Ui, mesh: &mut MeshSection, swatch_cm: [f64; 2]
             ui.label("size (cm)");
             for s in &mut size {
                 let range = f64::from(MIN_BUILTIN_SIDE_CM).max(0.05)..=f64::from(MAX_BUILTIN_SIDE_CM);
-                ui.add(egui::DragValue::new(s).range(range).speed(0.01).max_decimals(3));
+                ui.add(
+                    egui::DragValue::new(s)
+                        .range(range)
+                        .clamp_existing_to_range(false)
+                        .speed(0.01)
+                        .max_decimals(3),
+                );
             }
         });
         // Exactly the values the widgets wrote: a change, not a tolerance.
@@ -75,7 +81,13 @@ pub fn mesh_panel(ui: &mut egui::Ui, mesh: &mut MeshSection, swatch_cm: [f64; 2]
     } else {
         ui.horizontal(|ui| {
             ui.label("cm per UV unit");
-            ui.add(egui::DragValue::new(&mut mesh.cm_per_uv).range(1e-3..=1e4).speed(0.01).max_decimals(4));
+            ui.add(
+                egui::DragValue::new(&mut mesh.cm_per_uv)
+                    .range(1e-3..=1e4)
+                    .clamp_existing_to_range(false)
+                    .speed(0.01)
+                    .max_decimals(4),
+            );
         });
     }
     ui.horizontal(|ui| {
@@ -95,6 +107,7 @@ pub fn mesh_panel(ui: &mut egui::Ui, mesh: &mut MeshSection, swatch_cm: [f64; 2]
     ui.add(
         egui::Slider::new(&mut mesh.thickness_scale, lo.max(0.1)..=hi.min(10.0))
             .logarithmic(true)
+            .clamping(egui::SliderClamping::Edits)
             .text("shell thickness ×"),
     )
     .on_hover_text("Shell thickness as a multiple of the fabric's own (1 keeps fibers unstretched)");

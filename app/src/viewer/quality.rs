@@ -236,6 +236,7 @@ pub fn quality_panel(
         .on_hover_text("Samples along each eye ray per shell tetrahedron (paper: 32, 64 or 128)");
         ui.add(
             egui::Slider::new(&mut controls.gpu.pcf_radius_texels, PCF_RADIUS_RANGE.0..=PCF_RADIUS_RANGE.1)
+                .clamping(egui::SliderClamping::Edits)
                 .text("PCF radius (texels)"),
         )
         .on_hover_text("Shadow-map filter radius of directional lights (SG lights use PCSS, sized by λ)");
