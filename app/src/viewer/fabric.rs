@@ -32,7 +32,7 @@ pub const YARNS: [(&str, usize); 2] = [("warp", 0), ("weft", 1)];
 /// Largest repeat the draft editor offers (the format allows up to `WeaveDraft::MAX_SIZE`).
 pub const MAX_EDITOR_REPEAT: usize = 24;
 /// Side of a draft cell on screen, points.
-const CELL_POINTS: f32 = 14.0;
+const CELL_POINTS: f32 = 18.0;
 
 /// The scene's woven fabric as a full specification (a preset resolved), or `None` for
 /// imported fibers or an unknown preset.
