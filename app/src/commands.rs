@@ -8,8 +8,9 @@ use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::file::Cache;
+use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{
-    BakeInputs, BakeOutcome, Baked, Stage, StageSource, bake as run_bake, bake_set, read_bake, write_bake,
+    BakeOutcome, Baked, Stage, StageSource, bake_set, read_bake, write_bake,
 };
 use twill_precompute::bake::settings::{BakeSettings, Quality};
 use twill_precompute::fabric::{Exemplar, exemplar::volume_fraction, fiber_io, presets};
@@ -230,10 +231,7 @@ pub fn render(options: &RenderOptions) -> Result<()> {
         (loaded.exemplars, loaded.pattern)
     } else {
         let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
-        let inputs = scene.bake_inputs(options.quality.settings());
-        let set = bake_set(&inputs, scene.pattern_map(), cache.as_ref(), &Cancel::new(), &|_, _| {})
-            .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-        (set.exemplars.into_iter().map(|o| o.baked).collect(), set.pattern)
+        bake_scene(&scene, options.quality, cache.as_ref())?
     };
     let bake_seconds = started.elapsed().as_secs_f64();
     let refs: Vec<&Baked> = exemplars.iter().collect();
@@ -426,18 +424,17 @@ fn report_bake(outcome: &BakeOutcome) {
     );
 }
 
-/// Bakes `scene`'s fabric at `quality` through the default stage cache (no progress bar).
-fn bake_scene(scene: &twill_precompute::scene::Scene, quality: Quality) -> Result<(Baked, f64)> {
-    let cache = open_cache(None, false)?;
-    let inputs = BakeInputs {
-        exemplar: &scene.exemplar,
-        materials: &scene.material_descs,
-        settings: quality.settings(),
-    };
-    let started = Instant::now();
-    let outcome = run_bake(&inputs, cache.as_ref(), &Cancel::new(), &|_, _| {})
+/// Bakes every exemplar of `scene` (one, or a patterned cloth's) at `quality` through `cache`
+/// (no progress bar); returns them in pattern order with the pattern map.
+fn bake_scene(
+    scene: &twill_precompute::scene::Scene,
+    quality: Quality,
+    cache: Option<&Cache>,
+) -> Result<(Vec<Baked>, PatternMap)> {
+    let inputs = scene.bake_inputs(quality.settings());
+    let set = bake_set(&inputs, scene.pattern_map(), cache, &Cancel::new(), &|_, _| {})
         .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
-    Ok((outcome.baked, started.elapsed().as_secs_f64()))
+    Ok((set.exemplars.into_iter().map(|o| o.baked).collect(), set.pattern))
 }
 
 /// `twill bench passes`: GPU time per pass, the median of `frames` frames after a warm-up.
@@ -451,19 +448,11 @@ pub fn bench_passes(
     anyhow::ensure!(frames >= 1, "--frames must be at least 1");
     let file = SceneFile::load_or_default(scene)?;
     let scene = file.build()?;
-    let cache = open_cache(None, false)?;
     let started = Instant::now();
-    let set = bake_set(
-        &scene.bake_inputs(quality.settings()),
-        scene.pattern_map(),
-        cache.as_ref(),
-        &Cancel::new(),
-        &|_, _| {},
-    )
-    .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    let (exemplars, pattern) = bake_scene(&scene, quality, open_cache(None, false)?.as_ref())?;
     let bake_seconds = started.elapsed().as_secs_f64();
-    let baked: Vec<&Baked> = set.exemplars.iter().map(|o| &o.baked).collect();
-    let mut session = SceneRenderer::new(&scene, &baked, &set.pattern)?;
+    let baked: Vec<&Baked> = exemplars.iter().collect();
+    let mut session = SceneRenderer::new(&scene, &baked, &pattern)?;
     let mut settings = frame_settings(&scene, Components::All);
     (settings.width, settings.height, settings.spp) = (width as u32, height as u32, spp);
     let plan = session.renderer.plan(&scene.path_scene.lights, &settings);
@@ -520,7 +509,11 @@ pub fn bench_accuracy(
     file.swatch.size_cm = [2.0, 2.0];
     file.swatch.ground = true;
     let mut scene = file.build()?;
-    let (baked, bake_seconds) = bake_scene(&scene, quality)?;
+    let started = Instant::now();
+    // One exemplar: patterned scenes were refused above.
+    let (mut exemplars, _) = bake_scene(&scene, quality, open_cache(None, false)?.as_ref())?;
+    let baked = exemplars.swap_remove(0);
+    let bake_seconds = started.elapsed().as_secs_f64();
     let gpu = twill_renderer::gpu::Gpu::headless()?;
     let adapter = gpu.describe();
     let bar = ProgressBar::new(settings.configurations as u64).with_style(
