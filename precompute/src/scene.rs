@@ -551,19 +551,17 @@ impl SceneFile {
         let invalid = |message: String| SceneError::Invalid { path: path.clone(), message };
         let param = |source: ParamError| SceneError::Param { path: path.clone(), source };
 
-        let (spec, mut warp, mut weft) = match (&self.fabric.preset, &self.fabric.spec) {
+        let spec = match (&self.fabric.preset, &self.fabric.spec) {
             (Some(name), None) => {
                 let preset = fabric_preset(name).ok_or_else(|| {
                     let names: Vec<_> = fabric_presets().into_iter().map(|p| p.name).collect();
                     invalid(format!("[fabric]: unknown preset {name:?}; known presets: {}", names.join(", ")))
                 })?;
-                (preset.fabric, Some(preset.warp_material), Some(preset.weft_material))
+                preset.fabric
             }
-            (None, Some(spec)) => (spec.clone(), None, None),
+            (None, Some(spec)) => spec.clone(),
             _ => return Err(invalid("[fabric]: give exactly one of `preset` or `[fabric.spec]`".into())),
         };
-        warp = self.materials.warp.or(warp);
-        weft = self.materials.weft.or(weft);
         let base_dir = path.parent().unwrap_or(Path::new("."));
         let (exemplar, pattern) = match &self.pattern {
             None => {
@@ -580,9 +578,7 @@ impl SceneFile {
 
         // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft.
         let fallback = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
-        let warp = warp.or(weft).unwrap_or(fallback);
-        let weft = weft.unwrap_or(warp);
-        let material_descs = vec![warp, weft];
+        let material_descs = self.material_slots().map(|m| m.unwrap_or(fallback)).to_vec();
         let materials: Vec<Material> =
             material_descs.iter().map(Material::from_desc).collect::<Result<_, _>>().map_err(param)?;
         let yarn_materials = exemplar
@@ -713,6 +709,17 @@ impl SceneFile {
             )));
         }
         Ok(ScenePattern { map, exemplars })
+    }
+
+    /// The material of each slot (0 warp, 1 weft) as given: `[materials]` over the preset's, a
+    /// missing one taking the other's; `None` where neither is given ([`SceneFile::build`] then
+    /// uses a gray Lambertian).
+    #[must_use]
+    pub fn material_slots(&self) -> [Option<MaterialDesc>; 2] {
+        let preset = self.fabric.preset.as_deref().and_then(fabric_preset);
+        let warp = self.materials.warp.or(preset.as_ref().map(|p| p.warp_material));
+        let weft = self.materials.weft.or(preset.as_ref().map(|p| p.weft_material));
+        [warp.or(weft), weft.or(warp)]
     }
 
     /// The camera for a film of `width` x `height`.

@@ -49,29 +49,20 @@ pub fn woven_spec(scene: &SceneFile) -> Option<WovenSpec> {
     }
 }
 
-/// The material of each slot (warp 0, weft 1) as the scene resolves it: `[materials]` over the
-/// preset's, weft falling back to warp (as `SceneFile::build` does).
-#[must_use]
-pub fn materials(scene: &SceneFile) -> [Option<MaterialDesc>; 2] {
-    let preset = scene.fabric.preset.as_deref().and_then(fabric_preset);
-    let warp = scene.materials.warp.or(preset.as_ref().map(|p| p.warp_material));
-    let weft = scene.materials.weft.or(preset.as_ref().map(|p| p.weft_material));
-    [warp.or(weft), weft.or(warp)]
+/// Writes both slots' materials into `[materials]` (a preset's would otherwise be lost with it).
+fn pin_materials(scene: &mut SceneFile) {
+    [scene.materials.warp, scene.materials.weft] = scene.material_slots();
 }
 
 /// Replaces the fabric with `spec`, keeping the materials a preset gave it.
 pub fn set_woven(scene: &mut SceneFile, spec: WovenSpec) {
-    let [warp, weft] = materials(scene);
-    scene.materials.warp = warp;
-    scene.materials.weft = weft;
+    pin_materials(scene);
     scene.fabric = FabricSection { preset: None, spec: Some(FabricSpec::Woven(Box::new(spec))) };
 }
 
 /// Sets the material of `slot` (0 warp, 1 weft).
 pub fn set_material(scene: &mut SceneFile, slot: usize, desc: MaterialDesc) {
-    let [warp, weft] = materials(scene);
-    scene.materials.warp = warp;
-    scene.materials.weft = weft;
+    pin_materials(scene);
     if slot == 0 {
         scene.materials.warp = Some(desc);
     } else {
@@ -141,7 +132,7 @@ pub enum FiberField {
 
 /// Sets one fiber parameter of `slot`, checking its range.
 pub fn set_fiber_field(scene: &mut SceneFile, slot: usize, field: FiberField) -> Result<(), String> {
-    let Some(MaterialDesc::Fiber(mut p)) = materials(scene)[slot] else {
+    let Some(MaterialDesc::Fiber(mut p)) = scene.material_slots()[slot] else {
         return Err(format!("the {} yarn has no fiber scattering material", YARNS[slot].0));
     };
     let check = |name: &str, v: f64, (lo, hi): (f64, f64)| {
@@ -163,7 +154,7 @@ pub fn set_fiber_field(scene: &mut SceneFile, slot: usize, field: FiberField) ->
 
 /// The fibers panel: C_R, β_R, C_TT, β_TT, γ_TT of the warp and weft yarns.
 pub fn fibers_panel(ui: &mut egui::Ui, scene: &mut SceneFile) {
-    let resolved = materials(scene);
+    let resolved = scene.material_slots();
     if woven_spec(scene).is_none() && scene.fabric.preset.is_none() {
         ui.label("Imported fibers: one material (the warp's).");
     }
@@ -396,7 +387,7 @@ fn draft_grid(
 
 /// Warp and weft colours for the grid: the yarns' C_TT, warp darkened so the two always differ.
 fn yarn_colours(scene: &SceneFile) -> [egui::Color32; 2] {
-    let colour = |slot: usize, scale: f64, fallback: u8| match materials(scene)[slot] {
+    let colour = |slot: usize, scale: f64, fallback: u8| match scene.material_slots()[slot] {
         Some(MaterialDesc::Fiber(p)) => srgb(p.c_tt.to_array().map(|c| c * scale)),
         Some(MaterialDesc::Lambert { albedo }) => srgb(albedo.to_array().map(|c| c * scale)),
         None => egui::Color32::from_gray(fallback),
@@ -699,11 +690,11 @@ mod tests {
     #[test]
     fn a_weave_edit_turns_a_preset_into_its_spec_and_keeps_its_materials() {
         let mut scene = default_scene();
-        let before_materials = materials(&scene);
+        let before_materials = scene.material_slots();
         let before = woven_spec(&scene).unwrap();
         flip_cell(&mut scene, 0, 0).unwrap();
         assert!(scene.fabric.preset.is_none());
-        assert_eq!(materials(&scene), before_materials);
+        assert_eq!(scene.material_slots(), before_materials);
         let after = woven_spec(&scene).unwrap();
         assert_ne!(after.weave.draft().warp_over(0, 0), before.weave.draft().warp_over(0, 0));
         assert_eq!(after.warp, before.warp);
