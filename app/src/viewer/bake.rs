@@ -66,6 +66,12 @@ pub struct BakeProgress {
 }
 
 impl BakeProgress {
+    /// A bake of `quality` starting now.
+    #[must_use]
+    pub fn starting(quality: Quality) -> Self {
+        Self { quality, stage: None, stage_fraction: 0.0, overall: 0.0, started: Instant::now() }
+    }
+
     /// Seconds left, extrapolated from the time so far (None until there is something to go on).
     #[must_use]
     pub fn eta_seconds(&self) -> Option<f64> {
@@ -149,13 +155,8 @@ impl Baker {
             // idle baker).
             let mut shared = lock(&self.shared);
             shared.current = id;
-            shared.progress = Some(BakeProgress {
-                quality: qualities.first().copied().unwrap_or(Quality::Draft),
-                stage: None,
-                stage_fraction: 0.0,
-                overall: 0.0,
-                started: Instant::now(),
-            });
+            shared.progress =
+                Some(BakeProgress::starting(qualities.first().copied().unwrap_or(Quality::Draft)));
         }
         let (shared, sender, repaint) = (Arc::clone(&self.shared), self.sender.clone(), self.repaint.clone());
         let cache_dir = self.cache_dir.clone();
@@ -253,14 +254,6 @@ fn run_bakes(
             s.progress = progress;
         }
     };
-    let first = qualities.first().copied().unwrap_or(Quality::Draft);
-    set_progress(Some(BakeProgress {
-        quality: first,
-        stage: None,
-        stage_fraction: 0.0,
-        overall: 0.0,
-        started: Instant::now(),
-    }));
     let scene = match scene_file.build() {
         Ok(scene) => Arc::new(scene),
         Err(e) => {
@@ -277,16 +270,19 @@ fn run_bakes(
         }
     };
     for &quality in qualities {
-        let started = Instant::now();
-        set_progress(Some(BakeProgress { quality, stage: None, stage_fraction: 0.0, overall: 0.0, started }));
+        let start = BakeProgress::starting(quality);
+        let started = start.started;
+        set_progress(Some(start));
+        let all_inputs = scene.bake_inputs(quality.settings());
+        let count = all_inputs.len() as f64;
         let last_repaint = Mutex::new(Instant::now());
-        let progress = |stage: Stage, fraction: f64| {
+        // Exemplars of a patterned cloth bake one after another: each is 1/count of the whole.
+        let progress = |exemplar: usize, stage: Stage, fraction: f64| {
             set_progress(Some(BakeProgress {
-                quality,
                 stage: Some(stage),
                 stage_fraction: fraction,
-                overall: overall_fraction(stage, fraction),
-                started,
+                overall: (exemplar as f64 + overall_fraction(stage, fraction)) / count,
+                ..start
             }));
             let mut last = last_repaint.lock().unwrap_or_else(PoisonError::into_inner);
             if last.elapsed() >= PROGRESS_REPAINT {
@@ -294,8 +290,6 @@ fn run_bakes(
                 repaint.request_repaint_after(PROGRESS_REPAINT);
             }
         };
-        let all_inputs = scene.bake_inputs(quality.settings());
-        let count = all_inputs.len() as f64;
         let pattern = scene.pattern_map();
         let set = |exemplars: Vec<Baked>, computed: Vec<Stage>, preview: bool| FabricBake {
             quality,
@@ -329,14 +323,7 @@ fn run_bakes(
         let mut exemplars = Vec::with_capacity(all_inputs.len());
         let mut computed = Vec::new();
         for (i, inputs) in all_inputs.iter().enumerate() {
-            let exemplar_progress = |stage: Stage, fraction: f64| {
-                progress(stage, fraction);
-                let mut s = lock(shared);
-                if let (true, Some(p)) = (s.current == id, s.progress.as_mut()) {
-                    p.overall = (i as f64 + p.overall) / count;
-                }
-            };
-            match bake(inputs, cache.as_ref(), cancel, &exemplar_progress) {
+            match bake(inputs, cache.as_ref(), cancel, &|stage, fraction| progress(i, stage, fraction)) {
                 Ok(outcome) => {
                     computed.push(outcome.computed());
                     exemplars.push(outcome.baked);
