@@ -32,7 +32,7 @@ use twill_precompute::bake::pipeline::Stage;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::pathtrace::light::SG_SHARPNESS_RANGE;
-use twill_precompute::scene::{CameraSection, DEFAULT_SCENE_TOML, GpuSection, RenderSection, SceneFile};
+use twill_precompute::scene::{CameraSection, GpuSection, RenderSection, SceneFile};
 use twill_renderer::export::write_rgb8_png;
 use twill_renderer::frame::FrameSettings;
 use twill_renderer::plan::Components;
@@ -164,7 +164,6 @@ enum ExportOutcome {
 
 /// The viewer (see the module docs).
 pub struct ViewerApp {
-    source_text: String,
     source_path: PathBuf,
     scene_file: Option<SceneFile>,
     final_quality: Quality,
@@ -244,25 +243,9 @@ impl ViewerApp {
         outcome: Arc<Mutex<Option<Result<(), String>>>>,
     ) -> Self {
         let mut messages = Messages::default();
-        let (scene_file, source_text, source_path) = match &options.scene {
-            None => (
-                Some(SceneFile::default_scene()),
-                DEFAULT_SCENE_TOML.to_owned(),
-                PathBuf::from("<built-in default scene>"),
-            ),
-            Some(path) => match std::fs::read_to_string(path) {
-                Ok(text) => match SceneFile::parse(&text, path) {
-                    Ok(file) => (Some(file), text, path.clone()),
-                    Err(e) => {
-                        messages.error(format!("the scene could not be loaded: {e}"));
-                        (None, text, path.clone())
-                    }
-                },
-                Err(e) => {
-                    messages.error(format!("the scene could not be read: {}: {e}", path.display()));
-                    (None, String::new(), path.clone())
-                }
-            },
+        let (scene_file, source_path) = match &options.scene {
+            None => (Some(SceneFile::default_scene()), PathBuf::from("<built-in default scene>")),
+            Some(path) => (read_scene(path).map_err(|e| messages.error(e)).ok(), path.clone()),
         };
         // Without a scene the panels show the default scene's camera and lights (nothing renders).
         let shown = scene_file.clone().unwrap_or_else(SceneFile::default_scene);
@@ -292,7 +275,6 @@ impl ViewerApp {
         let scene_path_field = options.scene.as_ref().map_or_else(String::new, |p| p.display().to_string());
         let baked_scene = scene_file.clone();
         Self {
-            source_text,
             source_path,
             final_quality: options.quality,
             bake_choice: options.quality,
@@ -379,9 +361,7 @@ impl ViewerApp {
                 self.mesh_sent = Some(mesh);
             }
         }
-        let baked = self.baked_scene.as_ref();
-        let geometry_changed = baked.is_none_or(|b| b.fabric != scene.fabric || b.pattern != scene.pattern);
-        let materials_changed = baked.is_none_or(|b| b.materials != scene.materials);
+        let (geometry_changed, materials_changed) = bake_changes(self.baked_scene.as_ref(), scene);
         if !geometry_changed && !materials_changed {
             self.pending_fabric = None;
             return;
@@ -409,14 +389,10 @@ impl ViewerApp {
     /// No bake running or waiting, the latest bake of the scene as edited on screen (not a
     /// preview) and its picture current.
     fn is_idle(&self) -> bool {
-        let baked_current = match (&self.scene_file, &self.baked_scene) {
-            (Some(scene), Some(baked)) => {
-                scene.fabric == baked.fabric
-                    && scene.materials == baked.materials
-                    && scene.pattern == baked.pattern
-            }
-            _ => false,
-        };
+        let baked_current = self
+            .scene_file
+            .as_ref()
+            .is_some_and(|s| bake_changes(self.baked_scene.as_ref(), s) == (false, false));
         baked_current
             && self.pending_fabric.is_none()
             && !self.baker.busy()
@@ -492,10 +468,7 @@ impl ViewerApp {
     /// Opens another scene: its fabric is baked (draft first), its camera, lights and
     /// settings replace the current ones, and undo starts afresh.
     fn load_scene(&mut self, path: &Path) -> Result<(), String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("the scene could not be read: {}: {e}", path.display()))?;
-        let file =
-            SceneFile::parse(&text, path).map_err(|e| format!("the scene could not be loaded: {e}"))?;
+        let file = read_scene(path)?;
         file.build().map_err(|e| format!("the scene cannot be built: {e}"))?;
         self.camera = OrbitCamera::from_section(&file.camera);
         self.initial_camera = self.camera;
@@ -503,7 +476,6 @@ impl ViewerApp {
         self.scene_lights = self.lights.clone();
         self.selected_light = 0;
         self.controls = default_controls(&file);
-        self.source_text = text;
         self.source_path = path.to_path_buf();
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
@@ -788,19 +760,17 @@ impl ViewerApp {
     /// The messages with their dismiss buttons; returns the one dismissed.
     fn messages_list(&self, ui: &mut egui::Ui) -> Option<usize> {
         let mut remove = None;
-        {
-            for (i, (level, text, _)) in self.messages.shown.iter().enumerate() {
-                ui.horizontal(|ui| {
-                    if ui.small_button("×").on_hover_text("Dismiss").clicked() {
-                        remove = Some(i);
-                    }
-                    let colour = match level {
-                        Level::Error => ui.visuals().error_fg_color,
-                        Level::Info => ui.visuals().text_color(),
-                    };
-                    ui.add(egui::Label::new(egui::RichText::new(text).color(colour)).wrap());
-                });
-            }
+        for (i, (level, text, _)) in self.messages.shown.iter().enumerate() {
+            ui.horizontal(|ui| {
+                if ui.small_button("×").on_hover_text("Dismiss").clicked() {
+                    remove = Some(i);
+                }
+                let colour = match level {
+                    Level::Error => ui.visuals().error_fg_color,
+                    Level::Info => ui.visuals().text_color(),
+                };
+                ui.add(egui::Label::new(egui::RichText::new(text).color(colour)).wrap());
+            });
         }
         remove
     }
@@ -1398,6 +1368,21 @@ fn render_device(state: &eframe::egui_wgpu::RenderState) -> Result<DeviceHandles
     let gpu = twill_renderer::gpu::Gpu::headless()
         .map_err(|e| format!("could not open a render device beside the window's: {e}"))?;
     Ok(DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue })
+}
+
+/// Reads and parses a scene file; the message says which of the two failed.
+fn read_scene(path: &Path) -> Result<SceneFile, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("the scene could not be read: {}: {e}", path.display()))?;
+    SceneFile::parse(&text, path).map_err(|e| format!("the scene could not be loaded: {e}"))
+}
+
+/// What differs between the scene last baked and `scene` in what a bake depends on:
+/// (geometry: `[fabric]` or `[pattern]`, materials: `[materials]`); everything without a bake.
+fn bake_changes(baked: Option<&SceneFile>, scene: &SceneFile) -> (bool, bool) {
+    baked.map_or((true, true), |b| {
+        (b.fabric != scene.fabric || b.pattern != scene.pattern, b.materials != scene.materials)
+    })
 }
 
 /// The bakes to run for a final quality: draft first, for a quick first picture.
