@@ -59,6 +59,21 @@ pub fn shell_for_mesh(
     Shell::build(&mesh, &spec)
 }
 
+/// Uploads `exemplars` (in pattern order) and the shell of the `[mesh]` section `mesh` around
+/// them (see [`shell_for_mesh`] for `swatch_cm` and `base_dir`), and builds the renderer.
+pub fn renderer_on_mesh(
+    gpu: &Gpu,
+    exemplars: &[&Baked],
+    pattern: &PatternMap,
+    mesh: &MeshSection,
+    swatch_cm: [f64; 2],
+    base_dir: &Path,
+) -> Result<Renderer, HeadlessError> {
+    let fabric = FabricData::upload(&gpu.device, &gpu.queue, exemplars, pattern)?;
+    let shell = shell_for_mesh(mesh, swatch_cm, base_dir, fabric.arrays.header.z_range)?;
+    Ok(Renderer::new(gpu, fabric, &shell)?)
+}
+
 fn resolve(base: &Path, path: &Path) -> std::path::PathBuf {
     if path.is_absolute() { path.to_path_buf() } else { base.join(path) }
 }
@@ -97,9 +112,8 @@ impl SceneRenderer {
         exemplars: &[&Baked],
         pattern: &PatternMap,
     ) -> Result<Self, HeadlessError> {
-        let fabric = FabricData::upload(&gpu.device, &gpu.queue, exemplars, pattern)?;
-        let shell = shell_for_scene(scene, fabric.arrays.header.z_range)?;
-        let renderer = Renderer::new(&gpu, fabric, &shell)?;
+        let renderer =
+            renderer_on_mesh(&gpu, exemplars, pattern, &scene.mesh, scene.swatch.size_cm, &scene.base_dir)?;
         Ok(Self { gpu, renderer })
     }
 

@@ -28,10 +28,10 @@ use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
-use twill_renderer::fabric_data::FabricData;
 use twill_renderer::frame::{Frame, FrameSettings, Renderer};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
+use twill_renderer::headless::{HeadlessError, renderer_on_mesh};
 
 use super::bake::BakedSet;
 use super::export::{ExportImage, write_export};
@@ -419,18 +419,18 @@ fn upload(
     fabric: &NewFabric,
     mesh: Option<&MeshRequest>,
 ) -> Result<Renderer, String> {
-    let gpu = device.gpu();
     let exemplars: Vec<&Baked> = fabric.baked.exemplars.iter().collect();
-    let data = FabricData::upload(&gpu.device, &gpu.queue, &exemplars, &fabric.baked.pattern)
-        .map_err(|e| e.to_string())?;
-    let z = data.arrays.header.z_range;
     let scene = &fabric.scene;
-    let shell = match mesh {
-        Some(m) => shell_for_mesh(&m.mesh, m.swatch_cm, &m.base_dir, z),
-        None => shell_for_mesh(&scene.mesh, scene.swatch.size_cm, &scene.base_dir, z),
-    }
-    .map_err(|e| format!("the mesh cannot be used: {e}"))?;
-    Renderer::new(&gpu, data, &shell).map_err(|e| e.to_string())
+    let (surface, swatch_cm, base_dir) = match mesh {
+        Some(m) => (&m.mesh, m.swatch_cm, m.base_dir.as_path()),
+        None => (&scene.mesh, scene.swatch.size_cm, scene.base_dir.as_path()),
+    };
+    renderer_on_mesh(&device.gpu(), &exemplars, &fabric.baked.pattern, surface, swatch_cm, base_dir).map_err(
+        |e| match e {
+            HeadlessError::Shell(e) => format!("the mesh cannot be used: {e}"),
+            e => e.to_string(),
+        },
+    )
 }
 
 /// Renders an export in batches and writes its files; `None` when cancelled.
