@@ -17,7 +17,7 @@ use twill_precompute::bake::settings::Quality;
 use twill_precompute::image::{Comparison, Estimate, Film, compare};
 use twill_precompute::pathtrace::{Component, RenderSettings, render};
 use twill_precompute::scene::{LightSection, Scene, SceneFile, camera_from};
-use twill_precompute::shading::render_flat;
+use twill_precompute::shading::{MethodOptions, render_flat, render_flat_with};
 
 const SIZE: usize = 48;
 /// Samples per pixel of the reference path tracer and of the CPU method.
@@ -270,10 +270,9 @@ fn diagnose_bake_quality() {
     let draft = Quality::Draft.settings();
     let variants = [
         ("draft", draft),
-        ("draft, SH order 4", BakeSettings { sh_order: 4, ..draft }),
-        ("draft, 2ℓ cells", BakeSettings { cell_size_mfp: 2.0, ..draft }),
-        ("draft, 2ℓ cells, SH order 4", BakeSettings { cell_size_mfp: 2.0, sh_order: 4, ..draft }),
-        ("draft, 1ℓ cells, SH order 4", BakeSettings { cell_size_mfp: 1.0, sh_order: 4, ..draft }),
+        ("draft, cubic 4ℓ cells", BakeSettings { cell_depth_mfp: 4.0, ..draft }),
+        ("draft, 0.5ℓ deep", BakeSettings { cell_depth_mfp: 0.5, ..draft }),
+        ("draft, 128 paths", BakeSettings { iirtf_paths_per_cell: 128, ..draft }),
         ("interactive", Quality::Interactive.settings()),
     ];
     for (name, settings) in variants {
@@ -284,12 +283,19 @@ fn diagnose_bake_quality() {
         {
             let scene = scene_with(light);
             for component in [Component::Single, Component::Multiple] {
-                let method = render_flat(&scene, &baked, component, METHOD_SPP, 5).unwrap().mean();
                 let reference = reference(&scene, component).mean();
-                eprintln!(
-                    "{name:<28} {label:<12} {component:?}: relative error of the mean {:+.4}",
-                    relative_error_of_mean(&method, &reference)
-                );
+                for interpolate_transfer in [false, true] {
+                    if component == Component::Single && interpolate_transfer {
+                        continue;
+                    }
+                    let options = MethodOptions { interpolate_transfer };
+                    let method = render_flat_with(&scene, &baked, component, METHOD_SPP, 5, options).unwrap().mean();
+                    eprintln!(
+                        "{name:<24} {label:<12} {component:?} {}: relative error of the mean {:+.4}",
+                        if interpolate_transfer { "interpolated" } else { "per cell" },
+                        relative_error_of_mean(&method, &reference)
+                    );
+                }
             }
         }
     }

@@ -340,7 +340,7 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
             };
             let c_light = shading::light_sh(&light, order, &baked.cg);
             assert_eq!(c_light.len(), sh::sh_count(order));
-            Some(shading::multiple_scattering(baked, c.segment, c.wo(s.tangent), &c_light).expect("multiple"))
+            Some(shading::multiple_scattering(baked, c.segment, None, c.wo(s.tangent), &c_light).expect("multiple"))
         })
         .collect();
     failures.extend(compare(&format!("{label}, multiple"), &ms_cases, &gpu_ms, &cpu_ms));

@@ -5,9 +5,17 @@
 //! the xy bounds of its fibers split the same way. Vertically every block spans the fabric slab
 //! (the z range of the fibers including their radius). Each block is cut into
 //! `dims = [dx, dy, dz]` equal cells with `d = max(1, round(side / target))` per axis, where
-//! `target = cell_size_mfp × ℓ` (ℓ the measured mean free path), so every cell side is within a
-//! factor 1.5 of the target unless the block side itself is shorter than the target (then one
-//! cell spans it). Every block has the same dims.
+//! `target = cell_size_mfp × ℓ` across the fabric (x, y) and `cell_depth_mfp × ℓ` through it
+//! (z), ℓ the measured mean free path, so every cell side is within a factor 1.5 of its target
+//! unless the block side itself is shorter (then one cell spans it). Every block has the same
+//! dims. Cells are thinner in depth than across because transfer changes fastest with depth:
+//! light enters from one face of the slab, and the fibers a camera sees lie in its top layer of
+//! about one ℓ (cubic 4ℓ cells averaged them with fibers three times deeper, and multiple
+//! scattering of the default scene came out 30% too dark; see `docs/BENCHMARKS.md`).
+//!
+//! [`CellGrid::interpolation`] gives, for any point, the cells whose centres surround it and
+//! their trilinear weights (periodic across the fabric, clamped in depth, empty cells left out),
+//! so shading can interpolate transfer between cells instead of showing each cell as a block.
 //!
 //! A segment belongs to the cell containing its midpoint: for periodic exemplars the midpoint is
 //! first wrapped into the period rectangle, and z (and, for `AsIs`, x and y) is clamped into the
@@ -32,6 +40,8 @@ pub enum CellError {
     InvalidMeanFreePath(f64),
     #[error("the target cell size must be positive and finite, got {0} mean free paths")]
     InvalidCellSize(f64),
+    #[error("the target cell depth must be positive and finite, got {0} mean free paths")]
+    InvalidCellDepth(f64),
     #[error("the block grid must be at least 1 x 1, got {nx} x {ny}")]
     InvalidBlocks { nx: u32, ny: u32 },
     #[error("{cells} IIRTF cells exceed the limit of {MAX_CELLS}: increase the cell size")]
@@ -56,14 +66,23 @@ pub struct CellGrid {
 }
 
 impl CellGrid {
-    /// Builds the grid for cells of about `cell_size_mfp × mean_free_path_cm` and assigns every
-    /// segment to a cell; see the module docs.
-    pub fn new(exemplar: &Exemplar, mean_free_path_cm: f64, cell_size_mfp: f64) -> Result<Self, CellError> {
+    /// Builds the grid for cells of about `cell_size_mfp × mean_free_path_cm` across and
+    /// `cell_depth_mfp × mean_free_path_cm` deep and assigns every segment to a cell; see the
+    /// module docs.
+    pub fn new(
+        exemplar: &Exemplar,
+        mean_free_path_cm: f64,
+        cell_size_mfp: f64,
+        cell_depth_mfp: f64,
+    ) -> Result<Self, CellError> {
         if !(mean_free_path_cm.is_finite() && mean_free_path_cm > 0.0) {
             return Err(CellError::InvalidMeanFreePath(mean_free_path_cm));
         }
         if !(cell_size_mfp.is_finite() && cell_size_mfp > 0.0) {
             return Err(CellError::InvalidCellSize(cell_size_mfp));
+        }
+        if !(cell_depth_mfp.is_finite() && cell_depth_mfp > 0.0) {
+            return Err(CellError::InvalidCellDepth(cell_depth_mfp));
         }
         let (nx, ny) = (exemplar.blocks.nx, exemplar.blocks.ny);
         if nx == 0 || ny == 0 {
@@ -84,9 +103,9 @@ impl CellGrid {
         // A degenerate extent (flat fibers) still gets a positive size.
         let extent = extent.max(DVec3::splat(1e-9));
         let block_size = DVec3::new(extent.x / f64::from(nx), extent.y / f64::from(ny), extent.z);
-        let target = cell_size_mfp * mean_free_path_cm;
-        let count = |side: f64| -> u64 { ((side / target).round() as u64).max(1) };
-        let (cx, cy, cz) = (count(block_size.x), count(block_size.y), count(block_size.z));
+        let (target, depth) = (cell_size_mfp * mean_free_path_cm, cell_depth_mfp * mean_free_path_cm);
+        let count = |side: f64, target: f64| -> u64 { ((side / target).round() as u64).max(1) };
+        let (cx, cy, cz) = (count(block_size.x, target), count(block_size.y, target), count(block_size.z, depth));
         let total = cx
             .saturating_mul(cy)
             .saturating_mul(cz)
@@ -182,6 +201,79 @@ impl CellGrid {
         &self.segments_by_cell[a as usize..b as usize]
     }
 
+    /// Lower corner of the divided region (cm, exemplar coordinates).
+    #[must_use]
+    pub fn origin_cm(&self) -> DVec3 {
+        self.origin
+    }
+
+    /// Whether the grid repeats with the exemplar's period across the fabric.
+    #[must_use]
+    pub fn is_periodic(&self) -> bool {
+        self.periodic
+    }
+
+    /// Cells of the whole region along x, y, z (blocks times cells per block).
+    #[must_use]
+    pub fn lattice_dims(&self) -> [u32; 3] {
+        [self.dims[0] * self.blocks[0], self.dims[1] * self.blocks[1], self.dims[2]]
+    }
+
+    /// The id of the cell at lattice position (`ix`, `iy`, `iz`) (each within
+    /// [`Self::lattice_dims`]).
+    #[must_use]
+    pub fn cell_at(&self, ix: u32, iy: u32, iz: u32) -> u32 {
+        let [dx, dy, dz] = self.dims;
+        let block = (iy / dy) * self.blocks[0] + ix / dx;
+        block * (dx * dy * dz) + (iz * dy + iy % dy) * dx + ix % dx
+    }
+
+    /// The cells whose centres surround `p` (exemplar coordinates) and their trilinear weights,
+    /// for interpolating a per-cell quantity at `p`. Across the fabric the lattice wraps with
+    /// the period (periodic exemplars) or is clamped to the region; in depth it is clamped, so
+    /// points above the top cells' centres take the top cells' values. Cells that hold no
+    /// segment have no transfer and get weight 0; the remaining weights are renormalized to sum
+    /// to 1. Where all eight are empty, the single cell containing `p` gets weight 1 (it may be
+    /// empty too). Unused entries have weight 0.
+    #[must_use]
+    pub fn interpolation(&self, p: DVec3) -> [(u32, f64); 8] {
+        let lattice = self.lattice_dims();
+        let mut out = [(0_u32, 0.0_f64); 8];
+        let c = (p - self.origin) / self.cell_size - DVec3::splat(0.5);
+        let base = c.floor();
+        let f = c - base;
+        let corner = |axis: usize, offset: i64| -> u32 {
+            let n = i64::from(lattice[axis]);
+            let i = if base[axis].is_finite() { base[axis] as i64 + offset } else { 0 };
+            let wrapped = if self.periodic && axis < 2 { i.rem_euclid(n) } else { i.clamp(0, n - 1) };
+            wrapped as u32
+        };
+        let mut total = 0.0;
+        for (k, slot) in out.iter_mut().enumerate() {
+            let o = [(k & 1) as i64, ((k >> 1) & 1) as i64, ((k >> 2) & 1) as i64];
+            let cell = self.cell_at(corner(0, o[0]), corner(1, o[1]), corner(2, o[2]));
+            let mut w = 1.0;
+            for axis in 0..3 {
+                let t = if f[axis].is_finite() { f[axis] } else { 0.0 };
+                w *= if o[axis] == 1 { t } else { 1.0 - t };
+            }
+            if self.segments_in_cell(cell).is_empty() {
+                w = 0.0;
+            }
+            *slot = (cell, w);
+            total += w;
+        }
+        if total > 0.0 {
+            for slot in &mut out {
+                slot.1 /= total;
+            }
+        } else {
+            out = [(0, 0.0); 8];
+            out[0] = (self.cell_of_point(p), 1.0);
+        }
+        out
+    }
+
     /// The cell containing point `p` (exemplar coordinates): wrapped into the period rectangle
     /// for periodic exemplars, clamped into the region otherwise (and always in z).
     #[must_use]
@@ -225,7 +317,7 @@ mod tests {
         ex.blocks = BlockGrid { nx: 2, ny: 1 };
         let mfp = 0.004;
         for size in [0.7, 1.0, 2.0] {
-            let grid = CellGrid::new(&ex, mfp, size).unwrap();
+            let grid = CellGrid::new(&ex, mfp, size, size).unwrap();
             let mut seen = vec![0_u32; ex.segment_count()];
             for c in 0..grid.cell_count() as u32 {
                 for &k in grid.segments_in_cell(c) {
@@ -265,13 +357,85 @@ mod tests {
             tiling: Tiling::Periodic { period: Vec2::new(1.0, 1.0) },
             blocks: BlockGrid { nx: 2, ny: 2 },
         };
-        let grid = CellGrid::new(&ex, 0.1, 1.0).unwrap();
+        let grid = CellGrid::new(&ex, 0.1, 1.0, 1.0).unwrap();
         assert_eq!(grid.dims(), [5, 5, 1]);
         assert_eq!(grid.cell_of_segment(0), grid.cell_of_segment(1));
         assert_ne!(grid.cell_of_segment(0), grid.cell_of_segment(2));
         // Segment 2 is in block (1, 1): the last block.
         assert_eq!(grid.cell_of_segment(2) as usize / grid.cells_per_block(), 3);
-        assert!(CellGrid::new(&ex, 0.0, 1.0).is_err());
-        assert!(matches!(CellGrid::new(&ex, 1e-6, 1.0), Err(CellError::TooManyCells { .. })));
+        assert!(CellGrid::new(&ex, 0.0, 1.0, 1.0).is_err());
+        assert!(matches!(CellGrid::new(&ex, 0.1, 1.0, f64::NAN), Err(CellError::InvalidCellDepth(_))));
+        assert!(matches!(CellGrid::new(&ex, 1e-6, 1.0, 1.0), Err(CellError::TooManyCells { .. })));
+    }
+
+    #[test]
+    fn cells_are_thinner_in_depth_when_asked() {
+        let ex = synthetic_weave(&SyntheticWeave::small());
+        let mfp = 0.004;
+        let cubic = CellGrid::new(&ex, mfp, 4.0, 4.0).unwrap();
+        let thin = CellGrid::new(&ex, mfp, 4.0, 1.0).unwrap();
+        assert_eq!(cubic.dims()[..2], thin.dims()[..2]);
+        assert!(thin.dims()[2] >= 3 * cubic.dims()[2], "{:?} vs {:?}", thin.dims(), cubic.dims());
+        let depth = thin.cell_size_cm().z / mfp;
+        assert!((2.0 / 3.0..=1.5).contains(&depth) || thin.dims()[2] == 1, "depth {depth} ℓ");
+    }
+
+    #[test]
+    fn interpolation_weights_are_trilinear_periodic_and_skip_empty_cells() {
+        let ex = synthetic_weave(&SyntheticWeave::small());
+        let grid = CellGrid::new(&ex, 0.004, 2.0, 1.0).unwrap();
+        let [nx, ny, nz] = grid.lattice_dims();
+        let size = grid.cell_size_cm();
+        let centre = |ix: u32, iy: u32, iz: u32| {
+            grid.origin_cm() + (DVec3::new(f64::from(ix), f64::from(iy), f64::from(iz)) + 0.5) * size
+        };
+        // Lattice positions map to distinct cells, and each cell's own centre gives it alone
+        // (or nothing, when it is empty).
+        let mut seen = std::collections::HashSet::new();
+        for iz in 0..nz {
+            for iy in 0..ny {
+                for ix in 0..nx {
+                    let cell = grid.cell_at(ix, iy, iz);
+                    assert!(seen.insert(cell));
+                    assert_eq!(grid.cell_of_point(centre(ix, iy, iz)), cell);
+                    let w = grid.interpolation(centre(ix, iy, iz));
+                    let sum: f64 = w.iter().map(|e| e.1).sum();
+                    assert!((sum - 1.0).abs() < 1e-12 || grid.segments_in_cell(cell).is_empty());
+                    if !grid.segments_in_cell(cell).is_empty() {
+                        let own: f64 = w.iter().filter(|e| e.0 == cell).map(|e| e.1).sum();
+                        assert!((own - 1.0).abs() < 1e-9, "cell {cell}: own weight {own}");
+                    }
+                }
+            }
+        }
+        assert_eq!(seen.len(), grid.cell_count());
+        // Everywhere: weights are finite, non-negative, sum to 1 and name only non-empty cells;
+        // a point one period away gets the same weights.
+        let period = DVec3::new(f64::from(nx) * size.x, f64::from(ny) * size.y, 0.0);
+        for i in 0..500 {
+            let u = DVec3::new((i as f64 * 0.618_034).fract(), (i as f64 * 0.414_214).fract(), (i as f64 * 0.732_051).fract());
+            let p = grid.origin_cm() + u * DVec3::new(period.x, period.y, f64::from(nz) * size.z);
+            let w = grid.interpolation(p);
+            let sum: f64 = w.iter().map(|e| e.1).sum();
+            assert!((sum - 1.0).abs() < 1e-12, "{p}: weights sum to {sum}");
+            for (cell, weight) in w {
+                assert!(weight.is_finite() && weight >= 0.0);
+                assert!(weight == 0.0 || !grid.segments_in_cell(cell).is_empty());
+            }
+            assert_eq!(w, grid.interpolation(p + period), "{p}");
+        }
+        // Halfway between two non-empty neighbours across x: half each.
+        let (ix, iy, iz) = (0..nz)
+            .flat_map(|z| (0..ny).flat_map(move |y| (0..nx).map(move |x| (x, y, z))))
+            .find(|&(x, y, z)| {
+                let pair = [grid.cell_at(x, y, z), grid.cell_at((x + 1) % nx, y, z)];
+                pair.iter().all(|&c| !grid.segments_in_cell(c).is_empty())
+            })
+            .expect("two non-empty neighbours");
+        let mid = centre(ix, iy, iz) + DVec3::new(0.5 * size.x, 0.0, 0.0);
+        let w = grid.interpolation(mid);
+        let a: f64 = w.iter().filter(|e| e.0 == grid.cell_at(ix, iy, iz)).map(|e| e.1).sum();
+        let b: f64 = w.iter().filter(|e| e.0 == grid.cell_at((ix + 1) % nx, iy, iz)).map(|e| e.1).sum();
+        assert!((a - 0.5).abs() < 1e-9 && (b - 0.5).abs() < 1e-9, "{a} {b}");
     }
 }

@@ -468,7 +468,7 @@ mod tests {
     fn bake_is_deterministic_across_thread_counts_and_cancellable() {
         let (exemplar, materials) = default_fabric();
         // Huge cells: few of them, so the test stays short.
-        let grid = CellGrid::new(&exemplar, 0.01, 8.0).unwrap();
+        let grid = CellGrid::new(&exemplar, 0.01, 8.0, 8.0).unwrap();
         let settings = small_settings(300, 2);
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
@@ -527,7 +527,7 @@ mod tests {
         let fiber_scene = FiberScene::new(&exemplar, Extent::Unbounded).unwrap();
         let mfp = mean_free_path(&fiber_scene, 4000, 3).mean_cm;
         drop(fiber_scene);
-        let grid = CellGrid::new(&exemplar, mfp, 1.5).unwrap();
+        let grid = CellGrid::new(&exemplar, mfp, 1.5, 1.5).unwrap();
         // The fullest cell.
         let cell = (0..grid.cell_count() as u32).max_by_key(|&c| grid.segments_in_cell(c).len()).unwrap();
         let in_cell = grid.segments_in_cell(cell);

@@ -88,7 +88,7 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 1, 1, 1, 1, 1, 2];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 1, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key).
 pub const BAKE_LAYOUT_VERSION: u32 = 2;
@@ -329,7 +329,7 @@ fn bake_stages(
         previous.transfer.clone()
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
-            let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp)?;
+            let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
             let iirtf = bake_iirtf(
                 inputs.exemplar,
                 &yarn_materials,
@@ -688,6 +688,7 @@ impl StageKeys {
             .hash(&self.materials)
             .f64(mfp.mean_cm)
             .f64(s.cell_size_mfp)
+            .f64(s.cell_depth_mfp)
             .usize(s.iirtf_paths_per_cell)
             .usize(s.sh_order)
             .u64(s.seed);

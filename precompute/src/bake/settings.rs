@@ -33,8 +33,12 @@ pub struct BakeSettings {
     pub sos_count: usize,
     /// Sharpness λ_svf of those SGs.
     pub sos_sharpness: f64,
-    /// Target IIRTF cell side as a multiple of the measured mean free path ℓ.
+    /// Target IIRTF cell side across the fabric (x, y) as a multiple of the measured mean free
+    /// path ℓ.
     pub cell_size_mfp: f64,
+    /// Target IIRTF cell side through the fabric (z, depth) as a multiple of ℓ: thinner than
+    /// across, since transfer changes fastest with depth (`bake::cells`).
+    pub cell_depth_mfp: f64,
     /// Paths traced per IIRTF cell.
     pub iirtf_paths_per_cell: usize,
     /// SH order L of the IIRTF (and of C_S, C_G): (L+1)² coefficients.
@@ -70,6 +74,7 @@ impl Quality {
                 sos_count: 16,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 4.0,
+                cell_depth_mfp: 1.0,
                 iirtf_paths_per_cell: 256,
                 sh_order: 2,
                 cs_theta_count: 64,
@@ -83,6 +88,7 @@ impl Quality {
                 sos_count: 32,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 2.5,
+                cell_depth_mfp: 1.0,
                 iirtf_paths_per_cell: 600,
                 sh_order: 4,
                 cs_theta_count: 256,
@@ -96,6 +102,7 @@ impl Quality {
                 sos_count: 48,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 1.0,
+                cell_depth_mfp: 1.0,
                 iirtf_paths_per_cell: 50_000,
                 sh_order: 5,
                 cs_theta_count: 512,
@@ -115,6 +122,7 @@ impl BakeSettings {
         check_count("sos_count", self.sos_count, 1, 1024)?;
         check_range("sos_sharpness", self.sos_sharpness, 1.0, 1e4)?;
         check_range("cell_size_mfp", self.cell_size_mfp, 0.25, 64.0)?;
+        check_range("cell_depth_mfp", self.cell_depth_mfp, 0.25, 64.0)?;
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
         check_count("sh_order", self.sh_order, 0, 8)?;
         check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;

@@ -36,7 +36,7 @@ mod tests;
 pub use bcsdf::{FiberConstants, fiber_eval_cos};
 pub use gamma::gamma;
 pub use multiple::{light_sh, multiple_scattering, multiple_scattering_in_cell};
-pub use render::{render_flat, shade};
+pub use render::{MethodOptions, render_flat, render_flat_with, shade};
 pub use single::{single_scattering, single_scattering_directional, single_scattering_sg};
 pub use visibility::{
     erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,

@@ -17,8 +17,12 @@
 //!   ωo)` with `ShRotation::new(order, &world_to_local)` and dotted with the same channel of
 //!   `CsTable::lookup(θo)` (linear in θo between its rows). A cell that holds no segment has a
 //!   zero matrix (no paths were traced) and gives zero.
-//! - [`multiple_scattering`] looks up the segment's tangent, material and cell
-//!   (`CellGrid::cell_of_segment`) in a bake.
+//! - [`multiple_scattering`] looks up the segment's tangent and material in a bake, and its
+//!   transfer: given the shaded point, `c_T` is interpolated between the cells whose centres
+//!   surround it (`CellGrid::interpolation`: trilinear, empty cells left out), so transfer
+//!   varies smoothly through the fabric; without a point it is the constant of the segment's
+//!   own cell (`CellGrid::cell_of_segment`), the paper's choice, which shows each cell as a
+//!   flat block.
 
 use std::f64::consts::PI;
 
@@ -77,25 +81,42 @@ pub fn multiple_scattering_in_cell(
     wo: DVec3,
     c_light: &[Rgb],
 ) -> Rgb {
-    let order = cs.sh_order();
-    let n = sh_count(order);
+    let n = sh_count(cs.sh_order());
     assert_eq!(c_light.len(), n, "multiple_scattering: c_light must have {n} coefficients");
     if transfer.paths == 0 {
         return Rgb::ZERO;
     }
+    let mut transferred = vec![Rgb::ZERO; n];
+    add_transferred(transfer, c_light, 1.0, &mut transferred);
+    scatter_transferred(cs, &transferred, t, wo)
+}
+
+/// Adds `weight · A_C c_light` (per channel) to `sum`.
+///
+/// # Panics
+/// If the transfer matrix does not match `c_light`'s length.
+pub fn add_transferred(transfer: &CellTransfer, c_light: &[Rgb], weight: f64, sum: &mut [Rgb]) {
+    let n = c_light.len();
     assert_eq!(transfer.matrix.len(), n * n, "multiple_scattering: transfer matrix order mismatch");
-    let transferred: Vec<Rgb> = transfer
-        .matrix
-        .chunks_exact(n)
-        .map(|row| row.iter().zip(c_light).map(|(a, c)| *a * *c).sum())
-        .collect();
+    for (out, row) in sum.iter_mut().zip(transfer.matrix.chunks_exact(n)) {
+        let value: Rgb = row.iter().zip(c_light).map(|(a, c)| *a * *c).sum();
+        *out += value * weight;
+    }
+}
+
+/// `C_S[θo] · (R_ωo c_T)` per channel: the incoming radiance `transferred` (SH, fabric space)
+/// scattered toward unit `wo` by a fiber of unit tangent `t` whose material's table is `cs`.
+#[must_use]
+pub fn scatter_transferred(cs: &CsTable, transferred: &[Rgb], t: DVec3, wo: DVec3) -> Rgb {
+    let order = cs.sh_order();
+    let n = sh_count(order);
     let space = OmegaOSpace::new(t, wo);
     let rotation = ShRotation::new(order, &space.world_to_local);
     let c_s = cs.lookup(space.theta_o);
     let (mut world, mut local) = (vec![0.0; n], vec![0.0; n]);
     let mut out = Rgb::ZERO;
     for ch in 0..3 {
-        for (w, c) in world.iter_mut().zip(&transferred) {
+        for (w, c) in world.iter_mut().zip(transferred) {
             *w = c[ch];
         }
         rotation.apply(&world, &mut local);
@@ -104,12 +125,14 @@ pub fn multiple_scattering_in_cell(
     out
 }
 
-/// Multiple scattering of `segment` of `baked` seen from unit `wo` (fabric space) under the
-/// summed, visibility-scaled light SH `c_light`; see the module docs. Zero-length segments
-/// give zero.
+/// Multiple scattering of `segment` of `baked` at `position` (the shaded point in the
+/// exemplar's coordinates; `None`: the segment's own cell, constant per cell) seen from unit
+/// `wo` (fabric space) under the summed, visibility-scaled light SH `c_light`; see the module
+/// docs. Zero-length segments give zero.
 pub fn multiple_scattering(
     baked: &Baked,
     segment: u32,
+    position: Option<DVec3>,
     wo: DVec3,
     c_light: &[Rgb],
 ) -> Result<Rgb, ShadingError> {
@@ -125,7 +148,18 @@ pub fn multiple_scattering(
     let Some(Some(cs)) = baked.cs_tables.get(material) else {
         return Err(ShadingError::MissingCsTable { material });
     };
-    let cell = baked.transfer.cells.cell_of_segment(segment);
-    let transfer = &baked.transfer.iirtf.cells[cell as usize];
-    Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, c_light))
+    let grid = &baked.transfer.cells;
+    let cells = &baked.transfer.iirtf.cells;
+    let Some(position) = position else {
+        let transfer = &cells[grid.cell_of_segment(segment) as usize];
+        return Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, c_light));
+    };
+    let mut transferred = vec![Rgb::ZERO; expected];
+    for (cell, weight) in grid.interpolation(position) {
+        let transfer = &cells[cell as usize];
+        if weight > 0.0 && transfer.paths > 0 {
+            add_transferred(transfer, c_light, weight, &mut transferred);
+        }
+    }
+    Ok(scatter_transferred(cs, &transferred, seg.tangent, wo))
 }

@@ -8,7 +8,7 @@
 //! stream `pathtrace::integrator::pixel_rng(seed, pixel)` (two uniforms per sample, the
 //! camera's pixel convention), casts the primary ray against the swatch's fibers (rays that miss
 //! see black; a ground plane, if any, is black and hides nothing above it) and shades the hit
-//! segment with ωo = −ray direction. A flat swatch lit from above has nothing casting
+//! segment at the hit point (transfer interpolated between cells) with ωo = −ray direction. A flat swatch lit from above has nothing casting
 //! macro-scale shadows on it, so V_glo = V̄_glo = 1 for every light. Rows are rendered in
 //! parallel; the image does not depend on the thread count.
 
@@ -27,11 +27,14 @@ use crate::pathtrace::{Component, Light};
 use crate::scene::{Scene, camera_from};
 use crate::sh::sh_count;
 
-/// Radiance leaving `segment` of `baked` toward unit `wo` (fabric space) under `lights`, each
-/// given as `(light, V_glo, V̄_glo)`: single scattering, multiple scattering or both.
+/// Radiance leaving `segment` of `baked` at `position` (exemplar coordinates; `None`: transfer
+/// constant per cell, see [`multiple_scattering`]) toward unit `wo` (fabric space) under
+/// `lights`, each given as `(light, V_glo, V̄_glo)`: single scattering, multiple scattering or
+/// both.
 pub fn shade(
     baked: &Baked,
     segment: u32,
+    position: Option<DVec3>,
     wo: DVec3,
     lights: &[(Light, f64, f64)],
     component: Component,
@@ -52,9 +55,23 @@ pub fn shade(
                 }
             }
         }
-        total += multiple_scattering(baked, segment, wo, &c_light)?;
+        total += multiple_scattering(baked, segment, position, wo, &c_light)?;
     }
     Ok(total)
+}
+
+/// Choices of [`render_flat_with`] between the method's approximations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MethodOptions {
+    /// Interpolate transfer between cells at the hit point (`true`, the default) or use the
+    /// hit segment's own cell (the paper's constant per cell).
+    pub interpolate_transfer: bool,
+}
+
+impl Default for MethodOptions {
+    fn default() -> Self {
+        Self { interpolate_transfer: true }
+    }
 }
 
 /// Renders `scene` (its camera at its `[render]` size, its lights) with the paper's method from
@@ -65,6 +82,18 @@ pub fn render_flat(
     component: Component,
     spp: u32,
     seed: u64,
+) -> Result<Film, ShadingError> {
+    render_flat_with(scene, baked, component, spp, seed, MethodOptions::default())
+}
+
+/// [`render_flat`] with a choice of approximations ([`MethodOptions`]).
+pub fn render_flat_with(
+    scene: &Scene,
+    baked: &Baked,
+    component: Component,
+    spp: u32,
+    seed: u64,
+    options: MethodOptions,
 ) -> Result<Film, ShadingError> {
     let baked_segments = baked.volume.segments.len();
     if scene.exemplar.segment_count() != baked_segments {
@@ -95,7 +124,10 @@ pub fn render_flat(
                     };
                     let value = match fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, None)
                     {
-                        Some(hit) => shade(baked, hit.segment, -dir, &lights, component)?,
+                        Some(hit) => {
+                            let position = options.interpolate_transfer.then(|| hit.local_position.as_dvec3());
+                            shade(baked, hit.segment, position, -dir, &lights, component)?
+                        }
                         None => Rgb::ZERO,
                     };
                     row.add(x, value);

@@ -630,7 +630,7 @@ fn shading_multiple_scattering_equals_the_iirtf_per_path_estimate() {
     // at θo (no table): this checks the channel-wise products, the rotation convention and the
     // table interpolation at once.
     let (exemplar, materials, descs) = default_fabric();
-    let grid = CellGrid::new(&exemplar, 0.01, 8.0).unwrap();
+    let grid = CellGrid::new(&exemplar, 0.01, 8.0, 8.0).unwrap();
     let order = 2;
     let settings = BakeSettings { iirtf_paths_per_cell: 400, sh_order: order, ..Quality::Draft.settings() };
     let iirtf = bake_iirtf(
@@ -803,7 +803,7 @@ fn shading_hard_cases_are_finite_and_single_scattering_is_non_negative() {
             for wo in hard_directions(t) {
                 let single = single_scattering(baked, k, wo, &light, 1.0).unwrap();
                 assert!(single.is_finite() && single.min_element() >= 0.0, "{light:?} ωo {wo}: {single}");
-                let multiple = multiple_scattering(baked, k, wo, &c_light).unwrap();
+                let multiple = multiple_scattering(baked, k, None, wo, &c_light).unwrap();
                 assert!(multiple.is_finite(), "{light:?} ωo {wo}: {multiple}");
                 assert_eq!(single_scattering(baked, k, wo, &light, 0.0).unwrap(), Rgb::ZERO);
             }
@@ -874,9 +874,9 @@ fn shading_shade_adds_its_components_and_reports_bad_input() {
     let k = (0..baked.volume.segments.len() as u32)
         .find(|&k| single_scattering(baked, k, wo, &lights[0].0, 1.0).unwrap().max_element() > 0.0)
         .unwrap();
-    let all = shade(baked, k, wo, &lights, Component::All).unwrap();
-    let single = shade(baked, k, wo, &lights, Component::Single).unwrap();
-    let multiple = shade(baked, k, wo, &lights, Component::Multiple).unwrap();
+    let all = shade(baked, k, None, wo, &lights, Component::All).unwrap();
+    let single = shade(baked, k, None, wo, &lights, Component::Single).unwrap();
+    let multiple = shade(baked, k, None, wo, &lights, Component::Multiple).unwrap();
     assert!(rel_err(all, single + multiple) < 1e-14, "{all} vs {single} + {multiple}");
     let expected_single: Rgb =
         lights.iter().map(|(l, v, _)| single_scattering(baked, k, wo, l, *v).unwrap()).sum();
@@ -885,14 +885,14 @@ fn shading_shade_adds_its_components_and_reports_bad_input() {
 
     let count = baked.volume.segments.len();
     assert_eq!(
-        shade(baked, count as u32, wo, &lights, Component::All),
+        shade(baked, count as u32, None, wo, &lights, Component::All),
         Err(ShadingError::NoSuchSegment { segment: count as u32, count })
     );
-    assert!(matches!(multiple_scattering(baked, k, wo, &[Rgb::ONE; 4]), Err(ShadingError::ShLength { .. })));
+    assert!(matches!(multiple_scattering(baked, k, None, wo, &[Rgb::ONE; 4]), Err(ShadingError::ShLength { .. })));
     let mut lambert = baked.clone();
     let material = lambert.volume.segments.material[k as usize];
     lambert.materials[material as usize] = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
-    let err = shade(&lambert, k, wo, &lights, Component::All).unwrap_err();
+    let err = shade(&lambert, k, None, wo, &lights, Component::All).unwrap_err();
     assert_eq!(err, ShadingError::LambertMaterial { segment: k, material });
     assert!(err.to_string().contains("fiber (R + TT) materials only"), "{err}");
 }
