@@ -146,7 +146,10 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     if (ENABLE_MULTIPLE) {
         // A truncated SH product can ring below zero where little light arrives; radiance
         // cannot, so the multiple-scattering term is clamped per channel.
-        radiance += max(shade_multiple(e, segment, wo, &c_in), vec3<f32>(0.0));
+        // The shaded point in the exemplar's coordinates (as the G-buffer pass found it).
+        let z = fabric.z_range.x + clamp(uvw.z, 0.0, 1.0) * (fabric.z_range.y - fabric.z_range.x);
+        let p = vec3<f32>(uvw.xy, z);
+        radiance += max(shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
     }
     let index = id.y * width + id.x;
     accumulation[index] += vec4<f32>(radiance, 1.0);

@@ -73,8 +73,23 @@ pub struct ExemplarGpu {
     pub period: [f32; 2],
     pub pca_offset: u32,
     pub segment_count: u32,
+    /// The IIRTF cell lattice (`bake::cells::CellGrid`): lower corner (cm).
+    pub cell_origin: [f32; 3],
+    /// Global id of the exemplar's first cell.
+    pub cell_offset: u32,
+    /// Side lengths of a cell (cm).
+    pub cell_size: [f32; 3],
+    /// Blocks along x.
+    pub cell_blocks_x: u32,
+    /// Cells per block along x, y, z.
+    pub cell_dims: [u32; 3],
+    /// 1 when the lattice repeats with the period across the fabric.
+    pub cell_periodic: u32,
+    /// Cells of the whole lattice along x, y, z.
+    pub cell_lattice: [u32; 3],
+    pub pad: u32,
 }
-const _: () = assert!(size_of::<ExemplarGpu>() == 64);
+const _: () = assert!(size_of::<ExemplarGpu>() == 128);
 
 /// Twin of `SegmentGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
@@ -123,6 +138,8 @@ pub struct FabricArrays {
     pub sos_weights: Vec<f32>,
     /// f16 pairs (see the module doc).
     pub iirtf: Vec<u32>,
+    /// Per global cell: 1 if it holds segments (and so a transfer matrix), 0 if empty.
+    pub cell_flags: Vec<u32>,
     pub cs_table: Vec<f32>,
     pub cg_table: Vec<f32>,
     pub gn_table: Vec<f32>,
@@ -188,6 +205,7 @@ impl FabricArrays {
             pca_coefficients: Vec::new(),
             sos_weights: Vec::new(),
             iirtf: Vec::new(),
+            cell_flags: Vec::new(),
             cs_table: Vec::new(),
             cg_table: first.cg.values().to_vec(),
             gn_table: Vec::new(),
@@ -234,7 +252,16 @@ impl FabricArrays {
                 period: [extent.x, extent.y],
                 pca_offset: to_u32(out.pca_basis.len(), "PCA offset")?,
                 segment_count: to_u32(segment_count, "segment count")?,
+                cell_origin: f32s(cells.origin_cm().as_vec3()),
+                cell_offset: to_u32(cell_base, "cell")?,
+                cell_size: f32s(cells.cell_size_cm().as_vec3()),
+                cell_blocks_x: cells.blocks()[0],
+                cell_dims: cells.dims(),
+                cell_periodic: u32::from(cells.is_periodic()),
+                cell_lattice: cells.lattice_dims(),
+                pad: 0,
             });
+            out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
                 out.segments.push(SegmentGpu {
@@ -308,9 +335,9 @@ impl FabricArrays {
         Ok(out)
     }
 
-    /// Every buffer with its label and contents, in binding order (1 ..= 12).
+    /// Every buffer with its label and contents, in binding order (1 ..= 13).
     #[must_use]
-    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 12] {
+    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 13] {
         [
             ("exemplars", bytemuck::cast_slice(&self.exemplars)),
             ("pattern", bytemuck::cast_slice(&self.pattern)),
@@ -324,6 +351,7 @@ impl FabricArrays {
             ("cs_table", bytemuck::cast_slice(&self.cs_table)),
             ("cg_table", bytemuck::cast_slice(&self.cg_table)),
             ("gn_table", bytemuck::cast_slice(&self.gn_table)),
+            ("cell_flags", bytemuck::cast_slice(&self.cell_flags)),
         ]
     }
 
@@ -423,13 +451,13 @@ pub struct FabricData {
     pub gpu_bytes: u64,
 }
 
-/// The layout of bind group 1 (a uniform and twelve read-only storage buffers, visible to
+/// The layout of bind group 1 (a uniform and thirteen read-only storage buffers, visible to
 /// fragment and compute stages).
 #[must_use]
 pub fn fabric_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
     let mut entries = vec![uniform_entry(0, visibility)];
-    entries.extend((1..=12).map(|binding| storage_entry(binding, visibility, true)));
+    entries.extend((1..=13).map(|binding| storage_entry(binding, visibility, true)));
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("twill.fabric.bind_group_layout"),
         entries: &entries,

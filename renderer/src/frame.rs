@@ -394,7 +394,7 @@ fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> Sh
 }
 
 /// The renderer needs this many storage buffers in one shader stage (shading pass).
-const STORAGE_BUFFERS_NEEDED: u32 = 15;
+const STORAGE_BUFFERS_NEEDED: u32 = 16;
 
 impl Renderer {
     /// Uploads the shell and builds the pipelines. `fabric` must come from the same device.

@@ -128,9 +128,27 @@ fn multiple_case(input: vec4<f32>) -> vec4<f32> {
     var c: array<vec3<f32>, 49>;
     for (var j = 0u; j < 49u; j++) { c[j] = vec3<f32>(0.0); }
     light_sh_accumulate(fabric.sh_order, case_axis(input), input.y, vec3<f32>(1.0), &c);
-    return vec4<f32>(shade_multiple(0u, u32(input.x), case_wo(input), &c), 0.0);
+    return vec4<f32>(shade_multiple(0u, u32(input.x), case_point(input), case_wo(input), &c), 0.0);
+}
+// A point of the cell lattice picked from the segment id (twin: case_point in Rust).
+fn case_point(input: vec4<f32>) -> vec3<f32> {
+    let ex = exemplars[0];
+    let u = fract(vec3<f32>(input.x * 0.618034, input.x * 0.414214, input.x * 0.732051));
+    return ex.cell_origin + u * vec3<f32>(ex.cell_lattice) * ex.cell_size;
 }
 ";
+
+/// Twin of the WGSL `case_point`: a point of the cell lattice picked from the segment id, so
+/// the interpolation of transfer between cells is compared too.
+fn case_point(baked: &Baked, segment: u32) -> DVec3 {
+    let grid = &baked.transfer.cells;
+    // f32 like the shader: the fraction of a product of thousands loses digits the same way.
+    let x = segment as f32;
+    let fract = |a: f32| -> f64 { f64::from(a - a.floor()) };
+    let u = DVec3::new(fract(x * 0.618_034), fract(x * 0.414_214), fract(x * 0.732_051));
+    let lattice = DVec3::from(grid.lattice_dims().map(f64::from));
+    grid.origin_cm() + u * lattice * grid.cell_size_cm()
+}
 
 struct Case {
     segment: u32,
@@ -340,7 +358,11 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
             };
             let c_light = shading::light_sh(&light, order, &baked.cg);
             assert_eq!(c_light.len(), sh::sh_count(order));
-            Some(shading::multiple_scattering(baked, c.segment, None, c.wo(s.tangent), &c_light).expect("multiple"))
+            let point = case_point(baked, c.segment);
+            Some(
+                shading::multiple_scattering(baked, c.segment, Some(point), c.wo(s.tangent), &c_light)
+                    .expect("multiple"),
+            )
         })
         .collect();
     failures.extend(compare(&format!("{label}, multiple"), &ms_cases, &gpu_ms, &cpu_ms));

@@ -16,6 +16,7 @@
 //   cg_table        [point * (sh_order + 1) + l]
 //   gn_table        [(((global material * 2 + lobe) * (gn_intervals + 1) + node) * 2 + {0: Gn, 1: dGn/dmu}]
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
+//   cell_flags      [global cell] = 1 if the cell holds segments (has a transfer matrix), else 0
 
 const EMPTY_VOXEL: u32 = 0xffffffffu;
 const MATERIAL_FIBER: u32 = 0u;
@@ -48,6 +49,15 @@ struct ExemplarGpu {
     period: vec2<f32>,
     pca_offset: u32,
     segment_count: u32,
+    // The IIRTF cell lattice (precompute/src/bake/cells.rs CellGrid).
+    cell_origin: vec3<f32>,
+    cell_offset: u32,
+    cell_size: vec3<f32>,
+    cell_blocks_x: u32,
+    cell_dims: vec3<u32>,
+    cell_periodic: u32,
+    cell_lattice: vec3<u32>,
+    _pad_cells: u32,
 }
 
 struct SegmentGpu {
@@ -85,6 +95,7 @@ struct MaterialGpu {
 @group(1) @binding(10) var<storage, read> cs_table: array<f32>;
 @group(1) @binding(11) var<storage, read> cg_table: array<f32>;
 @group(1) @binding(12) var<storage, read> gn_table: array<f32>;
+@group(1) @binding(13) var<storage, read> cell_flags: array<u32>;
 
 // Euclidean remainder (WGSL's % keeps the sign of the dividend).
 fn wrap_f32(x: f32, period: f32) -> f32 {
@@ -133,4 +144,54 @@ fn iirtf_entry(cell: u32, channel: u32, j0: u32, j1: u32) -> f32 {
     let e = ((cell * 3u + channel) * n + j1) * n + j0;
     let pair = unpack2x16float(iirtf[e / 2u]);
     return select(pair.x, pair.y, (e & 1u) == 1u);
+}
+
+// Global id of the cell at lattice position i of exemplar e (CellGrid::cell_at).
+fn cell_at(ex: ExemplarGpu, i: vec3<u32>) -> u32 {
+    let d = ex.cell_dims;
+    let block = (i.y / d.y) * ex.cell_blocks_x + i.x / d.x;
+    return ex.cell_offset + block * (d.x * d.y * d.z) + (i.z * d.y + i.y % d.y) * d.x + i.x % d.x;
+}
+
+// The eight cells around point p (exemplar cm) and their trilinear weights, empty cells left
+// out and the rest renormalized (CellGrid::interpolation). Where all eight are empty, the
+// returned weights are all zero and the caller keeps the segment's own cell.
+struct CellWeights {
+    cells: array<u32, 8>,
+    weights: array<f32, 8>,
+}
+
+fn cell_interpolation(e: u32, p: vec3<f32>) -> CellWeights {
+    let ex = exemplars[e];
+    let n = vec3<i32>(ex.cell_lattice);
+    let c = (p - ex.cell_origin) / ex.cell_size - vec3<f32>(0.5);
+    let base = floor(c);
+    let f = c - base;
+    let b = vec3<i32>(base);
+    var out: CellWeights;
+    var total = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let o = vec3<i32>(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
+        var i = b + o;
+        if (ex.cell_periodic != 0u) {
+            i = vec3<i32>(wrap_i32(i.x, n.x), wrap_i32(i.y, n.y), clamp(i.z, 0, n.z - 1));
+        } else {
+            i = clamp(i, vec3<i32>(0), n - 1);
+        }
+        let cell = cell_at(ex, vec3<u32>(i));
+        let t = select(vec3<f32>(1.0) - f, f, o == vec3<i32>(1));
+        var w = t.x * t.y * t.z;
+        if (cell_flags[cell] == 0u) {
+            w = 0.0;
+        }
+        out.cells[k] = cell;
+        out.weights[k] = w;
+        total += w;
+    }
+    if (total > 0.0) {
+        for (var k = 0u; k < 8u; k++) {
+            out.weights[k] = out.weights[k] / total;
+        }
+    }
+    return out;
 }

@@ -300,9 +300,23 @@ fn light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<
     }
 }
 
-// Multiple scattering (multiple.rs multiple_scattering_in_cell): per channel,
-// C_S[theta_o] . (R_wo (A_cell c_in)).
-fn shade_multiple(e: u32, segment: u32, wo: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
+// Adds weight * (A_cell c_in), channel by channel, to c_t (multiple.rs add_transferred).
+fn add_transferred(cell: u32, weight: f32, n: u32, c_in: ptr<function, array<vec3<f32>, 49>>, c_t: ptr<function, array<vec3<f32>, 49>>) {
+    for (var j1 = 0u; j1 < n; j1++) {
+        var sum = vec3<f32>(0.0);
+        for (var j0 = 0u; j0 < n; j0++) {
+            let a = vec3<f32>(iirtf_entry(cell, 0u, j0, j1), iirtf_entry(cell, 1u, j0, j1), iirtf_entry(cell, 2u, j0, j1));
+            sum += a * (*c_in)[j0];
+        }
+        (*c_t)[j1] += weight * sum;
+    }
+}
+
+// Multiple scattering (multiple.rs multiple_scattering): per channel,
+// C_S[theta_o] . (R_wo c_T), c_T = A c_in interpolated between the cells around the shaded
+// point p (exemplar cm; CellGrid::interpolation), or the segment's own cell where all eight
+// are empty.
+fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
     let s = segments[segment];
     let m = materials[s.material];
     if (m.model != MATERIAL_FIBER) {
@@ -317,15 +331,21 @@ fn shade_multiple(e: u32, segment: u32, wo: vec3<f32>, c_in: ptr<function, array
     let x = clamp((space.theta_o + HALF_PI) / PI * f32(rows - 1u), 0.0, f32(rows - 1u));
     let k = min(u32(x), rows - 2u);
     let ft = x - f32(k);
-    // c_T = A_cell c_in, channel by channel, then one rotation into omega_o-space for all three.
+    // c_T interpolated between cells, then one rotation into omega_o-space for all three channels.
     var coeffs: array<vec3<f32>, 49>;
-    for (var j1 = 0u; j1 < n; j1++) {
-        var sum = vec3<f32>(0.0);
-        for (var j0 = 0u; j0 < n; j0++) {
-            let a = vec3<f32>(iirtf_entry(s.cell, 0u, j0, j1), iirtf_entry(s.cell, 1u, j0, j1), iirtf_entry(s.cell, 2u, j0, j1));
-            sum += a * (*c_in)[j0];
+    for (var j = 0u; j < n; j++) {
+        coeffs[j] = vec3<f32>(0.0);
+    }
+    let around = cell_interpolation(e, p);
+    var found = false;
+    for (var k = 0u; k < 8u; k++) {
+        if (around.weights[k] > 0.0) {
+            add_transferred(around.cells[k], around.weights[k], n, c_in, &coeffs);
+            found = true;
         }
-        coeffs[j1] = sum;
+    }
+    if (!found && cell_flags[s.cell] != 0u) {
+        add_transferred(s.cell, 1.0, n, c_in, &coeffs);
     }
     sh_rotate_rgb_f32(order, rotation, &coeffs);
     var out = vec3<f32>(0.0);

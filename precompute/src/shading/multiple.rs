@@ -150,15 +150,15 @@ pub fn multiple_scattering(
     };
     let grid = &baked.transfer.cells;
     let cells = &baked.transfer.iirtf.cells;
-    let Some(position) = position else {
-        let transfer = &cells[grid.cell_of_segment(segment) as usize];
-        return Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, c_light));
+    let own_cell = &cells[grid.cell_of_segment(segment) as usize];
+    let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
+    let Some(around) = around else {
+        return Ok(multiple_scattering_in_cell(cs, own_cell, seg.tangent, wo, c_light));
     };
     let mut transferred = vec![Rgb::ZERO; expected];
-    for (cell, weight) in grid.interpolation(position) {
-        let transfer = &cells[cell as usize];
-        if weight > 0.0 && transfer.paths > 0 {
-            add_transferred(transfer, c_light, weight, &mut transferred);
+    for (cell, weight) in around {
+        if weight > 0.0 {
+            add_transferred(&cells[cell as usize], c_light, weight, &mut transferred);
         }
     }
     Ok(scatter_transferred(cs, &transferred, seg.tangent, wo))
