@@ -358,3 +358,120 @@ fn diagnose_directional_multiple_scattering_transfer() {
         relative_error_of_mean(&method, &reference)
     );
 }
+
+#[test]
+#[ignore = "diagnostic: multiple-scattering error of draft bakes over seeds and paths per cell (slow)"]
+fn diagnose_transfer_noise_and_bias() {
+    let scene = scene_with(directional());
+    let reference = reference(&scene, Component::Multiple).mean();
+    let draft = Quality::Draft.settings();
+    let variants = [
+        ("draft, 96 paths", BakeSettings { iirtf_paths_per_cell: 96, ..draft }),
+        ("draft, 256 paths", BakeSettings { iirtf_paths_per_cell: 256, ..draft }),
+        ("draft, 1024 paths", BakeSettings { iirtf_paths_per_cell: 1024, ..draft }),
+        ("512 paths, 2ℓ across", BakeSettings { iirtf_paths_per_cell: 512, cell_size_mfp: 2.0, ..draft }),
+        ("512 paths, 0.5ℓ deep", BakeSettings { iirtf_paths_per_cell: 512, cell_depth_mfp: 0.5, ..draft }),
+        ("512 paths, SH order 4", BakeSettings { iirtf_paths_per_cell: 512, sh_order: 4, ..draft }),
+    ];
+    let filter = std::env::var("TWILL_DIAGNOSE_VARIANTS").unwrap_or_default();
+    for (name, variant) in variants {
+        if !filter.is_empty() && !filter.split(',').any(|f| name.contains(f)) {
+            continue;
+        }
+        let mut errors = Vec::new();
+        for seed in 1..=4 {
+            let settings = BakeSettings { seed, ..variant };
+            let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
+            let baked = bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked;
+            let method = render_flat(&scene, &baked, Component::Multiple, METHOD_SPP, 5).unwrap().mean();
+            errors.push(relative_error_of_mean(&method, &reference));
+        }
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        eprintln!("{name:<24}: relative errors {errors:+.4?}, mean {mean:+.4}");
+    }
+}
+
+#[test]
+#[ignore = "diagnostic: prints where the single-scattering error of SG lights comes from"]
+fn diagnose_sg_single_scattering() {
+    use twill_precompute::pathtrace::Light;
+    use twill_precompute::shading::{erf_soft_visibility, gamma, sum_of_sg_path};
+    let baked = baked();
+    for lambda in [8.0, 300.0] {
+        let scene = scene_with(sg(lambda));
+        let reference = reference(&scene, Component::Single).mean();
+        let fibers = &scene.path_scene.fibers;
+        let segments = fibers.segments();
+        let light = scene.path_scene.lights[0];
+        let Light::Sg { axis, sharpness, intensity } = light else { unreachable!() };
+        let mass = twill_precompute::sg::sg_mass(sharpness);
+        let lit_side = |h: &Hit, dir: DVec3| -> DVec3 {
+            let seg = &segments[h.segment as usize];
+            let t = seg.tangent().as_dvec3();
+            let across = (dir - t * t.dot(dir)).normalize_or_zero();
+            seg.midpoint().as_dvec3() + fibers.tile_offset(h.tile) + across * f64::from(seg.radius)
+        };
+        // Monte Carlo over the light: `shadow` says whether a sampled direction is blocked.
+        let monte_carlo = |shadow: &dyn Fn(&Hit, DVec3) -> bool| {
+            let counter = std::sync::atomic::AtomicU64::new(0);
+            render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {
+                let k = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let mut rng = pixel_rng(91, k);
+                let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
+                let mut sum = Rgb::ZERO;
+                for _ in 0..16 {
+                    let s = light.sample([rng.random(), rng.random()]);
+                    if !shadow(hit, s.to_light) {
+                        sum += fiber_eval_cos(&seg.fiber, &baked.gn, seg.tangent, s.to_light, wo) * s.weight;
+                    }
+                }
+                sum / 16.0
+            })
+        };
+        let report = |name: &str, image: &Image| {
+            eprintln!(
+                "SG λ = {lambda:<5} single, {name:<44}: relative error of the mean {:+.4}",
+                relative_error_of_mean(image, &reference)
+            );
+        };
+        report(
+            "MC, shadow rays from the hit point",
+            &monte_carlo(&|h, d| fibers.any_hit_f64(fibers.world_position_f64(h), d, f64::INFINITY, Some(h.fiber))),
+        );
+        report(
+            "MC, shadow rays from the lit side",
+            &monte_carlo(&|h, d| fibers.any_hit_f64(lit_side(h, d), d, f64::INFINITY, Some(h.fiber))),
+        );
+        let unshadowed_mc = monte_carlo(&|_, _| false);
+        let unshadowed_gamma = render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {
+            let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
+            gamma(&seg.fiber, &baked.gn, seg.tangent, axis, sharpness, wo) * intensity / mass
+        });
+        eprintln!(
+            "SG λ = {lambda:<5} single, Γ against MC without shadows: {:+.4}",
+            relative_error_of_mean(&unshadowed_gamma, &unshadowed_mc)
+        );
+        let vis = &baked.visibility;
+        report(
+            "erf-SSDF path alone",
+            &render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {
+                let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
+                let d = ssdf_lookup(&vis.ssdf, hit.segment as usize, axis);
+                gamma(&seg.fiber, &baked.gn, seg.tangent, axis, sharpness, wo)
+                    * (erf_soft_visibility(d, sharpness) / mass)
+                    * intensity
+            }),
+        );
+        report(
+            "sum-of-SG path alone",
+            &render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {
+                let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
+                let sos = &vis.sum_of_sg;
+                let k = hit.segment as usize;
+                sum_of_sg_path(&seg.fiber, &baked.gn, seg.tangent, wo, &sos.axes(k), sos.weights(k), sos.sharpness, axis, sharpness)
+                    * intensity
+                    / mass
+            }),
+        );
+    }
+}

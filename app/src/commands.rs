@@ -531,3 +531,39 @@ pub fn bench_accuracy(
     print!("{}", report.markdown());
     Ok(())
 }
+
+/// `twill accuracy budget`: the method's error budget on a flat swatch of the scene's fabric,
+/// seen by the scene's camera under its lights (`shading::budget`).
+pub fn accuracy_budget(
+    scene: Option<&Path>,
+    quality: Quality,
+    overrides: &[String],
+    size: (usize, usize),
+    settings: &twill_precompute::shading::budget::BudgetSettings,
+) -> Result<()> {
+    let mut file = SceneFile::load_or_default(scene)?;
+    refuse_pattern(&file, "`twill accuracy budget` (against path-traced references)")?;
+    file.mesh = twill_precompute::scene::MeshSection::default();
+    (file.render.width, file.render.height) = size;
+    let scene = file.build()?;
+    let bake_settings = apply_overrides(quality.settings(), overrides)?;
+    let started = Instant::now();
+    let inputs = twill_precompute::bake::pipeline::BakeInputs {
+        exemplar: &scene.exemplar,
+        materials: &scene.material_descs,
+        settings: bake_settings,
+    };
+    let outcome = twill_precompute::bake::pipeline::bake(&inputs, None, &Cancel::new(), &|_, _| {})
+        .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    let bake_seconds = started.elapsed().as_secs_f64();
+    let budget = twill_precompute::shading::budget::error_budget(&scene, &outcome.baked, settings, &|rung| {
+        eprintln!("  done: {rung}");
+    })?;
+    println!(
+        "{}: error budget, {} bake ({bake_seconds:.1} s, no cache)\n",
+        file.path.display(),
+        quality.name()
+    );
+    print!("{}", budget.markdown());
+    Ok(())
+}

@@ -40,10 +40,44 @@ enum Command {
     Render(RenderArgs),
     /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
     Bake(BakeArgs),
+    /// How accurate the method is, and why (against the path tracer).
+    Accuracy {
+        #[command(subcommand)]
+        command: AccuracyCommand,
+    },
     /// Measure speed and accuracy (figures for docs/BENCHMARKS.md).
     Bench {
         #[command(subcommand)]
         command: BenchCommand,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum AccuracyCommand {
+    /// The error budget: a ladder from exact light transport to the method, one approximation
+    /// at a time, single and multiple scattering separately, each rung's error against the path
+    /// tracer and its time (on a flat swatch of the scene's fabric, with its camera and lights).
+    Budget {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Bake quality.
+        #[arg(long, value_enum, default_value = "interactive")]
+        quality: QualityArg,
+        /// Image size as WIDTHxHEIGHT.
+        #[arg(long, value_parser = commands::parse_size, default_value = "64x64")]
+        size: (usize, usize),
+        /// Samples per pixel of every rung.
+        #[arg(long, default_value_t = 16)]
+        spp: u32,
+        /// Samples per pixel of the path-traced references.
+        #[arg(long, default_value_t = 64)]
+        reference_spp: u32,
+        /// Light samples per hit for SG lights in the exact single-scattering rungs.
+        #[arg(long, default_value_t = 16)]
+        light_samples: u32,
+        /// Override one bake knob, as `twill bake --set` (repeatable).
+        #[arg(long = "set", value_name = "KNOB=VALUE")]
+        overrides: Vec<String>,
     },
 }
 
@@ -309,6 +343,15 @@ fn run(cli: Cli) -> Result<()> {
             print_plan: args.print_plan,
             timings: args.timings,
         }),
+        Command::Accuracy {
+            command: AccuracyCommand::Budget { scene, quality, size, spp, reference_spp, light_samples, overrides },
+        } => commands::accuracy_budget(
+            scene.as_deref(),
+            quality_of(quality),
+            &overrides,
+            size,
+            &twill_precompute::shading::budget::BudgetSettings { spp, reference_spp, light_samples, seed: 1 },
+        ),
         Command::Bench { command } => match command {
             BenchCommand::Ui { scene, quality, seconds, window_size } => {
                 let size = [window_size.0 as u32, window_size.1 as u32];

@@ -5,15 +5,18 @@
 //! `a_C[j0, j1] = ∫∫ T(ω0, ω1, C) Y_j0(ω0) Y_j1(ω1) dω0 dω1`, with T(·, ·, C) the mean of T over
 //! the midpoints μ_k of the segments in C.
 //!
-//! How it works: each path draws a segment k of the cell uniformly, ω0 uniformly on the upper
-//! hemisphere (pdf 1/2π, as in the paper; [`LightDomain::Sphere`] draws it on the whole sphere,
-//! pdf 1/4π, which also captures light from below) and ω1 uniformly on the sphere (pdf 1/4π),
-//! then estimates T with one path of [`radiance_from`] from μ_k (in the central copy of the
-//! fabric tiled over the whole plane, no ground) toward ω1, ignoring k's own fiber on the first
-//! ray, with the scene's single light set to the directional light from ω0. Light reaching μ_k
-//! without touching a fiber is not counted by `radiance_from`, so only scattered light enters.
-//! The estimate of every coefficient is `T · Y_j0(ω0) Y_j1(ω1) / (p(ω0) p(ω1))` (p(k)
-//! cancels the 1/|C|); the per-coefficient standard error comes from the same samples.
+//! How it works: each path draws a segment k of the cell uniformly and ω1 uniformly on the
+//! sphere (pdf 1/4π), and walks from μ_k (in the central copy of the fabric tiled over the
+//! whole plane, no ground) toward ω1, ignoring k's own fiber on the first ray
+//! ([`TransferSampler::sample`]). At each fiber event it draws a light direction ω0 from that
+//! fiber's scattering function and casts a shadow ray; ω0 counts if it lies in the light domain
+//! (the upper hemisphere, as in the paper: T is zero for light from below;
+//! [`LightDomain::Sphere`] takes the whole sphere). Light reaching μ_k without touching a fiber
+//! is never counted, so only scattered light enters. The path's estimate of every coefficient
+//! is `Σ_events w · Y_j0(ω0) Y_j1(ω1)` with `w = throughput · S cos θ0 / (p(ω0) p(ω1))` (p(k)
+//! cancels the 1/|C|); the per-coefficient standard error comes from the same paths. (The
+//! paper draws one uniform ω0 per path and lights the whole path from it; the fiber lobes are
+//! narrow, so that estimate is far noisier for the same rays.)
 //!
 //! Storage: [`CellTransfer::matrix`] is `(L+1)²` rows (output j1) by `(L+1)²` columns
 //! (input j0), row-major, so the paper's `c_T = A_C c_d` is [`CellTransfer::apply`]: row j1 of
@@ -36,7 +39,7 @@ use super::{Cancel, Cancelled, Progress};
 use crate::Rgb;
 use crate::bcsdf::Material;
 use crate::fabric::Exemplar;
-use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng, radiance_from};
+use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng};
 use crate::pathtrace::light::Light;
 use crate::raycast::{Extent, FiberScene, SceneError};
 use crate::sh::{sh_count, sh_eval};
@@ -196,19 +199,20 @@ pub struct IirtfOptions {
     pub light_domain: LightDomain,
 }
 
-/// One path's sample of T.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One path's sample of T: the radiance arriving at μ_k from −ω1 (`view`), split by the
+/// light directions ω0 it came from.
+#[derive(Debug, Clone, PartialEq)]
 pub struct TransferSample {
-    /// ω0, toward the light.
-    pub to_light: DVec3,
     /// ω1: the radiance arrives at μ_k from −ω1.
     pub view: DVec3,
-    /// `T(ω0, ω1, μ_k) / (p(ω0) p(ω1))`.
-    pub weighted_radiance: Rgb,
+    /// `(ω0, T-contribution / (p(ω0) p(ω1)))`: one entry per fiber event of the path whose
+    /// light sample ω0 lies in the light domain and reaches the fiber; the path's estimate of
+    /// `∫ T(ω0, ω1) f(ω0) dω0 / p(ω1)` for any f is `Σ weight · f(ω0)`.
+    pub lights: Vec<(DVec3, Rgb)>,
     pub segment: u32,
 }
 
-/// Draws [`TransferSample`]s: a fabric tiled over the plane with one swappable light.
+/// Draws [`TransferSample`]s: a fabric tiled over the plane (no ground, no lights).
 pub struct TransferSampler {
     scene: PathScene,
     midpoints: Vec<DVec3>,
@@ -252,39 +256,80 @@ impl TransferSampler {
         self.midpoints[k as usize]
     }
 
-    /// The scene with its light set to a directional light of unit irradiance from `to_light`.
+    /// The scene with its light set to a directional light of unit irradiance from `to_light`
+    /// (for checking [`Self::sample`] against the path tracer).
     pub fn scene_lit_from(&mut self, to_light: DVec3) -> &PathScene {
         self.scene.lights[0] = Light::Directional { to_light, irradiance: Rgb::ONE };
         &self.scene
     }
 
-    /// The path's settings (one sample, [`MAX_DEPTH`], all orders, Russian roulette on).
+    /// The path tracer's settings for such checks (one sample, [`MAX_DEPTH`], all orders).
     #[must_use]
     pub fn render_settings(&self) -> RenderSettings {
         self.render
     }
 
+    /// Whether light from `to_light` counts (the light domain).
+    fn in_domain(&self, to_light: DVec3) -> bool {
+        match self.light_domain {
+            LightDomain::UpperHemisphere => to_light.z > 0.0,
+            LightDomain::Sphere => true,
+        }
+    }
+
     /// Path `path` of a cell with segments `cell_segments` (nonempty), from stream `stream`.
+    ///
+    /// The path leaves μ_k toward a uniform ω1 (pdf 1/4π, the segment's own fiber ignored on
+    /// the first ray) and walks the fabric as the path tracer does (fiber scattering sampled
+    /// for each continuation, Russian roulette by throughput from the fourth event). At every
+    /// fiber event it draws its own light direction ω0 from that fiber's scattering function
+    /// (the density the event weighs light with) and casts a shadow ray: the event's
+    /// contribution is `throughput · S cos θ0 / p(ω0)` where the ray escapes and ω0 is in the
+    /// domain. The paper instead draws one uniform ω0 per path; the fiber lobes are narrow, so
+    /// a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's image mean
+    /// moved by ±8% between seeds).
     pub fn sample(&mut self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
         let mut rng = pixel_rng(stream, path);
         let k = cell_segments[rng.random_range(0..cell_segments.len())];
-        let (to_light, p0) = match self.light_domain {
-            LightDomain::UpperHemisphere => {
-                let d = uniform_sphere(rng.random(), rng.random());
-                (DVec3::new(d.x, d.y, d.z.abs()), 1.0 / (2.0 * std::f64::consts::PI))
-            }
-            LightDomain::Sphere => {
-                (uniform_sphere(rng.random(), rng.random()), 1.0 / (4.0 * std::f64::consts::PI))
-            }
-        };
         let view = uniform_sphere(rng.random(), rng.random());
-        let p1 = 1.0 / (4.0 * std::f64::consts::PI);
-        let origin = self.midpoints[k as usize];
-        let fiber = self.fibers[k as usize];
-        let render = self.render;
-        let scene = self.scene_lit_from(to_light);
-        let radiance = radiance_from(scene, origin, view, Some(fiber), &render, &mut rng);
-        TransferSample { to_light, view, weighted_radiance: radiance / (p0 * p1), segment: k }
+        let inv_p1 = 4.0 * std::f64::consts::PI;
+        let mut lights = Vec::new();
+        let fibers = &self.scene.fibers;
+        let mut hit = fibers.closest_hit(self.midpoints[k as usize].as_vec3(), view.as_vec3(), f32::INFINITY, Some(self.fibers[k as usize]));
+        let mut dir = view;
+        let mut throughput = Rgb::ONE;
+        for event in 1..=self.render.max_depth {
+            let Some(h) = hit else { break };
+            let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
+            let material = &self.scene.yarn_materials[h.yarn as usize];
+            let wo = -dir;
+            if let Some((to_light, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
+                && self.in_domain(to_light)
+            {
+                let f = material.eval_cos(t, n, to_light, wo);
+                if f != Rgb::ZERO && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber)) {
+                    lights.push((to_light, throughput * f * (inv_p1 / pdf)));
+                }
+            }
+            let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+                break;
+            };
+            let f = material.eval_cos(t, n, wi, wo);
+            if f == Rgb::ZERO || !(pdf > 0.0 && pdf.is_finite()) {
+                break;
+            }
+            throughput *= f / pdf;
+            dir = wi;
+            hit = fibers.closest_hit(position.as_vec3(), wi.as_vec3(), f32::INFINITY, Some(h.fiber));
+            if event >= 3 {
+                let survive = throughput.max_element().clamp(0.05, 1.0);
+                if rng.random::<f64>() >= survive {
+                    break;
+                }
+                throughput /= survive;
+            }
+        }
+        TransferSample { view, lights, segment: k }
     }
 }
 
@@ -401,20 +446,27 @@ fn bake_cell(
     let mut sum = vec![Rgb::ZERO; n * n];
     let mut sum2 = vec![Rgb::ZERO; n * n];
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
+    let mut light = vec![Rgb::ZERO; n];
     for p in 0..paths {
         if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
             return None;
         }
         let s = sampler.sample(segments, stream, p as u64);
-        if s.weighted_radiance == Rgb::ZERO {
+        if s.lights.is_empty() {
             continue;
         }
-        sh_eval(order, s.to_light, &mut y0);
+        // The path's light-side SH vector: Σ over its events of weight · Y(ω0).
+        light.fill(Rgb::ZERO);
+        for (to_light, weight) in &s.lights {
+            sh_eval(order, *to_light, &mut y0);
+            for (l, y) in light.iter_mut().zip(&y0) {
+                *l += *weight * *y;
+            }
+        }
         sh_eval(order, s.view, &mut y1);
         for (j1, (row, row2)) in sum.chunks_exact_mut(n).zip(sum2.chunks_exact_mut(n)).enumerate() {
-            let x = s.weighted_radiance * y1[j1];
-            for ((a, a2), &b) in row.iter_mut().zip(row2.iter_mut()).zip(&y0) {
-                let v = x * b;
+            for ((a, a2), l) in row.iter_mut().zip(row2.iter_mut()).zip(&light) {
+                let v = *l * y1[j1];
                 *a += v;
                 *a2 += v * v;
             }
@@ -443,6 +495,7 @@ mod tests {
     use crate::bake::cs_table::{OmegaOSpace, cs_coefficients};
     use crate::bake::no_progress;
     use crate::bake::settings::Quality;
+    use crate::pathtrace::integrator::radiance_from;
     use crate::fabric::presets::fabric_preset;
     use crate::raycast::mean_free_path;
     use crate::sh::ShRotation;
@@ -591,11 +644,14 @@ mod tests {
             let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
             let (mut s, mut s2) = (Rgb::ZERO, Rgb::ZERO);
             for sample in &samples {
-                sh_eval(order, sample.to_light, &mut y0);
                 sh_eval(order, sample.view, &mut y1);
-                let light_part: f64 = c_d.iter().zip(&y0).map(|(a, b)| a * b).sum();
                 let view_part: Rgb = g.iter().zip(&y1).map(|(a, b)| *a * *b).sum();
-                let x = sample.weighted_radiance * view_part * light_part;
+                let mut x = Rgb::ZERO;
+                for (to_light, weight) in &sample.lights {
+                    sh_eval(order, *to_light, &mut y0);
+                    let light_part: f64 = c_d.iter().zip(&y0).map(|(a, b)| a * b).sum();
+                    x += *weight * view_part * light_part;
+                }
                 s += x;
                 s2 += x * x;
             }

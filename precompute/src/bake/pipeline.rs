@@ -88,7 +88,7 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 1, 1, 1, 1, 2];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 2, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key).
 pub const BAKE_LAYOUT_VERSION: u32 = 2;
@@ -737,6 +737,7 @@ mod tests {
             sos_count: 8,
             sos_sharpness: 128.0,
             cell_size_mfp: 16.0,
+            cell_depth_mfp: 16.0,
             iirtf_paths_per_cell: 8,
             sh_order: 2,
             cs_theta_count: 8,

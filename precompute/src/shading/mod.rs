@@ -18,12 +18,15 @@
 //! - [`render`]: [`shade`] (both components, several lights) and [`render_flat`], the CPU
 //!   version of the method for flat swatches, comparable pixel for pixel with the reference
 //!   path tracer.
+//! - [`budget`]: the method's error budget, a ladder from exact light transport to the
+//!   method, one approximation at a time (`twill accuracy budget`).
 //!
 //! Everything here is a pure function of its arguments; no state is cached between calls.
 //! Only fiber (R + TT) materials can be shaded: a Lambertian fiber surface needs the hit normal
 //! and has no C_S table, so it is reported as [`ShadingError::LambertMaterial`].
 
 pub mod bcsdf;
+pub mod budget;
 pub mod gamma;
 pub mod multiple;
 pub mod render;
@@ -36,7 +39,7 @@ mod tests;
 pub use bcsdf::{FiberConstants, fiber_eval_cos};
 pub use gamma::gamma;
 pub use multiple::{light_sh, multiple_scattering, multiple_scattering_in_cell};
-pub use render::{MethodOptions, render_flat, render_flat_with, shade};
+pub use render::{MethodOptions, render_flat, render_flat_with, render_primary_hits, shade};
 pub use single::{single_scattering, single_scattering_directional, single_scattering_sg};
 pub use visibility::{
     erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,
@@ -69,6 +72,8 @@ pub enum ShadingError {
     SegmentCountMismatch { scene: usize, baked: usize },
     #[error(transparent)]
     Param(#[from] ParamError),
+    #[error("error budget: {0}")]
+    Budget(String),
 }
 
 /// What shading needs to know about one segment of a bake.

@@ -14,6 +14,7 @@
 
 use glam::DVec3;
 use rand::Rng;
+use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use super::ShadingError;
@@ -24,6 +25,7 @@ use crate::bake::pipeline::Baked;
 use crate::image::{Film, PixelRow};
 use crate::pathtrace::integrator::pixel_rng;
 use crate::pathtrace::{Component, Light};
+use crate::raycast::Hit;
 use crate::scene::{Scene, camera_from};
 use crate::sh::sh_count;
 
@@ -102,9 +104,26 @@ pub fn render_flat_with(
             baked: baked_segments,
         });
     }
+    let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
+    render_primary_hits(scene, spp, seed, |hit, wo, _| {
+        let position = options.interpolate_transfer.then(|| hit.local_position.as_dvec3());
+        shade(baked, hit.segment, position, wo, &lights, component)
+    })
+}
+
+/// Renders `scene`'s camera view (flat swatch) with `shade(hit, ωo, rng)` at every primary
+/// fiber hit: `spp` jittered film positions per pixel from `pixel_rng(seed, pixel)` (so every
+/// caller with the same seed sees the same hits), black where a ray misses or reaches the
+/// ground first. `rng` is a second per-pixel stream for the shading's own random numbers.
+/// Rows are rendered in parallel; the image does not depend on the thread count.
+pub fn render_primary_hits(
+    scene: &Scene,
+    spp: u32,
+    seed: u64,
+    shade: impl Fn(&Hit, DVec3, &mut Pcg64Mcg) -> Result<Rgb, ShadingError> + Sync,
+) -> Result<Film, ShadingError> {
     let (width, height) = (scene.render.width, scene.render.height);
     let camera = camera_from(&scene.camera, width, height)?;
-    let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     let fibers = &scene.path_scene.fibers;
     let ground_z = scene.path_scene.ground_z;
     let rows: Vec<PixelRow> = (0..height)
@@ -112,7 +131,9 @@ pub fn render_flat_with(
         .map(|y| -> Result<PixelRow, ShadingError> {
             let mut row = PixelRow::new(width);
             for x in 0..width {
-                let mut rng = pixel_rng(seed, (y * width + x) as u64);
+                let pixel = (y * width + x) as u64;
+                let mut rng = pixel_rng(seed, pixel);
+                let mut shading_rng = pixel_rng(seed ^ SHADING_STREAM, pixel);
                 for _ in 0..spp {
                     let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
                     let (origin, dir) = camera.ray(px, py);
@@ -124,10 +145,7 @@ pub fn render_flat_with(
                     };
                     let value = match fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, None)
                     {
-                        Some(hit) => {
-                            let position = options.interpolate_transfer.then(|| hit.local_position.as_dvec3());
-                            shade(baked, hit.segment, position, -dir, &lights, component)?
-                        }
+                        Some(hit) => shade(&hit, -dir, &mut shading_rng)?,
                         None => Rgb::ZERO,
                     };
                     row.add(x, value);
@@ -142,3 +160,6 @@ pub fn render_flat_with(
     }
     Ok(film)
 }
+
+/// Mixed into the seed of the shading's own random stream per pixel.
+const SHADING_STREAM: u64 = 0x5EED_0F5A_DE00_0001;

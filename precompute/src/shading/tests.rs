@@ -683,11 +683,13 @@ fn shading_multiple_scattering_equals_the_iirtf_per_path_estimate() {
             let c_s = cs_coefficients(&fibers[material], order, space.theta_o);
             let mut brute = Rgb::ZERO;
             for s in &samples {
-                sh_eval(order, s.to_light, &mut y0);
                 sh_eval(order, space.to_local(s.view), &mut y1);
-                let light: Rgb = c_light.iter().zip(&y0).map(|(c, y)| *c * *y).sum();
                 let view: Rgb = c_s.iter().zip(&y1).map(|(c, y)| *c * *y).sum();
-                brute += s.weighted_radiance * light * view;
+                for (to_light, weight) in &s.lights {
+                    sh_eval(order, *to_light, &mut y0);
+                    let light: Rgb = c_light.iter().zip(&y0).map(|(c, y)| *c * *y).sum();
+                    brute += *weight * light * view;
+                }
             }
             brute /= samples.len() as f64;
             assert!(shaded.is_finite() && brute.is_finite());
@@ -730,6 +732,7 @@ fn tiny_baked() -> &'static Baked {
             sos_count: 8,
             sos_sharpness: 128.0,
             cell_size_mfp: 16.0,
+            cell_depth_mfp: 16.0,
             iirtf_paths_per_cell: 16,
             sh_order: 2,
             cs_theta_count: 16,

@@ -1,0 +1,300 @@
+//! The method's error budget on a flat swatch: which approximation costs how much accuracy.
+//!
+//! How it works: every rung renders the scene's camera view over the same primary fiber hits
+//! ([`render_primary_hits`] with one seed) and replaces one more exact quantity by the method's
+//! approximation of it, single and multiple scattering separately. Each rung is compared with
+//! the path tracer's image of the same component (`pathtrace::render`, `Component::Single` or
+//! `Component::Multiple`): relative error of the image mean, per-pixel RMSE relative to the
+//! reference mean, and the rung's wall time. A rung's own cost is its error minus the error of
+//! the rung before it.
+//!
+//! Single scattering, from exact to the method (lights sampled `light_samples` times per hit
+//! for SG lights, exactly for directional ones, with the exact fiber scattering function):
+//! 1. shadow rays from the hit point: exactly what the path tracer does (checks the
+//!    decomposition and the light and scattering conventions);
+//! 2. shadow rays from the segment midpoint, on the fiber axis (the paper's V_k);
+//! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k);
+//! 4. the binary visibility image of the bake's resolution (nearest pixel);
+//! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ.
+//!
+//! Multiple scattering (indirect light through the exact fiber scattering function, one path
+//! per sample, then the method):
+//! 1. path-traced indirect light at the hit point (equals the reference: checks that single +
+//!    multiple is all the light);
+//! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
+//! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
+//!    and paths per cell;
+//! 4. the method: the IIRTF interpolated between cells at the hit point.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use rand::Rng;
+use rand_pcg::Pcg64Mcg;
+
+use super::render::{MethodOptions, render_flat_with, render_primary_hits};
+use super::ShadingError;
+use crate::Rgb;
+use crate::bake::pipeline::Baked;
+use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
+use crate::bake::Cancel;
+use crate::image::{Estimate, Film, compare};
+use crate::pathtrace::integrator::radiance_from;
+use crate::pathtrace::{Component, Light, RenderSettings, render};
+use crate::raycast::Hit;
+use crate::scene::{Scene, camera_from};
+
+/// How finely the budget samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BudgetSettings {
+    /// Samples per pixel of every rung.
+    pub spp: u32,
+    /// Samples per pixel of the path-traced references.
+    pub reference_spp: u32,
+    /// Light samples per hit for SG lights (single-scattering rungs 1–4).
+    pub light_samples: u32,
+    pub seed: u64,
+}
+
+impl Default for BudgetSettings {
+    fn default() -> Self {
+        Self { spp: 16, reference_spp: 64, light_samples: 16, seed: 1 }
+    }
+}
+
+/// One rung of the ladder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rung {
+    pub component: Component,
+    pub name: String,
+    /// (mean − reference mean) / reference mean.
+    pub relative_error_of_mean: f64,
+    /// Standard error of that figure from both images' noise.
+    pub relative_error_std: f64,
+    /// Per-pixel RMSE over the reference's mean.
+    pub relative_pixel_rmse: f64,
+    /// What the two images' noise alone would give for that figure.
+    pub relative_noise_rmse: f64,
+    pub seconds: f64,
+}
+
+/// The whole ladder, with the references' own cost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Budget {
+    pub rungs: Vec<Rung>,
+    pub width: usize,
+    pub height: usize,
+    pub settings: BudgetSettings,
+    /// Wall time of the two references.
+    pub reference_seconds: f64,
+}
+
+impl Budget {
+    /// A Markdown table of the ladder.
+    #[must_use]
+    pub fn markdown(&self) -> String {
+        let mut out = format!(
+            "{}x{} px, rungs {} spp, references {} spp (path traced in {:.1} s)\n\n\
+             | component | rung | mean error | ± noise | per-pixel RMSE | noise alone | time |\n\
+             |---|---|---|---|---|---|---|\n",
+            self.width, self.height, self.settings.spp, self.settings.reference_spp, self.reference_seconds
+        );
+        for r in &self.rungs {
+            out.push_str(&format!(
+                "| {:?} | {} | {:+.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} s |\n",
+                r.component,
+                r.name,
+                100.0 * r.relative_error_of_mean,
+                100.0 * r.relative_error_std,
+                100.0 * r.relative_pixel_rmse,
+                100.0 * r.relative_noise_rmse,
+                r.seconds
+            ));
+        }
+        out
+    }
+
+    /// The rung named `name` of `component`.
+    #[must_use]
+    pub fn rung(&self, component: Component, name: &str) -> Option<&Rung> {
+        self.rungs.iter().find(|r| r.component == component && r.name.starts_with(name))
+    }
+}
+
+/// Where a rung's shadow rays start.
+#[derive(Debug, Clone, Copy)]
+enum ShadowOrigin {
+    HitPoint,
+    Midpoint,
+    LitSide,
+}
+
+/// Runs the ladder on `scene` (a flat swatch) with `baked`, a bake of its fabric; see the
+/// module docs. `progress` gets each finished rung's name.
+pub fn error_budget(
+    scene: &Scene,
+    baked: &Baked,
+    settings: &BudgetSettings,
+    progress: &dyn Fn(&str),
+) -> Result<Budget, ShadingError> {
+    let (width, height) = (scene.render.width, scene.render.height);
+    let started = Instant::now();
+    let camera = camera_from(&scene.camera, width, height)?;
+    let reference_of = |component| {
+        let render_settings = RenderSettings {
+            spp: settings.reference_spp,
+            max_depth: scene.render.max_depth,
+            component,
+            seed: settings.seed ^ 0x00AB_CDEF,
+        };
+        render(&scene.path_scene, &camera, &render_settings, &|_| {})
+    };
+    let single_reference = reference_of(Component::Single);
+    let multiple_reference = reference_of(Component::Multiple);
+    let reference_seconds = started.elapsed().as_secs_f64();
+    progress("references");
+
+    let mut rungs = Vec::new();
+    let mut push = |component: Component, name: String, film: &Film, seconds: f64| {
+        let reference = if component == Component::Single { &single_reference } else { &multiple_reference };
+        let (mean, variance) = (film.mean(), film.variance_of_mean());
+        let (r_mean, r_variance) = (reference.mean(), reference.variance_of_mean());
+        let c = compare(
+            Estimate { mean: &mean, variance: Some(&variance) },
+            Estimate { mean: &r_mean, variance: Some(&r_variance) },
+        );
+        let level = (r_mean.mean().element_sum() / 3.0).max(f64::MIN_POSITIVE);
+        progress(&name);
+        rungs.push(Rung {
+            component,
+            name,
+            relative_error_of_mean: c.relative_error_of_mean,
+            relative_error_std: c.relative_error_of_mean_std,
+            relative_pixel_rmse: c.rmse / level,
+            relative_noise_rmse: c.expected_noise_rmse / level,
+            seconds,
+        });
+    };
+
+    // Single scattering.
+    for (name, origin) in [
+        ("1 shadow rays from the hit point (exact)", ShadowOrigin::HitPoint),
+        ("2 shadow rays from the segment midpoint (paper)", ShadowOrigin::Midpoint),
+        ("3 shadow rays from the lit side of the segment", ShadowOrigin::LitSide),
+    ] {
+        let t = Instant::now();
+        let film = single_by_light_sampling(scene, settings, |hit, dir| shadow_ray_visible(scene, hit, dir, origin))?;
+        push(Component::Single, name.to_string(), &film, t.elapsed().as_secs_f64());
+    }
+    let n = baked.settings.svf_resolution;
+    let t = Instant::now();
+    let images: VisibilityImages = render_exemplar(&scene.exemplar, n, &Cancel::new(), &|_| {})
+        .map_err(|e| ShadingError::Budget(e.to_string()))?;
+    let film = single_by_light_sampling(scene, settings, |hit, dir| images.lookup(hit.segment as usize, dir))?;
+    push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
+    let t = Instant::now();
+    let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, MethodOptions::default())?;
+    push(
+        Component::Single,
+        format!(
+            "5 the method: PCA SSDF (K = {}), sum of {} SGs, closed-form Γ",
+            baked.settings.pca_components, baked.settings.sos_count
+        ),
+        &film,
+        t.elapsed().as_secs_f64(),
+    );
+
+    // Multiple scattering.
+    let fibers = &scene.path_scene.fibers;
+    let segments = fibers.segments();
+    let midpoint = |hit: &Hit| segments[hit.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
+    for (name, at_hit) in [
+        ("1 path-traced indirect light at the hit point (exact)", true),
+        ("2 path-traced indirect light at the segment midpoint", false),
+    ] {
+        let t = Instant::now();
+        let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+            let origin = if at_hit { fibers.world_position_f64(hit) } else { midpoint(hit) };
+            Ok(indirect_light(scene, hit, origin, wo, rng))
+        })?;
+        push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
+    }
+    let grid = &baked.transfer.cells;
+    let cell = grid.cell_size_cm();
+    let cells = format!(
+        "{:.2}x{:.2}x{:.2} ℓ cells, SH order {}, {} paths",
+        cell.x / baked.mean_free_path.mean_cm,
+        cell.y / baked.mean_free_path.mean_cm,
+        cell.z / baked.mean_free_path.mean_cm,
+        baked.transfer.iirtf.sh_order,
+        baked.settings.iirtf_paths_per_cell
+    );
+    for (name, interpolate_transfer) in
+        [(format!("3 IIRTF per cell (paper): {cells}"), false), ("4 the method: IIRTF interpolated between cells".into(), true)]
+    {
+        let t = Instant::now();
+        let options = MethodOptions { interpolate_transfer };
+        let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
+        push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
+    }
+    Ok(Budget { rungs, width, height, settings: *settings, reference_seconds })
+}
+
+/// Single scattering at every primary hit by sampling the scene's lights (directional lights
+/// exactly, SG lights with `light_samples` samples), the exact fiber scattering function and
+/// `visible(hit, to_light)` as local visibility.
+fn single_by_light_sampling(
+    scene: &Scene,
+    settings: &BudgetSettings,
+    visible: impl Fn(&Hit, DVec3) -> bool + Sync,
+) -> Result<Film, ShadingError> {
+    render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+        let material = &scene.path_scene.yarn_materials[hit.yarn as usize];
+        let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
+        let mut total = Rgb::ZERO;
+        for light in &scene.path_scene.lights {
+            let samples = if matches!(light, Light::Directional { .. }) { 1 } else { settings.light_samples.max(1) };
+            let mut sum = Rgb::ZERO;
+            for _ in 0..samples {
+                let s = light.sample([rng.random(), rng.random()]);
+                let f = material.eval_cos(t, n, s.to_light, wo);
+                if f != Rgb::ZERO && visible(hit, s.to_light) {
+                    sum += f * s.weight;
+                }
+            }
+            total += sum / f64::from(samples);
+        }
+        Ok(total)
+    })
+}
+
+/// Whether `dir` is unoccluded from `origin`'s choice of point for `hit` (the hit's own fiber
+/// never occludes, as in the path tracer and the bake).
+fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin) -> bool {
+    let fibers = &scene.path_scene.fibers;
+    let segment = &fibers.segments()[hit.segment as usize];
+    let midpoint = segment.midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
+    let start = match origin {
+        ShadowOrigin::HitPoint => fibers.world_position_f64(hit),
+        ShadowOrigin::Midpoint => midpoint,
+        ShadowOrigin::LitSide => {
+            lit_side_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
+        }
+    };
+    let below_ground = scene.path_scene.ground_z.is_some_and(|z| dir.z < 0.0 && start.z > z);
+    !below_ground && !fibers.any_hit_f64(start, dir, f64::INFINITY, Some(hit.fiber))
+}
+
+/// One sample of the indirect light at `origin` scattered toward `wo` by `hit`'s fiber: a
+/// direction from the fiber's scattering function, then one path of the path tracer from
+/// `origin` (which counts only light that touched a fiber).
+fn indirect_light(scene: &Scene, hit: &Hit, origin: DVec3, wo: DVec3, rng: &mut Pcg64Mcg) -> Rgb {
+    let material = &scene.path_scene.yarn_materials[hit.yarn as usize];
+    let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
+    let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+        return Rgb::ZERO;
+    };
+    let settings =
+        RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 0 };
+    material.eval_cos(t, n, wi, wo) / pdf * radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng)
+}
