@@ -130,3 +130,25 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
     }
     Ok(format!("{name}: {summary}"))
 }
+
+/// An accuracy band around a measured error, one-sided: `|value|` above `|measured| + margin`
+/// is a regression and fails; below `|measured| − margin` is an improvement, printed as a
+/// notice (tighten the band to the new measurement). NaN or Inf fails.
+pub fn check_band(label: &str, value: f64, measured: f64, margin: f64) -> Result<(), String> {
+    if !value.is_finite() {
+        return Err(format!("{label}: {value} is not finite"));
+    }
+    let (value_abs, measured_abs) = (value.abs(), measured.abs());
+    if value_abs > measured_abs + margin {
+        return Err(format!(
+            "{label}: {value:+.4} is worse than the measured {measured:+.4} by more than {margin:.4} (a regression)"
+        ));
+    }
+    if value_abs < measured_abs - margin {
+        eprintln!(
+            "NOTICE {label}: {value:+.4} is better than the measured {measured:+.4} by more than {margin:.4}: \
+             tighten the band"
+        );
+    }
+    Ok(())
+}

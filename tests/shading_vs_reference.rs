@@ -3,11 +3,13 @@
 //! single scattering against `Component::Single`, multiple against `Component::Multiple`.
 //!
 //! The method approximates (16 × 16 visibility images compressed to 8 PCA components, 16
-//! sum-of-SG lobes, IIRTF cells of 4 mean free paths with 256 paths each, SH order 2), so the
-//! images are not expected to agree within noise. Each comparison prints the relative error of
-//! the image mean and the per-pixel RMSE (also relative to the reference mean) and asserts only
-//! the mean, against a tolerance set from the measured numbers (see each constant). NaN or Inf
-//! anywhere fails. Two ignored tests break the differences down (`--ignored --nocapture`).
+//! sum-of-SG lobes, IIRTF cells 4 mean free paths across and 0.5 deep with 96 paths each, SH
+//! order 2), so the images are not expected to agree within noise. Each comparison prints the
+//! relative error of the image mean and the per-pixel RMSE (relative to the reference mean)
+//! and holds both to one-sided bands around what was measured (`twill_tests::check_band`: a
+//! regression fails, an improvement prints a notice). NaN or Inf anywhere fails. Ignored tests
+//! break the differences down (`--ignored --nocapture`; `twill accuracy budget` does it for
+//! any scene).
 
 use std::sync::OnceLock;
 
@@ -92,54 +94,64 @@ fn compare_component(label: &str, scene: &Scene, component: Component) -> Compar
     c
 }
 
-fn check(label: &str, light: LightSection, component: Component, tolerance: f64) {
-    let scene = scene_with(light);
-    let c = compare_component(label, &scene, component);
-    assert!(
-        c.relative_error_of_mean.abs() < tolerance,
-        "{label}: relative error of the mean {:+.4} exceeds {tolerance}",
-        c.relative_error_of_mean
-    );
+/// What one comparison measured (2026-11-24, draft bake: lit-side visibility, 4ℓ × 0.5ℓ cells
+/// of 96 paths, transfer interpolated between cells): the relative error of the image mean and
+/// the per-pixel RMSE over the reference mean.
+struct Measured {
+    mean: f64,
+    pixel: f64,
 }
 
-/// Single scattering is 14–17% too dark on this scene (measured: directional −14.4%, SG λ = 8
-/// −17.3%, SG λ = 300 −16.3%), mostly because the paper's visibility is that of the segment
-/// midpoint, not of the lit surface (`diagnose_directional_single_scattering_visibility`). The
-/// tolerance leaves room for bake noise but fails on any factor-of-2 or π mistake.
-const SINGLE_TOLERANCE: f64 = 0.25;
-/// Multiple scattering from a draft bake is 26–30% too dark (measured: −29.5%, −26.2%, −26.3%)
-/// because its cells are 4 mean free paths wide; with the paper's 1ℓ cells the error drops to
-/// 1–6% (`diagnose_bake_quality`).
-const MULTIPLE_TOLERANCE: f64 = 0.4;
+/// Bands around the measurements: three standard errors of the mean's noise (about 1% here)
+/// plus 1%; the per-pixel RMSE 5% of the mean. `twill accuracy budget` breaks the remaining
+/// errors down (docs/BENCHMARKS.md, "Fidelity").
+const MEAN_MARGIN: f64 = 0.01;
+const PIXEL_MARGIN: f64 = 0.05;
+
+fn check(label: &str, light: LightSection, component: Component, measured: &Measured) {
+    let scene = scene_with(light);
+    let c = compare_component(label, &scene, component);
+    let reference_level = reference(&scene, component).mean().mean().element_sum() / 3.0;
+    let margin = MEAN_MARGIN + 3.0 * c.relative_error_of_mean_std;
+    let mean = twill_tests::check_band(&format!("{label}, mean"), c.relative_error_of_mean, measured.mean, margin);
+    let pixel =
+        twill_tests::check_band(&format!("{label}, per pixel"), c.rmse / reference_level, measured.pixel, PIXEL_MARGIN);
+    if let Err(e) = mean.and(pixel) {
+        panic!("{e}");
+    }
+}
+
+// Before this bake (paper visibility from the fiber axis, 4ℓ cubic cells, uniform light
+// directions in the IIRTF): single −14..−17%, multiple −26..−30%.
 
 #[test]
 fn directional_light_single_scattering() {
-    check("directional, single", directional(), Component::Single, SINGLE_TOLERANCE);
+    check("directional, single", directional(), Component::Single, &Measured { mean: -0.0639, pixel: 1.012 });
 }
 
 #[test]
 fn directional_light_multiple_scattering() {
-    check("directional, multiple", directional(), Component::Multiple, MULTIPLE_TOLERANCE);
+    check("directional, multiple", directional(), Component::Multiple, &Measured { mean: 0.0361, pixel: 0.823 });
 }
 
 #[test]
 fn soft_sg_light_single_scattering() {
-    check("SG λ = 8, single", sg(8.0), Component::Single, SINGLE_TOLERANCE);
+    check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.1133, pixel: 0.693 });
 }
 
 #[test]
 fn soft_sg_light_multiple_scattering() {
-    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, MULTIPLE_TOLERANCE);
+    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, &Measured { mean: -0.1512, pixel: 0.626 });
 }
 
 #[test]
 fn sharp_sg_light_single_scattering() {
-    check("SG λ = 300, single", sg(300.0), Component::Single, SINGLE_TOLERANCE);
+    check("SG λ = 300, single", sg(300.0), Component::Single, &Measured { mean: -0.1112, pixel: 0.800 });
 }
 
 #[test]
 fn sharp_sg_light_multiple_scattering() {
-    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, MULTIPLE_TOLERANCE);
+    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, &Measured { mean: -0.1812, pixel: 0.699 });
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -441,6 +453,22 @@ fn diagnose_sg_single_scattering() {
         report(
             "MC, shadow rays from the lit side",
             &monte_carlo(&|h, d| fibers.any_hit_f64(lit_side(h, d), d, f64::INFINITY, Some(h.fiber))),
+        );
+        report(
+            "MC, shadow rays from the fiber top",
+            &monte_carlo(&|h, d| fibers.any_hit_f64(lit_side(h, DVec3::Z), d, f64::INFINITY, Some(h.fiber))),
+        );
+        report(
+            "MC, shadow rays from between lit side and top",
+            &monte_carlo(&|h, d| {
+                let seg = &segments[h.segment as usize];
+                let t = seg.tangent().as_dvec3();
+                let across = |w: DVec3| (w - t * t.dot(w)).normalize_or_zero();
+                let side = (across(d) + across(DVec3::Z)).normalize_or_zero();
+                let origin =
+                    seg.midpoint().as_dvec3() + fibers.tile_offset(h.tile) + side * f64::from(seg.radius);
+                fibers.any_hit_f64(origin, d, f64::INFINITY, Some(h.fiber))
+            }),
         );
         let unshadowed_mc = monte_carlo(&|_, _| false);
         let unshadowed_gamma = render_with(&scene, METHOD_SPP, |hit: &Hit, wo: DVec3| -> Rgb {

@@ -75,7 +75,7 @@ impl Quality {
                 sos_sharpness: 128.0,
                 cell_size_mfp: 4.0,
                 cell_depth_mfp: 0.5,
-                iirtf_paths_per_cell: 64,
+                iirtf_paths_per_cell: 96,
                 sh_order: 2,
                 cs_theta_count: 64,
                 voxels_per_fiber_diameter: 1.75,
