@@ -269,7 +269,12 @@ fn single_and_multiple_scattering_against_the_path_tracer() {
             measured_mean,
             margin,
         );
-        let pixel = twill_tests::check_band(&format!("{components:?}, per pixel"), c.rmse / level, measured_pixel, 0.05);
+        let pixel = twill_tests::check_band(
+            &format!("{components:?}, per pixel"),
+            c.rmse / level,
+            measured_pixel,
+            0.05,
+        );
         if let Err(e) = mean.and(pixel) {
             panic!("{e}");
         }
@@ -319,8 +324,11 @@ fn fig13_average_intensity_over_fifty_configurations() {
     let mut failures = Vec::new();
     for ((m, r), (mean, pixel)) in report.methods.iter().zip(&relative).zip(measured) {
         let excess = report.summary(m).pixel_excess_rmse;
-        failures.extend(twill_tests::check_band(&format!("{}, average intensity", m.name), *r, mean, 0.03).err());
-        failures.extend(twill_tests::check_band(&format!("{}, per pixel", m.name), excess, pixel, 0.1 * pixel).err());
+        failures
+            .extend(twill_tests::check_band(&format!("{}, average intensity", m.name), *r, mean, 0.03).err());
+        failures.extend(
+            twill_tests::check_band(&format!("{}, per pixel", m.name), excess, pixel, 0.1 * pixel).err(),
+        );
     }
     assert!(failures.is_empty(), "{failures:#?}");
     assert!(

@@ -113,9 +113,14 @@ fn check(label: &str, light: LightSection, component: Component, measured: &Meas
     let c = compare_component(label, &scene, component);
     let reference_level = reference(&scene, component).mean().mean().element_sum() / 3.0;
     let margin = MEAN_MARGIN + 3.0 * c.relative_error_of_mean_std;
-    let mean = twill_tests::check_band(&format!("{label}, mean"), c.relative_error_of_mean, measured.mean, margin);
-    let pixel =
-        twill_tests::check_band(&format!("{label}, per pixel"), c.rmse / reference_level, measured.pixel, PIXEL_MARGIN);
+    let mean =
+        twill_tests::check_band(&format!("{label}, mean"), c.relative_error_of_mean, measured.mean, margin);
+    let pixel = twill_tests::check_band(
+        &format!("{label}, per pixel"),
+        c.rmse / reference_level,
+        measured.pixel,
+        PIXEL_MARGIN,
+    );
     if let Err(e) = mean.and(pixel) {
         panic!("{e}");
     }
@@ -131,7 +136,12 @@ fn directional_light_single_scattering() {
 
 #[test]
 fn directional_light_multiple_scattering() {
-    check("directional, multiple", directional(), Component::Multiple, &Measured { mean: 0.0361, pixel: 0.823 });
+    check(
+        "directional, multiple",
+        directional(),
+        Component::Multiple,
+        &Measured { mean: 0.0361, pixel: 0.823 },
+    );
 }
 
 #[test]
@@ -231,7 +241,8 @@ fn diagnose_directional_single_scattering_visibility() {
                 let seg = &segments[h.segment as usize];
                 let t = seg.tangent().as_dvec3();
                 let across = (to_light - t * t.dot(to_light)).normalize_or_zero();
-                let mid = seg.midpoint().as_dvec3() + fibers.tile_offset(h.tile) + across * f64::from(seg.radius);
+                let mid =
+                    seg.midpoint().as_dvec3() + fibers.tile_offset(h.tile) + across * f64::from(seg.radius);
                 !fibers.any_hit_f64(mid, to_light, f64::INFINITY, Some(h.fiber))
             }),
         ),
@@ -243,7 +254,12 @@ fn diagnose_directional_single_scattering_visibility() {
                 let across = (to_light - t * t.dot(to_light)).normalize_or_zero();
                 let s = f64::from(h.segment_param.clamp(0.0, 1.0));
                 let axis = seg.a.as_dvec3().lerp(seg.b.as_dvec3(), s) + fibers.tile_offset(h.tile);
-                !fibers.any_hit_f64(axis + across * f64::from(seg.radius), to_light, f64::INFINITY, Some(h.fiber))
+                !fibers.any_hit_f64(
+                    axis + across * f64::from(seg.radius),
+                    to_light,
+                    f64::INFINITY,
+                    Some(h.fiber),
+                )
             }),
         ),
         ("visibility image, nearest pixel", Box::new(|h: &Hit| images.lookup(h.segment as usize, to_light))),
@@ -301,7 +317,8 @@ fn diagnose_bake_quality() {
                         continue;
                     }
                     let options = MethodOptions { interpolate_transfer };
-                    let method = render_flat_with(&scene, &baked, component, METHOD_SPP, 5, options).unwrap().mean();
+                    let method =
+                        render_flat_with(&scene, &baked, component, METHOD_SPP, 5, options).unwrap().mean();
                     eprintln!(
                         "{name:<24} {label:<12} {component:?} {}: relative error of the mean {:+.4}",
                         if interpolate_transfer { "interpolated" } else { "per cell" },
@@ -316,12 +333,14 @@ fn diagnose_bake_quality() {
 #[test]
 #[ignore = "diagnostic: prints where the multiple-scattering error of a directional light comes from"]
 fn diagnose_directional_multiple_scattering_transfer() {
+    type Origin<'a> = dyn Fn(&Hit) -> DVec3 + 'a;
     use twill_precompute::pathtrace::integrator::radiance_from;
     let scene = scene_with(directional());
     let reference = reference(&scene, Component::Multiple).mean();
     let fibers = &scene.path_scene.fibers;
     let segments = fibers.segments();
-    let settings = RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 3 };
+    let settings =
+        RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 3 };
     // Indirect radiance at `origin` (own fiber ignored) through the BCSDF toward ωo.
     let indirect_at = |hit: &Hit, origin: DVec3, wo: DVec3, stream: u64| -> Rgb {
         let rng = &mut pixel_rng(77, stream);
@@ -336,12 +355,13 @@ fn diagnose_directional_multiple_scattering_transfer() {
         let f = material.eval_cos(t, n, wi, wo);
         f / pdf * radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng)
     };
-    type Origin<'a> = dyn Fn(&Hit) -> DVec3 + 'a;
     let variants: Vec<(&str, Box<Origin>)> = vec![
         ("path-traced at the hit point", Box::new(|h: &Hit| fibers.world_position_f64(h))),
         (
             "path-traced at the segment midpoint",
-            Box::new(|h: &Hit| segments[h.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(h.tile)),
+            Box::new(|h: &Hit| {
+                segments[h.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(h.tile)
+            }),
         ),
         (
             "path-traced at the axis under the hit",
@@ -448,7 +468,9 @@ fn diagnose_sg_single_scattering() {
         };
         report(
             "MC, shadow rays from the hit point",
-            &monte_carlo(&|h, d| fibers.any_hit_f64(fibers.world_position_f64(h), d, f64::INFINITY, Some(h.fiber))),
+            &monte_carlo(&|h, d| {
+                fibers.any_hit_f64(fibers.world_position_f64(h), d, f64::INFINITY, Some(h.fiber))
+            }),
         );
         report(
             "MC, shadow rays from the lit side",
@@ -496,10 +518,60 @@ fn diagnose_sg_single_scattering() {
                 let seg = SegmentShading::of(baked, hit.segment).unwrap().unwrap();
                 let sos = &vis.sum_of_sg;
                 let k = hit.segment as usize;
-                sum_of_sg_path(&seg.fiber, &baked.gn, seg.tangent, wo, &sos.axes(k), sos.weights(k), sos.sharpness, axis, sharpness)
-                    * intensity
+                sum_of_sg_path(
+                    &seg.fiber,
+                    &baked.gn,
+                    seg.tangent,
+                    wo,
+                    &sos.axes(k),
+                    sos.weights(k),
+                    sos.sharpness,
+                    axis,
+                    sharpness,
+                ) * intensity
                     / mass
             }),
         );
     }
+}
+
+/// The error budget's ladder (`shading::budget`, `twill accuracy budget`) on the default scene
+/// at 32 × 32: its exact rungs must equal the path tracer within noise (this checks the
+/// decomposition itself: single + multiple = all light, and the light and fiber-scattering
+/// conventions of both), every rung is finite, and the lit-side visibility origin keeps its
+/// measured gain over the paper's fiber-axis origin.
+#[test]
+fn error_budget_exact_rungs_equal_the_path_tracer() {
+    use twill_precompute::shading::budget::{BudgetSettings, error_budget};
+    let mut file = SceneFile::default_scene();
+    (file.render.width, file.render.height) = (32, 32);
+    let scene = file.build().expect("the default scene builds");
+    let settings = BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3 };
+    let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
+    eprintln!("{}", budget.markdown());
+    assert_eq!(budget.rungs.len(), 9);
+    for rung in &budget.rungs {
+        assert!(
+            rung.relative_error_of_mean.is_finite() && rung.relative_pixel_rmse.is_finite(),
+            "{}: not finite",
+            rung.name
+        );
+    }
+    for component in [Component::Single, Component::Multiple] {
+        let exact = budget.rungs.iter().find(|r| r.component == component).expect("an exact rung");
+        assert!(
+            exact.relative_error_of_mean.abs() < 4.0 * exact.relative_error_std + 0.005,
+            "{component:?}: the exact rung differs from the path tracer by {:+.4} (noise {:.4})",
+            exact.relative_error_of_mean,
+            exact.relative_error_std
+        );
+    }
+    let midpoint = budget.rung(Component::Single, "2 ").expect("midpoint rung");
+    let lit_side = budget.rung(Component::Single, "3 ").expect("lit-side rung");
+    assert!(
+        lit_side.relative_error_of_mean.abs() + 0.05 < midpoint.relative_error_of_mean.abs(),
+        "lit side {:+.4} vs midpoint {:+.4}",
+        lit_side.relative_error_of_mean,
+        midpoint.relative_error_of_mean
+    );
 }

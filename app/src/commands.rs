@@ -556,9 +556,10 @@ pub fn accuracy_budget(
     let outcome = twill_precompute::bake::pipeline::bake(&inputs, None, &Cancel::new(), &|_, _| {})
         .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
     let bake_seconds = started.elapsed().as_secs_f64();
-    let budget = twill_precompute::shading::budget::error_budget(&scene, &outcome.baked, settings, &|rung| {
-        eprintln!("  done: {rung}");
-    })?;
+    let budget =
+        twill_precompute::shading::budget::error_budget(&scene, &outcome.baked, settings, &|rung| {
+            eprintln!("  done: {rung}");
+        })?;
     println!(
         "{}: error budget, {} bake ({bake_seconds:.1} s, no cache)\n",
         file.path.display(),

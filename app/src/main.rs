@@ -344,7 +344,8 @@ fn run(cli: Cli) -> Result<()> {
             timings: args.timings,
         }),
         Command::Accuracy {
-            command: AccuracyCommand::Budget { scene, quality, size, spp, reference_spp, light_samples, overrides },
+            command:
+                AccuracyCommand::Budget { scene, quality, size, spp, reference_spp, light_samples, overrides },
         } => commands::accuracy_budget(
             scene.as_deref(),
             quality_of(quality),

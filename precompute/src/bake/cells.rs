@@ -105,7 +105,8 @@ impl CellGrid {
         let block_size = DVec3::new(extent.x / f64::from(nx), extent.y / f64::from(ny), extent.z);
         let (target, depth) = (cell_size_mfp * mean_free_path_cm, cell_depth_mfp * mean_free_path_cm);
         let count = |side: f64, target: f64| -> u64 { ((side / target).round() as u64).max(1) };
-        let (cx, cy, cz) = (count(block_size.x, target), count(block_size.y, target), count(block_size.z, depth));
+        let (cx, cy, cz) =
+            (count(block_size.x, target), count(block_size.y, target), count(block_size.z, depth));
         let total = cx
             .saturating_mul(cy)
             .saturating_mul(cz)
@@ -410,7 +411,11 @@ mod tests {
         // a point one period away gets the same weights.
         let period = DVec3::new(f64::from(nx) * size.x, f64::from(ny) * size.y, 0.0);
         for i in 0..500 {
-            let u = DVec3::new((i as f64 * 0.618_034).fract(), (i as f64 * 0.414_214).fract(), (i as f64 * 0.732_051).fract());
+            let u = DVec3::new(
+                (f64::from(i) * 0.618_034).fract(),
+                (f64::from(i) * 0.414_214).fract(),
+                (f64::from(i) * 0.732_051).fract(),
+            );
             let p = grid.origin_cm() + u * DVec3::new(period.x, period.y, f64::from(nz) * size.z);
             let w = grid.interpolation(p);
             let sum: f64 = w.iter().map(|e| e.1).sum();

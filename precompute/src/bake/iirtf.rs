@@ -295,7 +295,12 @@ impl TransferSampler {
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let mut lights = Vec::new();
         let fibers = &self.scene.fibers;
-        let mut hit = fibers.closest_hit(self.midpoints[k as usize].as_vec3(), view.as_vec3(), f32::INFINITY, Some(self.fibers[k as usize]));
+        let mut hit = fibers.closest_hit(
+            self.midpoints[k as usize].as_vec3(),
+            view.as_vec3(),
+            f32::INFINITY,
+            Some(self.fibers[k as usize]),
+        );
         let mut dir = view;
         let mut throughput = Rgb::ONE;
         for event in 1..=self.render.max_depth {
@@ -303,15 +308,19 @@ impl TransferSampler {
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
             let material = &self.scene.yarn_materials[h.yarn as usize];
             let wo = -dir;
-            if let Some((to_light, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            if let Some((to_light, pdf)) =
+                material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
                 && self.in_domain(to_light)
             {
                 let f = material.eval_cos(t, n, to_light, wo);
-                if f != Rgb::ZERO && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber)) {
+                if f != Rgb::ZERO
+                    && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber))
+                {
                     lights.push((to_light, throughput * f * (inv_p1 / pdf)));
                 }
             }
-            let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+            let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            else {
                 break;
             };
             let f = material.eval_cos(t, n, wi, wo);
@@ -495,8 +504,8 @@ mod tests {
     use crate::bake::cs_table::{OmegaOSpace, cs_coefficients};
     use crate::bake::no_progress;
     use crate::bake::settings::Quality;
-    use crate::pathtrace::integrator::radiance_from;
     use crate::fabric::presets::fabric_preset;
+    use crate::pathtrace::integrator::radiance_from;
     use crate::raycast::mean_free_path;
     use crate::sh::ShRotation;
     use std::path::Path;

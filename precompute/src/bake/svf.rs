@@ -326,7 +326,12 @@ pub(crate) mod tests {
         let k = scene.segments().iter().position(|s| s.fiber == 0).unwrap();
         let (row, col) = pixel_of_direction(8, DVec3::new(0.0, 0.05, 1.0).normalize());
         assert!(images.get(k, row, col), "the top of the host fiber sees the sky");
-        assert!(scene.any_hit_f64(scene.segments()[k].midpoint().as_dvec3(), DVec3::Z, f64::INFINITY, Some(0)));
+        assert!(scene.any_hit_f64(
+            scene.segments()[k].midpoint().as_dvec3(),
+            DVec3::Z,
+            f64::INFINITY,
+            Some(0)
+        ));
     }
 
     #[test]

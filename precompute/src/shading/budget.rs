@@ -26,18 +26,19 @@
 //!    and paths per cell;
 //! 4. the method: the IIRTF interpolated between cells at the hit point.
 
+use std::fmt::Write as _;
 use std::time::Instant;
 
 use glam::DVec3;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
-use super::render::{MethodOptions, render_flat_with, render_primary_hits};
 use super::ShadingError;
+use super::render::{MethodOptions, render_flat_with, render_primary_hits};
 use crate::Rgb;
+use crate::bake::Cancel;
 use crate::bake::pipeline::Baked;
 use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
-use crate::bake::Cancel;
 use crate::image::{Estimate, Film, compare};
 use crate::pathtrace::integrator::radiance_from;
 use crate::pathtrace::{Component, Light, RenderSettings, render};
@@ -100,8 +101,9 @@ impl Budget {
             self.width, self.height, self.settings.spp, self.settings.reference_spp, self.reference_seconds
         );
         for r in &self.rungs {
-            out.push_str(&format!(
-                "| {:?} | {} | {:+.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} s |\n",
+            let _ = writeln!(
+                out,
+                "| {:?} | {} | {:+.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} s |",
                 r.component,
                 r.name,
                 100.0 * r.relative_error_of_mean,
@@ -109,7 +111,7 @@ impl Budget {
                 100.0 * r.relative_pixel_rmse,
                 100.0 * r.relative_noise_rmse,
                 r.seconds
-            ));
+            );
         }
         out
     }
@@ -183,17 +185,27 @@ pub fn error_budget(
         ("3 shadow rays from the lit side of the segment", ShadowOrigin::LitSide),
     ] {
         let t = Instant::now();
-        let film = single_by_light_sampling(scene, settings, |hit, dir| shadow_ray_visible(scene, hit, dir, origin))?;
+        let film = single_by_light_sampling(scene, settings, |hit, dir| {
+            shadow_ray_visible(scene, hit, dir, origin)
+        })?;
         push(Component::Single, name.to_string(), &film, t.elapsed().as_secs_f64());
     }
     let n = baked.settings.svf_resolution;
     let t = Instant::now();
     let images: VisibilityImages = render_exemplar(&scene.exemplar, n, &Cancel::new(), &|_| {})
         .map_err(|e| ShadingError::Budget(e.to_string()))?;
-    let film = single_by_light_sampling(scene, settings, |hit, dir| images.lookup(hit.segment as usize, dir))?;
+    let film =
+        single_by_light_sampling(scene, settings, |hit, dir| images.lookup(hit.segment as usize, dir))?;
     push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
     let t = Instant::now();
-    let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, MethodOptions::default())?;
+    let film = render_flat_with(
+        scene,
+        baked,
+        Component::Single,
+        settings.spp,
+        settings.seed,
+        MethodOptions::default(),
+    )?;
     push(
         Component::Single,
         format!(
@@ -207,7 +219,8 @@ pub fn error_budget(
     // Multiple scattering.
     let fibers = &scene.path_scene.fibers;
     let segments = fibers.segments();
-    let midpoint = |hit: &Hit| segments[hit.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
+    let midpoint =
+        |hit: &Hit| segments[hit.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
     for (name, at_hit) in [
         ("1 path-traced indirect light at the hit point (exact)", true),
         ("2 path-traced indirect light at the segment midpoint", false),
@@ -229,9 +242,10 @@ pub fn error_budget(
         baked.transfer.iirtf.sh_order,
         baked.settings.iirtf_paths_per_cell
     );
-    for (name, interpolate_transfer) in
-        [(format!("3 IIRTF per cell (paper): {cells}"), false), ("4 the method: IIRTF interpolated between cells".into(), true)]
-    {
+    for (name, interpolate_transfer) in [
+        (format!("3 IIRTF per cell (paper): {cells}"), false),
+        ("4 the method: IIRTF interpolated between cells".into(), true),
+    ] {
         let t = Instant::now();
         let options = MethodOptions { interpolate_transfer };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
@@ -253,7 +267,8 @@ fn single_by_light_sampling(
         let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
         let mut total = Rgb::ZERO;
         for light in &scene.path_scene.lights {
-            let samples = if matches!(light, Light::Directional { .. }) { 1 } else { settings.light_samples.max(1) };
+            let samples =
+                if matches!(light, Light::Directional { .. }) { 1 } else { settings.light_samples.max(1) };
             let mut sum = Rgb::ZERO;
             for _ in 0..samples {
                 let s = light.sample([rng.random(), rng.random()]);
@@ -296,5 +311,6 @@ fn indirect_light(scene: &Scene, hit: &Hit, origin: DVec3, wo: DVec3, rng: &mut 
     };
     let settings =
         RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 0 };
-    material.eval_cos(t, n, wi, wo) / pdf * radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng)
+    material.eval_cos(t, n, wi, wo) / pdf
+        * radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng)
 }

@@ -891,7 +891,10 @@ fn shading_shade_adds_its_components_and_reports_bad_input() {
         shade(baked, count as u32, None, wo, &lights, Component::All),
         Err(ShadingError::NoSuchSegment { segment: count as u32, count })
     );
-    assert!(matches!(multiple_scattering(baked, k, None, wo, &[Rgb::ONE; 4]), Err(ShadingError::ShLength { .. })));
+    assert!(matches!(
+        multiple_scattering(baked, k, None, wo, &[Rgb::ONE; 4]),
+        Err(ShadingError::ShLength { .. })
+    ));
     let mut lambert = baked.clone();
     let material = lambert.volume.segments.material[k as usize];
     lambert.materials[material as usize] = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
