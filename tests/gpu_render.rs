@@ -355,3 +355,34 @@ fn lambertian_yarns_are_refused_with_a_message_not_rendered_black() {
     let message = err.to_string();
     assert!(message.contains("material slot 1") && message.contains("twill reference"), "{message}");
 }
+
+/// What a new user sees first: `twill render` against `twill reference` of the built-in default
+/// scene (its camera and lights, 128x128, 64 spp, interactive bake), image mean ratio per channel.
+/// Before the fidelity fixes the ratio was 0.84. Slow on lavapipe; run with `--ignored --nocapture`.
+#[test]
+#[ignore = "diagnostic: prints the default scene's image mean against the path tracer (slow)"]
+fn default_scene_image_mean_against_the_path_tracer() {
+    let Some(gpu) = Gpu::for_test("default_scene_image_mean_against_the_path_tracer") else { return };
+    let mut file = SceneFile::default_scene();
+    (file.render.width, file.render.height) = (128, 128);
+    let scene = file.build().expect("the default scene builds");
+    let inputs = scene.bake_inputs(Quality::Interactive.settings());
+    let baked = bake(&inputs[0], None, &Cancel::new(), &|_, _| {}).expect("interactive bake").baked;
+    let mut settings = frame_settings(&scene, Components::All);
+    (settings.width, settings.height, settings.spp) = (128, 128, 64);
+    let mut session =
+        SceneRenderer::with_gpu(gpu, &scene, &[&baked], &PatternMap::uniform(0)).expect("scene uploads");
+    let frame = session.render(&scene, &settings).expect("frame renders");
+    let n = frame.radiance.len() as f64;
+    let method =
+        frame.radiance.iter().fold(glam::DVec3::ZERO, |s, p| s + glam::DVec3::from_array(p.map(f64::from)))
+            / n;
+    let camera = twill_precompute::scene::camera_from(&scene.camera, 128, 128).expect("camera");
+    let render_settings =
+        pathtrace::RenderSettings { spp: 64, max_depth: 64, component: Component::All, seed: 1 };
+    let reference = pathtrace::render(&scene.path_scene, &camera, &render_settings, &|_| {}).mean().mean();
+    eprintln!(
+        "default scene, 128x128: method {method:.5}, reference {reference:.5}, ratio {:.3}",
+        method / reference
+    );
+}
