@@ -566,6 +566,20 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
             exact.relative_error_std
         );
     }
+    // A rung added from outside (as `twill accuracy budget` adds the GPU's frames) is measured
+    // like the others: the method's own image, without its variance, lands on rung 5's error.
+    let mut budget = budget;
+    let method =
+        render_flat(&scene, baked(), Component::Single, settings.spp, settings.seed).expect("method");
+    budget.add_rung(Component::Single, "the method again".into(), &method.mean(), 0.0);
+    let again = budget.rung(Component::Single, "the method again").expect("added rung");
+    let fifth = budget.rung(Component::Single, "5 ").expect("method rung");
+    assert!((again.relative_error_of_mean - fifth.relative_error_of_mean).abs() < 1e-12);
+    assert_eq!(
+        budget.rungs.iter().position(|r| r.name == "the method again"),
+        Some(5),
+        "after the single rungs"
+    );
     let midpoint = budget.rung(Component::Single, "2 ").expect("midpoint rung");
     let lit_side = budget.rung(Component::Single, "3 ").expect("lit-side rung");
     assert!(

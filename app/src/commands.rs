@@ -556,10 +556,44 @@ pub fn accuracy_budget(
     let outcome = twill_precompute::bake::pipeline::bake(&inputs, None, &Cancel::new(), &|_, _| {})
         .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
     let bake_seconds = started.elapsed().as_secs_f64();
-    let budget =
+    let mut budget =
         twill_precompute::shading::budget::error_budget(&scene, &outcome.baked, settings, &|rung| {
             eprintln!("  done: {rung}");
         })?;
+    // The GPU renderer's frames, one per component: primary visibility from the voxel volume.
+    match twill_renderer::gpu::Gpu::headless() {
+        Ok(gpu) => {
+            let mut session =
+                SceneRenderer::with_gpu(gpu, &scene, &[&outcome.baked], &PatternMap::uniform(0))?;
+            for (components, component) in
+                [(Components::SingleOnly, Component::Single), (Components::MultipleOnly, Component::Multiple)]
+            {
+                let mut frame_options = frame_settings(&scene, components);
+                (frame_options.width, frame_options.height) = (size.0 as u32, size.1 as u32);
+                frame_options.spp = settings.spp;
+                // One untimed frame compiles this plan's shaders.
+                session.render(&scene, &frame_options)?;
+                let started = Instant::now();
+                let frame = session.render(&scene, &frame_options)?;
+                let seconds = started.elapsed().as_secs_f64();
+                let image = Image {
+                    width: size.0,
+                    height: size.1,
+                    pixels: frame
+                        .radiance
+                        .iter()
+                        .map(|p| glam::DVec3::from_array(p.map(f64::from)))
+                        .collect(),
+                };
+                let name = format!(
+                    "GPU renderer: voxel-volume eye rays, {} volume samples",
+                    frame_options.gpu.volume_samples
+                );
+                budget.add_rung(component, name, &image, seconds);
+            }
+        }
+        Err(e) => eprintln!("no GPU rung: {e}"),
+    }
     println!(
         "{}: error budget, {} bake ({bake_seconds:.1} s, no cache)\n",
         file.path.display(),

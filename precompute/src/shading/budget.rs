@@ -25,6 +25,10 @@
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell;
 //! 4. the method: the IIRTF interpolated between cells at the hit point.
+//!
+//! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
+//! adds the GPU renderer's frame (primary visibility from the voxel volume, at the scene's
+//! volume samples per tetrahedron) after each component's ladder.
 
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -39,7 +43,7 @@ use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::pipeline::Baked;
 use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
-use crate::image::{Estimate, Film, compare};
+use crate::image::{Estimate, Film, Image, compare};
 use crate::pathtrace::integrator::radiance_from;
 use crate::pathtrace::{Component, Light, RenderSettings, render};
 use crate::raycast::Hit;
@@ -80,7 +84,7 @@ pub struct Rung {
 }
 
 /// The whole ladder, with the references' own cost.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Budget {
     pub rungs: Vec<Rung>,
     pub width: usize,
@@ -88,9 +92,22 @@ pub struct Budget {
     pub settings: BudgetSettings,
     /// Wall time of the two references.
     pub reference_seconds: f64,
+    single_reference: Film,
+    multiple_reference: Film,
 }
 
 impl Budget {
+    /// Adds a rung measured outside this module (the GPU renderer's image of `component`, with
+    /// no variance of its own), compared like every other rung.
+    pub fn add_rung(&mut self, component: Component, name: String, image: &Image, seconds: f64) {
+        let reference =
+            if component == Component::Single { &self.single_reference } else { &self.multiple_reference };
+        let rung = measure(component, name, Estimate { mean: image, variance: None }, reference, seconds);
+        let at =
+            self.rungs.iter().rposition(|r| r.component == component).map_or(self.rungs.len(), |i| i + 1);
+        self.rungs.insert(at, rung);
+    }
+
     /// A Markdown table of the ladder.
     #[must_use]
     pub fn markdown(&self) -> String {
@@ -160,22 +177,14 @@ pub fn error_budget(
     let mut push = |component: Component, name: String, film: &Film, seconds: f64| {
         let reference = if component == Component::Single { &single_reference } else { &multiple_reference };
         let (mean, variance) = (film.mean(), film.variance_of_mean());
-        let (r_mean, r_variance) = (reference.mean(), reference.variance_of_mean());
-        let c = compare(
-            Estimate { mean: &mean, variance: Some(&variance) },
-            Estimate { mean: &r_mean, variance: Some(&r_variance) },
-        );
-        let level = (r_mean.mean().element_sum() / 3.0).max(f64::MIN_POSITIVE);
         progress(&name);
-        rungs.push(Rung {
+        rungs.push(measure(
             component,
             name,
-            relative_error_of_mean: c.relative_error_of_mean,
-            relative_error_std: c.relative_error_of_mean_std,
-            relative_pixel_rmse: c.rmse / level,
-            relative_noise_rmse: c.expected_noise_rmse / level,
+            Estimate { mean: &mean, variance: Some(&variance) },
+            reference,
             seconds,
-        });
+        ));
     };
 
     // Single scattering.
@@ -251,7 +260,31 @@ pub fn error_budget(
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
     }
-    Ok(Budget { rungs, width, height, settings: *settings, reference_seconds })
+    Ok(Budget {
+        rungs,
+        width,
+        height,
+        settings: *settings,
+        reference_seconds,
+        single_reference,
+        multiple_reference,
+    })
+}
+
+/// One rung's figures: `test` against the path-traced `reference`.
+fn measure(component: Component, name: String, test: Estimate<'_>, reference: &Film, seconds: f64) -> Rung {
+    let (r_mean, r_variance) = (reference.mean(), reference.variance_of_mean());
+    let c = compare(test, Estimate { mean: &r_mean, variance: Some(&r_variance) });
+    let level = (r_mean.mean().element_sum() / 3.0).max(f64::MIN_POSITIVE);
+    Rung {
+        component,
+        name,
+        relative_error_of_mean: c.relative_error_of_mean,
+        relative_error_std: c.relative_error_of_mean_std,
+        relative_pixel_rmse: c.rmse / level,
+        relative_noise_rmse: c.expected_noise_rmse / level,
+        seconds,
+    }
 }
 
 /// Single scattering at every primary hit by sampling the scene's lights (directional lights
