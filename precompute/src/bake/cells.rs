@@ -430,6 +430,13 @@ mod tests {
                 assert!(a.0 == b.0 && (a.1 - b.1).abs() < 1e-9, "{p}: {w:?} vs {shifted:?}");
             }
         }
+        // A point that is not finite gets finite weights that still sum to 1 (or all 0).
+        for p in [DVec3::NAN, DVec3::splat(f64::INFINITY), DVec3::new(0.0, f64::NEG_INFINITY, 1e300)] {
+            let w = grid.interpolation(p);
+            let sum: f64 = w.iter().map(|e| e.1).sum();
+            assert!(w.iter().all(|e| e.1.is_finite() && e.1 >= 0.0), "{p}: {w:?}");
+            assert!((sum - 1.0).abs() < 1e-12 || sum == 0.0, "{p}: {w:?}");
+        }
         // Halfway between two non-empty neighbours across x: half each.
         let (ix, iy, iz) = (0..nz)
             .flat_map(|z| (0..ny).flat_map(move |y| (0..nx).map(move |x| (x, y, z))))
