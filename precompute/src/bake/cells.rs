@@ -245,7 +245,7 @@ impl CellGrid {
         let f = c - base;
         let corner = |axis: usize, offset: i64| -> u32 {
             let n = i64::from(lattice[axis]);
-            let i = if base[axis].is_finite() { base[axis] as i64 + offset } else { 0 };
+            let i = if base[axis].is_finite() { (base[axis] as i64).saturating_add(offset) } else { 0 };
             let wrapped = if self.periodic && axis < 2 { i.rem_euclid(n) } else { i.clamp(0, n - 1) };
             wrapped as u32
         };
