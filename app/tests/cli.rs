@@ -109,6 +109,11 @@ fn bad_input_is_a_clear_error_never_a_panic() {
         (&["reference", "-o", "x.png", "--size", "0x4"], "WIDTHxHEIGHT"),
         (&["reference", "-o", "x.png", "--spp", "0"], "spp"),
         (
+            &["accuracy", "budget", "--quality", "draft", "--set", "cell_depth_mfp=0"],
+            "0.25 <= cell_depth_mfp <= 64",
+        ),
+        (&["accuracy", "budget", "missing.toml"], "missing.toml"),
+        (
             &["fabric", "export", "--format", "mitsuba", "-o", "/nonexistent-dir/f.txt"],
             "/nonexistent-dir/f.txt",
         ),
