@@ -10,7 +10,7 @@ use twill_precompute::bake::Cancel;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
 use twill_precompute::bake::settings::Quality;
-use twill_precompute::image::{Estimate, Image, compare};
+use twill_precompute::image::{Estimate, compare};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
@@ -239,11 +239,7 @@ fn single_and_multiple_scattering_against_the_path_tracer() {
     ] {
         let (frame, back) = render(gpu, &scene, size, 64, components);
         gpu = back;
-        let ours = Image {
-            width: size as usize,
-            height: size as usize,
-            pixels: frame.radiance.iter().map(|p| glam::DVec3::from_array(p.map(f64::from))).collect(),
-        };
+        let ours = frame.radiance_image();
         let settings = pathtrace::RenderSettings { spp: 64, max_depth: 64, component, seed: 7 };
         let camera = twill_precompute::scene::camera_from(&scene.camera, size as usize, size as usize)
             .expect("camera");
@@ -373,10 +369,7 @@ fn default_scene_image_mean_against_the_path_tracer() {
     let mut session =
         SceneRenderer::with_gpu(gpu, &scene, &[&baked], &PatternMap::uniform(0)).expect("scene uploads");
     let frame = session.render(&scene, &settings).expect("frame renders");
-    let n = frame.radiance.len() as f64;
-    let method =
-        frame.radiance.iter().fold(glam::DVec3::ZERO, |s, p| s + glam::DVec3::from_array(p.map(f64::from)))
-            / n;
+    let method = frame.radiance_image().mean();
     let camera = twill_precompute::scene::camera_from(&scene.camera, 128, 128).expect("camera");
     let render_settings =
         pathtrace::RenderSettings { spp: 64, max_depth: 64, component: Component::All, seed: 1 };

@@ -331,67 +331,6 @@ fn diagnose_bake_quality() {
 }
 
 #[test]
-#[ignore = "diagnostic: prints where the multiple-scattering error of a directional light comes from"]
-fn diagnose_directional_multiple_scattering_transfer() {
-    type Origin<'a> = dyn Fn(&Hit) -> DVec3 + 'a;
-    use twill_precompute::pathtrace::integrator::radiance_from;
-    let scene = scene_with(directional());
-    let reference = reference(&scene, Component::Multiple).mean();
-    let fibers = &scene.path_scene.fibers;
-    let segments = fibers.segments();
-    let settings =
-        RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 3 };
-    // Indirect radiance at `origin` (own fiber ignored) through the BCSDF toward ωo.
-    let indirect_at = |hit: &Hit, origin: DVec3, wo: DVec3, stream: u64| -> Rgb {
-        let rng = &mut pixel_rng(77, stream);
-        let material = &scene.path_scene.yarn_materials[hit.yarn as usize];
-        let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
-        let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
-            return Rgb::ZERO;
-        };
-        if pdf <= 0.0 {
-            return Rgb::ZERO;
-        }
-        let f = material.eval_cos(t, n, wi, wo);
-        f / pdf * radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng)
-    };
-    let variants: Vec<(&str, Box<Origin>)> = vec![
-        ("path-traced at the hit point", Box::new(|h: &Hit| fibers.world_position_f64(h))),
-        (
-            "path-traced at the segment midpoint",
-            Box::new(|h: &Hit| {
-                segments[h.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(h.tile)
-            }),
-        ),
-        (
-            "path-traced at the axis under the hit",
-            Box::new(|h: &Hit| {
-                let seg = &segments[h.segment as usize];
-                let s = f64::from(h.segment_param.clamp(0.0, 1.0));
-                seg.a.as_dvec3().lerp(seg.b.as_dvec3(), s) + fibers.tile_offset(h.tile)
-            }),
-        ),
-    ];
-    for (name, origin) in &variants {
-        let counter = std::sync::atomic::AtomicU64::new(0);
-        let image = render_with(&scene, 64, |hit: &Hit, wo: DVec3| -> Rgb {
-            let k = counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            indirect_at(hit, origin(hit), wo, k)
-        });
-        eprintln!(
-            "directional multiple, {name:<40}: relative error of the mean {:+.4}",
-            relative_error_of_mean(&image, &reference)
-        );
-    }
-    let method = render_flat(&scene, baked(), Component::Multiple, METHOD_SPP, 5).unwrap().mean();
-    eprintln!(
-        "directional multiple, {:<40}: relative error of the mean {:+.4}",
-        "per-cell IIRTF (draft)",
-        relative_error_of_mean(&method, &reference)
-    );
-}
-
-#[test]
 #[ignore = "diagnostic: multiple-scattering error of draft bakes over seeds and paths per cell (slow)"]
 fn diagnose_transfer_noise_and_bias() {
     let scene = scene_with(directional());

@@ -231,7 +231,7 @@ pub fn render(options: &RenderOptions) -> Result<()> {
         (loaded.exemplars, loaded.pattern)
     } else {
         let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
-        bake_scene(&scene, options.quality, cache.as_ref())?
+        bake_scene(&scene, options.quality.settings(), cache.as_ref())?
     };
     let bake_seconds = started.elapsed().as_secs_f64();
     let refs: Vec<&Baked> = exemplars.iter().collect();
@@ -424,14 +424,14 @@ fn report_bake(outcome: &BakeOutcome) {
     );
 }
 
-/// Bakes every exemplar of `scene` (one, or a patterned cloth's) at `quality` through `cache`
-/// (no progress bar); returns them in pattern order with the pattern map.
+/// Bakes every exemplar of `scene` (one, or a patterned cloth's) with `settings` through
+/// `cache` (no progress bar); returns them in pattern order with the pattern map.
 fn bake_scene(
     scene: &twill_precompute::scene::Scene,
-    quality: Quality,
+    settings: BakeSettings,
     cache: Option<&Cache>,
 ) -> Result<(Vec<Baked>, PatternMap)> {
-    let inputs = scene.bake_inputs(quality.settings());
+    let inputs = scene.bake_inputs(settings);
     let set = bake_set(&inputs, scene.pattern_map(), cache, &Cancel::new(), &|_, _| {})
         .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
     Ok((set.exemplars.into_iter().map(|o| o.baked).collect(), set.pattern))
@@ -449,7 +449,7 @@ pub fn bench_passes(
     let file = SceneFile::load_or_default(scene)?;
     let scene = file.build()?;
     let started = Instant::now();
-    let (exemplars, pattern) = bake_scene(&scene, quality, open_cache(None, false)?.as_ref())?;
+    let (exemplars, pattern) = bake_scene(&scene, quality.settings(), open_cache(None, false)?.as_ref())?;
     let bake_seconds = started.elapsed().as_secs_f64();
     let baked: Vec<&Baked> = exemplars.iter().collect();
     let mut session = SceneRenderer::new(&scene, &baked, &pattern)?;
@@ -511,7 +511,7 @@ pub fn bench_accuracy(
     let mut scene = file.build()?;
     let started = Instant::now();
     // One exemplar: patterned scenes were refused above.
-    let (mut exemplars, _) = bake_scene(&scene, quality, open_cache(None, false)?.as_ref())?;
+    let (mut exemplars, _) = bake_scene(&scene, quality.settings(), open_cache(None, false)?.as_ref())?;
     let baked = exemplars.swap_remove(0);
     let bake_seconds = started.elapsed().as_secs_f64();
     let gpu = twill_renderer::gpu::Gpu::headless()?;
@@ -548,23 +548,17 @@ pub fn accuracy_budget(
     let scene = file.build()?;
     let bake_settings = apply_overrides(quality.settings(), overrides)?;
     let started = Instant::now();
-    let inputs = twill_precompute::bake::pipeline::BakeInputs {
-        exemplar: &scene.exemplar,
-        materials: &scene.material_descs,
-        settings: bake_settings,
-    };
-    let outcome = twill_precompute::bake::pipeline::bake(&inputs, None, &Cancel::new(), &|_, _| {})
-        .map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
+    // One exemplar: patterned scenes were refused above.
+    let (mut exemplars, _) = bake_scene(&scene, bake_settings, None)?;
+    let baked = exemplars.swap_remove(0);
     let bake_seconds = started.elapsed().as_secs_f64();
-    let mut budget =
-        twill_precompute::shading::budget::error_budget(&scene, &outcome.baked, settings, &|rung| {
-            eprintln!("  done: {rung}");
-        })?;
+    let mut budget = twill_precompute::shading::budget::error_budget(&scene, &baked, settings, &|rung| {
+        eprintln!("  done: {rung}");
+    })?;
     // The GPU renderer's frames, one per component: primary visibility from the voxel volume.
     match twill_renderer::gpu::Gpu::headless() {
         Ok(gpu) => {
-            let mut session =
-                SceneRenderer::with_gpu(gpu, &scene, &[&outcome.baked], &PatternMap::uniform(0))?;
+            let mut session = SceneRenderer::with_gpu(gpu, &scene, &[&baked], &PatternMap::uniform(0))?;
             for (components, component) in
                 [(Components::SingleOnly, Component::Single), (Components::MultipleOnly, Component::Multiple)]
             {
@@ -576,20 +570,11 @@ pub fn accuracy_budget(
                 let started = Instant::now();
                 let frame = session.render(&scene, &frame_options)?;
                 let seconds = started.elapsed().as_secs_f64();
-                let image = Image {
-                    width: size.0,
-                    height: size.1,
-                    pixels: frame
-                        .radiance
-                        .iter()
-                        .map(|p| glam::DVec3::from_array(p.map(f64::from)))
-                        .collect(),
-                };
                 let name = format!(
                     "GPU renderer: voxel-volume eye rays, {} volume samples",
                     frame_options.gpu.volume_samples
                 );
-                budget.add_rung(component, name, &image, seconds);
+                budget.add_rung(component, name, &frame.radiance_image(), seconds);
             }
         }
         Err(e) => eprintln!("no GPU rung: {e}"),

@@ -178,10 +178,6 @@ fn film_noise(film: &Film) -> (f64, f64) {
     (total / 3.0 / (n * n), total / (3.0 * n))
 }
 
-fn image_of(width: usize, height: usize, radiance: &[[f32; 3]]) -> Image {
-    Image { width, height, pixels: radiance.iter().map(|p| DVec3::from_array(p.map(f64::from))).collect() }
-}
-
 /// The camera of one configuration: orthographic, 0.4 cm tall, looking at the swatch centre.
 fn camera_for(view: DVec3) -> CameraSection {
     let up = if view.z.abs() > 0.9 { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
@@ -258,7 +254,7 @@ pub fn run(
             let started = Instant::now();
             let out = session.render(scene, &frame)?;
             let seconds = started.elapsed().as_secs_f64();
-            result.add(&image_of(size, size, &out.radiance), &truth, seconds);
+            result.add(&out.radiance_image(), &truth, seconds);
         }
         if settings.cpu_method {
             let started = Instant::now();

@@ -83,13 +83,11 @@ pub struct ExemplarGpu {
     pub cell_blocks_x: u32,
     /// Cells per block along x, y, z.
     pub cell_dims: [u32; 3],
-    /// 1 when the lattice repeats with the period across the fabric.
-    pub cell_periodic: u32,
-    /// Cells of the whole lattice along x, y, z.
-    pub cell_lattice: [u32; 3],
-    pub pad: u32,
+    /// Blocks along y. The lattice repeats across the fabric when `periodic` is set (the cell
+    /// grid and the volume share the exemplar's tiling).
+    pub cell_blocks_y: u32,
 }
-const _: () = assert!(size_of::<ExemplarGpu>() == 128);
+const _: () = assert!(size_of::<ExemplarGpu>() == 112);
 
 /// Twin of `SegmentGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
@@ -234,6 +232,11 @@ impl FabricArrays {
             }
             let volume = &baked.volume.volume;
             let cells = &baked.transfer.cells;
+            if volume.periodic != cells.is_periodic() {
+                return Err(FabricDataError::Inconsistent(format!(
+                    "exemplar {e}: the volume and the IIRTF cells disagree on whether the fabric tiles"
+                )));
+            }
             let segment_count = baked.volume.segments.len();
             let segment_offset = out.segments.len();
             let cell_base = iirtf_values.len() / (3 * sh_count * sh_count);
@@ -257,9 +260,7 @@ impl FabricArrays {
                 cell_size: f32s(cells.cell_size_cm().as_vec3()),
                 cell_blocks_x: cells.blocks()[0],
                 cell_dims: cells.dims(),
-                cell_periodic: u32::from(cells.is_periodic()),
-                cell_lattice: cells.lattice_dims(),
-                pad: 0,
+                cell_blocks_y: cells.blocks()[1],
             });
             out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
             out.voxels.extend_from_slice(&volume.ids);

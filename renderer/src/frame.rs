@@ -98,6 +98,18 @@ pub struct Frame {
     pub timings: Option<Vec<PassTiming>>,
 }
 
+impl Frame {
+    /// The linear radiance as an f64 image (for comparisons with CPU renders).
+    #[must_use]
+    pub fn radiance_image(&self) -> twill_precompute::image::Image {
+        twill_precompute::image::Image {
+            width: self.width as usize,
+            height: self.height as usize,
+            pixels: self.radiance.iter().map(|p| glam::DVec3::from_array(p.map(f64::from))).collect(),
+        }
+    }
+}
+
 /// Twin of `FrameUniforms` in shaders/gbuffer.wgsl.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

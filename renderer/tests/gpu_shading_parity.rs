@@ -134,7 +134,7 @@ fn multiple_case(input: vec4<f32>) -> vec4<f32> {
 fn case_point(input: vec4<f32>) -> vec3<f32> {
     let ex = exemplars[0];
     let u = fract(vec3<f32>(input.x * 0.618034, input.x * 0.414214, input.x * 0.732051));
-    return ex.cell_origin + u * vec3<f32>(ex.cell_lattice) * ex.cell_size;
+    return ex.cell_origin + u * vec3<f32>(cell_lattice(ex)) * ex.cell_size;
 }
 ";
 

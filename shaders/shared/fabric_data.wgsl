@@ -55,9 +55,8 @@ struct ExemplarGpu {
     cell_size: vec3<f32>,
     cell_blocks_x: u32,
     cell_dims: vec3<u32>,
-    cell_periodic: u32,
-    cell_lattice: vec3<u32>,
-    _pad_cells: u32,
+    // The lattice repeats across the fabric when `periodic` is set.
+    cell_blocks_y: u32,
 }
 
 struct SegmentGpu {
@@ -161,9 +160,14 @@ struct CellWeights {
     weights: array<f32, 8>,
 }
 
+// Cells of exemplar `ex`'s whole lattice along x, y, z (CellGrid::lattice_dims).
+fn cell_lattice(ex: ExemplarGpu) -> vec3<u32> {
+    return ex.cell_dims * vec3<u32>(ex.cell_blocks_x, ex.cell_blocks_y, 1u);
+}
+
 fn cell_interpolation(e: u32, p: vec3<f32>) -> CellWeights {
     let ex = exemplars[e];
-    let n = vec3<i32>(ex.cell_lattice);
+    let n = vec3<i32>(cell_lattice(ex));
     let c = (p - ex.cell_origin) / ex.cell_size - vec3<f32>(0.5);
     let base = floor(c);
     let f = c - base;
@@ -173,7 +177,7 @@ fn cell_interpolation(e: u32, p: vec3<f32>) -> CellWeights {
     for (var k = 0u; k < 8u; k++) {
         let o = vec3<i32>(i32(k & 1u), i32((k >> 1u) & 1u), i32((k >> 2u) & 1u));
         var i = b + o;
-        if (ex.cell_periodic != 0u) {
+        if (ex.periodic != 0u) {
             i = vec3<i32>(wrap_i32(i.x, n.x), wrap_i32(i.y, n.y), clamp(i.z, 0, n.z - 1));
         } else {
             i = clamp(i, vec3<i32>(0), n - 1);

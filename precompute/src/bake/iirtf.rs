@@ -39,7 +39,7 @@ use super::{Cancel, Cancelled, Progress};
 use crate::Rgb;
 use crate::bcsdf::Material;
 use crate::fabric::Exemplar;
-use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng};
+use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng, russian_roulette};
 use crate::pathtrace::light::Light;
 use crate::raycast::{Extent, FiberScene, SceneError};
 use crate::sh::{sh_count, sh_eval};
@@ -330,12 +330,8 @@ impl TransferSampler {
             throughput *= f / pdf;
             dir = wi;
             hit = fibers.closest_hit(position.as_vec3(), wi.as_vec3(), f32::INFINITY, Some(h.fiber));
-            if event >= 3 {
-                let survive = throughput.max_element().clamp(0.05, 1.0);
-                if rng.random::<f64>() >= survive {
-                    break;
-                }
-                throughput /= survive;
+            if !russian_roulette(event, &mut throughput, &mut rng) {
+                break;
             }
         }
         TransferSample { view, lights, segment: k }

@@ -205,16 +205,26 @@ pub fn radiance_from(
         if settings.component == Component::Single {
             break;
         }
-        // Russian roulette from the fourth event on, by throughput.
-        if event >= 3 {
-            let survive = throughput.max_element().clamp(0.05, 1.0);
-            if rng.random::<f64>() >= survive {
-                break;
-            }
-            throughput /= survive;
+        if !russian_roulette(event, &mut throughput, rng) {
+            break;
         }
     }
     total
+}
+
+/// Russian roulette after scattering event `event`: from the fourth event on, a path survives
+/// with probability `max(throughput)` clamped to [0.05, 1] and its throughput is divided by it.
+/// Returns whether the path goes on.
+pub(crate) fn russian_roulette(event: u32, throughput: &mut Rgb, rng: &mut Pcg64Mcg) -> bool {
+    if event < 3 {
+        return true;
+    }
+    let survive = throughput.max_element().clamp(0.05, 1.0);
+    if rng.random::<f64>() >= survive {
+        return false;
+    }
+    *throughput /= survive;
+    true
 }
 
 fn has_sg_light(scene: &PathScene) -> bool {
@@ -237,7 +247,8 @@ fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
         || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
 }
 
-fn below_ground(scene: &PathScene, origin: DVec3, dir: DVec3) -> bool {
+/// Whether a ray from `origin` toward `dir` reaches the scene's ground plane (if any).
+pub(crate) fn below_ground(scene: &PathScene, origin: DVec3, dir: DVec3) -> bool {
     ground_distance(scene, origin, dir).is_some()
 }
 

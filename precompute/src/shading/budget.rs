@@ -44,7 +44,7 @@ use crate::bake::Cancel;
 use crate::bake::pipeline::Baked;
 use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
 use crate::image::{Estimate, Film, Image, compare};
-use crate::pathtrace::integrator::radiance_from;
+use crate::pathtrace::integrator::{below_ground, radiance_from};
 use crate::pathtrace::{Component, Light, RenderSettings, render};
 use crate::raycast::Hit;
 use crate::scene::{Scene, camera_from};
@@ -329,8 +329,8 @@ fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin
             lit_side_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
         }
     };
-    let below_ground = scene.path_scene.ground_z.is_some_and(|z| dir.z < 0.0 && start.z > z);
-    !below_ground && !fibers.any_hit_f64(start, dir, f64::INFINITY, Some(hit.fiber))
+    !below_ground(&scene.path_scene, start, dir)
+        && !fibers.any_hit_f64(start, dir, f64::INFINITY, Some(hit.fiber))
 }
 
 /// One sample of the indirect light at `origin` scattered toward `wo` by `hit`'s fiber: a
