@@ -322,7 +322,7 @@ fn apply_overrides(settings: BakeSettings, overrides: &[String]) -> Result<BakeS
 }
 
 /// The stage cache folder: `$TWILL_CACHE_DIR`, else `$XDG_CACHE_HOME/twill`, else `~/.cache/twill`.
-fn default_cache_dir() -> Option<PathBuf> {
+pub(crate) fn default_cache_dir() -> Option<PathBuf> {
     let var = |name| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
     var("TWILL_CACHE_DIR")
         .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("twill")))

@@ -4,6 +4,7 @@
 //! given), builds what it needs and reports errors through anyhow with the file and place that
 //! caused them. Long work shows a progress bar on stderr. The viewer is in `viewer/`.
 
+mod accuracy_report;
 mod commands;
 mod viewer;
 
@@ -40,10 +41,15 @@ enum Command {
     Render(RenderArgs),
     /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
     Bake(BakeArgs),
-    /// How accurate the method is, and why (against the path tracer).
+    /// What accuracy costs in time: every knob swept on hard light/view configurations of
+    /// several fabrics against cached path-traced references; writes report.html, report.csv
+    /// and headline.md (`twill accuracy budget` explains one scene's error instead).
+    #[command(args_conflicts_with_subcommands = true)]
     Accuracy {
         #[command(subcommand)]
-        command: AccuracyCommand,
+        command: Option<AccuracyCommand>,
+        #[command(flatten)]
+        report: ReportArgs,
     },
     /// Measure speed and accuracy (figures for docs/BENCHMARKS.md).
     Bench {
@@ -79,6 +85,46 @@ enum AccuracyCommand {
         #[arg(long = "set", value_name = "KNOB=VALUE")]
         overrides: Vec<String>,
     },
+}
+
+#[derive(Debug, clap::Args)]
+struct ReportArgs {
+    /// Fabric presets or scene files, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "default,silk_satin,gabardine_twill")]
+    scenes: Vec<String>,
+    /// Output folder (default: `accuracy/` in the stage cache folder); references are cached
+    /// in its `references/`.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Light/view configurations per fabric (the first four: head-on, grazing, backlit,
+    /// grazing and backlit).
+    #[arg(long, default_value_t = 12)]
+    configurations: usize,
+    /// Square image side in pixels.
+    #[arg(long, default_value_t = 32)]
+    size: usize,
+    #[arg(long, default_value_t = 256)]
+    reference_spp: u32,
+    /// Samples per pixel of the method's frames.
+    #[arg(long, default_value_t = 16)]
+    spp: u32,
+    /// The preset the knobs are varied around.
+    #[arg(long, value_enum, default_value = "draft")]
+    base: QualityArg,
+    /// Presets measured as points, comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "draft,interactive")]
+    presets: Vec<QualityArg>,
+    /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
+    /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, sos_count,
+    /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, volume_samples, spp, sigma_glo_cm).
+    #[arg(long, default_value = "all")]
+    knobs: String,
+    /// Skip the CPU version of the method at the presets.
+    #[arg(long)]
+    no_cpu: bool,
+    /// Configurations shown as images in the report.
+    #[arg(long, default_value_t = 4)]
+    examples: usize,
 }
 
 #[derive(Debug, Subcommand)]
@@ -343,9 +389,36 @@ fn run(cli: Cli) -> Result<()> {
             print_plan: args.print_plan,
             timings: args.timings,
         }),
+        Command::Accuracy { command: None, report } => {
+            accuracy_report::run(&accuracy_report::ReportOptions {
+                scenes: report.scenes,
+                output: report.output,
+                settings: twill_renderer::accuracy::sweep::SweepSettings {
+                    configurations: report.configurations,
+                    size: report.size,
+                    reference_spp: report.reference_spp,
+                    method_spp: report.spp,
+                    base: quality_of(report.base),
+                    presets: report.presets.into_iter().map(quality_of).collect(),
+                    knobs: accuracy_report::parse_knobs(&report.knobs)?,
+                    cpu_method: !report.no_cpu,
+                    max_depth: 64,
+                    example_images: report.examples,
+                },
+            })
+        }
         Command::Accuracy {
             command:
-                AccuracyCommand::Budget { scene, quality, size, spp, reference_spp, light_samples, overrides },
+                Some(AccuracyCommand::Budget {
+                    scene,
+                    quality,
+                    size,
+                    spp,
+                    reference_spp,
+                    light_samples,
+                    overrides,
+                }),
+            ..
         } => commands::accuracy_budget(
             scene.as_deref(),
             quality_of(quality),

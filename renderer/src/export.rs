@@ -99,15 +99,18 @@ fn write_png(path: &Path, image: &Image, display: Display) -> io::Result<()> {
 
 /// Writes 8-bit sRGB RGB bytes (row-major, top row first) as a PNG, atomically.
 pub fn write_rgb8_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
-    write_atomically(path, |w| {
-        let mut encoder = png::Encoder::new(w, width, height);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Eight);
-        encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
-        let mut writer = encoder.write_header().map_err(io::Error::other)?;
-        writer.write_image_data(rgb).map_err(io::Error::other)?;
-        writer.finish().map_err(io::Error::other)
-    })
+    write_atomically(path, |w| encode_rgb8_png(w, width, height, rgb))
+}
+
+/// Encodes 8-bit sRGB RGB bytes (row-major, top row first) as a PNG into `w`.
+pub fn encode_rgb8_png<W: io::Write>(w: W, width: u32, height: u32, rgb: &[u8]) -> io::Result<()> {
+    let mut encoder = png::Encoder::new(w, width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+    let mut writer = encoder.write_header().map_err(io::Error::other)?;
+    writer.write_image_data(rgb).map_err(io::Error::other)?;
+    writer.finish().map_err(io::Error::other)
 }
 
 fn write_exr(path: &Path, image: &Image) -> io::Result<()> {

@@ -181,12 +181,22 @@ fn to_u32(n: usize, what: &str) -> Result<u32, FabricDataError> {
         .map_err(|_| FabricDataError::Inconsistent(format!("{what} = {n} does not fit in 32 bits")))
 }
 
+/// Highest SH order the shaders hold: their coefficient arrays have `SH_MAX_COUNT` =
+/// (`MAX_SH_ORDER` + 1)² entries (`shaders/shared/sh.wgsl`; a test checks the two agree).
+pub const MAX_SH_ORDER: usize = 6;
+
 impl FabricArrays {
     /// Packs a bake set (its exemplars in pattern order) for the GPU.
     pub fn pack(exemplars: &[&Baked], pattern: &PatternMap) -> Result<Self, FabricDataError> {
         let first = exemplars.first().ok_or(FabricDataError::Empty)?;
         let settings = &first.settings;
         let sh_order = first.transfer.iirtf.sh_order;
+        if sh_order > MAX_SH_ORDER {
+            return Err(FabricDataError::Inconsistent(format!(
+                "the bake's SH order is {sh_order}; the GPU renderer holds SH order {MAX_SH_ORDER} at most \
+                 (bake with --set sh_order=N, N <= {MAX_SH_ORDER})"
+            )));
+        }
         let sh_count = (sh_order + 1) * (sh_order + 1);
         let dims = first.visibility.ssdf.dims;
         let components = first.visibility.ssdf.component_count;
@@ -544,6 +554,15 @@ pub fn make_buffer(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_sh_limit_matches_the_shaders_arrays() {
+        let count = (MAX_SH_ORDER + 1) * (MAX_SH_ORDER + 1);
+        assert!(
+            crate::shaders::SH.contains(&format!("const SH_MAX_COUNT: u32 = {count}u;")),
+            "shaders/shared/sh.wgsl's SH_MAX_COUNT must be (MAX_SH_ORDER + 1)^2 = {count}"
+        );
+    }
 
     #[test]
     fn f16_round_trip_matches_ieee_half() {

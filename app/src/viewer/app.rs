@@ -167,6 +167,8 @@ pub struct ViewerApp {
     source_path: PathBuf,
     scene_file: Option<SceneFile>,
     final_quality: Quality,
+    /// Per preset, what the latest `twill accuracy` report measured (read at start).
+    expected_accuracy: Vec<(Quality, crate::accuracy_report::ExpectedAccuracy)>,
     bake_choice: Quality,
 
     camera: OrbitCamera,
@@ -278,6 +280,10 @@ impl ViewerApp {
             source_path,
             final_quality: options.quality,
             bake_choice: options.quality,
+            expected_accuracy: Quality::ALL
+                .into_iter()
+                .filter_map(|q| crate::accuracy_report::expected_accuracy(q).map(|(e, _)| (q, e)))
+                .collect(),
             camera,
             initial_camera: camera,
             scene_lights: lights.clone(),
@@ -840,6 +846,7 @@ impl ViewerApp {
             interaction_scale: self.interaction_scale(),
             ui_baking: FrameStats::of(self.ui_timing.baking.iter().map(|f| f.0)),
             ui_idle: FrameStats::of(self.ui_timing.idle.iter().map(|f| f.0)),
+            expected: &self.expected_accuracy,
         };
         let (controls, bake_choice) = (&mut self.controls, &mut self.bake_choice);
         let action =

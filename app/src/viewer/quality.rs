@@ -79,6 +79,8 @@ pub struct QualityView<'a> {
     /// CPU time of the viewer's recent frames, with and without a bake running.
     pub ui_baking: Option<FrameStats>,
     pub ui_idle: Option<FrameStats>,
+    /// What the latest `twill accuracy` report measured for each preset (GPU).
+    pub expected: &'a [(Quality, crate::accuracy_report::ExpectedAccuracy)],
 }
 
 /// What the user asked for.
@@ -86,6 +88,36 @@ pub struct QualityView<'a> {
 pub enum QualityAction {
     Bake(Quality),
     CancelBake,
+}
+
+/// Where the shown quality sits: its expected error and cost from the latest accuracy report.
+fn expected_accuracy_label(
+    ui: &mut egui::Ui,
+    quality: Quality,
+    expected: &[(Quality, crate::accuracy_report::ExpectedAccuracy)],
+) {
+    match expected.iter().find(|(q, _)| *q == quality) {
+        Some((_, e)) => {
+            ui.label(format!(
+                "Expected error against path tracing (latest `twill accuracy` report: flat swatches of {} \
+                 under hard views and lights): image mean {:.1}% RMS, worst view {:+.1}%, per pixel {:.0}%; \
+                 frame {:.0} ms there, bake {:.1} s.",
+                e.fabrics.join(", "),
+                100.0 * e.mean_error,
+                100.0 * e.worst_error,
+                100.0 * e.pixel_error,
+                e.frame_ms,
+                e.bake_s
+            ))
+            .on_hover_text("Measured on the report's fabrics and image size, not on this scene; rerun `twill accuracy` to update");
+        }
+        None => {
+            ui.weak(format!(
+                "No accuracy report for the {} preset yet: `twill accuracy` measures its error and cost.",
+                quality.name()
+            ));
+        }
+    }
 }
 
 fn quality_name(q: Quality) -> &'static str {
@@ -128,6 +160,7 @@ pub fn quality_panel(
                     f.upload_seconds,
                     f.resident_bytes as f64 / 1e6
                 ));
+                expected_accuracy_label(ui, f.quality, view.expected);
             }
             None => {
                 ui.label("No fabric on screen yet.");

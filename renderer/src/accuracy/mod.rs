@@ -42,6 +42,8 @@ use crate::gpu::Gpu;
 use crate::headless::{HeadlessError, SceneRenderer, frame_settings};
 use crate::plan::Components;
 
+pub mod sweep;
+
 /// Why the experiment could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum AccuracyError {
