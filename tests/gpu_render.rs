@@ -352,6 +352,16 @@ fn lambertian_yarns_are_refused_with_a_message_not_rendered_black() {
     assert!(message.contains("material slot 1") && message.contains("twill reference"), "{message}");
 }
 
+#[test]
+fn sh_orders_above_what_the_shaders_hold_are_refused_naming_the_limit() {
+    let mut baked = default_bake().clone();
+    baked.transfer.iirtf.sh_order = twill_renderer::fabric_data::MAX_SH_ORDER + 1;
+    let err = twill_renderer::fabric_data::FabricArrays::pack(&[&baked], &PatternMap::uniform(0))
+        .expect_err("SH order 7 is refused");
+    let message = err.to_string();
+    assert!(message.contains("SH order is 7") && message.contains("SH order 6 at most"), "{message}");
+}
+
 /// What a new user sees first: `twill render` against `twill reference` of the built-in default
 /// scene (its camera and lights, 128x128, 64 spp, interactive bake), image mean ratio per channel.
 /// Before the fidelity fixes the ratio was 0.84. Slow on lavapipe; run with `--ignored --nocapture`.

@@ -394,7 +394,7 @@ fn html(sweep: &Sweep) -> Result<String> {
             points.push(b);
         }
         points.sort_by(|a, b| value_of(a).total_cmp(&value_of(b)));
-        points.dedup_by(|a, b| value_of(a) == value_of(b));
+        points.dedup_by(|a, b| (value_of(a) - value_of(b)).abs() < 1e-12);
         let series: Vec<Series> = [("image mean, all light", 2usize), ("single", 0), ("multiple", 1)]
             .into_iter()
             .map(|(name, c)| {

@@ -158,3 +158,105 @@ fn bake_writes_a_bake_file_and_reports_every_stage() {
     assert!(!out.status.success(), "{}", text(&out.stderr));
     assert!(text(&out.stderr).contains("/nonexistent-dir/x.twillbake"), "{}", text(&out.stderr));
 }
+
+/// `twill accuracy` end to end on a tiny sweep (GPU frames on lavapipe without a GPU): the
+/// CSV has a row per point with finite errors, the HTML holds plots and images, the viewer's
+/// copy is written, and references are reused on the next run unless a file is damaged.
+#[test]
+fn accuracy_report_writes_csv_and_html_and_reuses_only_valid_references() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |knobs: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_twill"))
+            .args([
+                "accuracy",
+                "--scenes",
+                "default",
+                "--configurations",
+                "2",
+                "--size",
+                "8",
+                "--reference-spp",
+                "4",
+                "--spp",
+                "2",
+                "--presets",
+                "draft",
+                "--no-cpu",
+                "--examples",
+                "1",
+                "--knobs",
+                knobs,
+                "-o",
+                "out",
+            ])
+            .env("TWILL_CACHE_DIR", dir.path().join("cache"))
+            .current_dir(dir.path())
+            .output()
+            .expect("twill runs");
+        let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+        assert!(out.status.success(), "{stdout}\n{stderr}");
+        (stdout, stderr)
+    };
+    let (stdout, stderr) = run("sh_order=1,volume_samples=16");
+    assert!(stderr.contains("reference 1/2") && stdout.contains("0 of 2 loaded"), "{stdout}\n{stderr}");
+    let csv = std::fs::read_to_string(dir.path().join("out/report.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 4, "header + draft + two knob points:\n{csv}");
+    let header: Vec<&str> = rows[0].split(',').collect();
+    for row in &rows[1..] {
+        let cells: Vec<&str> = row.split(',').collect();
+        assert_eq!(cells.len(), header.len(), "{row}");
+        for (name, cell) in header.iter().zip(&cells) {
+            if name.ends_with("_rel_rmse")
+                || name.ends_with("_ssim")
+                || *name == "frame_ms"
+                || *name == "bake_s"
+            {
+                let v: f64 = cell.parse().unwrap_or_else(|_| panic!("{name} = {cell:?}"));
+                assert!(v.is_finite() && v >= 0.0, "{name} = {v} in {row}");
+            }
+        }
+    }
+    assert!(rows[2].contains("sh_order = 1") && rows[3].contains("volume_samples = 16"), "{csv}");
+    let html = std::fs::read_to_string(dir.path().join("out/report.html")).unwrap();
+    assert!(html.matches("<svg").count() >= 4, "two Pareto plots and one per knob");
+    assert!(html.contains("data:image/png;base64,") && html.contains("Pareto"));
+    assert!(std::fs::read_to_string(dir.path().join("out/headline.md")).unwrap().contains("| draft | GPU |"));
+    assert_eq!(std::fs::read_to_string(dir.path().join("cache/accuracy/latest-report.csv")).unwrap(), csv);
+
+    let (stdout, stderr) = run("none");
+    assert!(stdout.contains("2 of 2 loaded") && !stderr.contains("reference 1/2"), "{stdout}\n{stderr}");
+
+    // A damaged reference is rendered again, never trusted.
+    let references = dir.path().join("out/references");
+    let damaged = std::fs::read_dir(&references).unwrap().next().unwrap().unwrap().path();
+    let mut bytes = std::fs::read(&damaged).unwrap();
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 0x40;
+    std::fs::write(&damaged, bytes).unwrap();
+    let (stdout, _) = run("none");
+    assert!(stdout.contains("1 of 2 loaded"), "{stdout}");
+    assert!(
+        std::fs::read_dir(dir.path().join("out"))
+            .unwrap()
+            .all(|e| { !e.unwrap().file_name().to_string_lossy().starts_with("stage-cache-") }),
+        "the run's private stage cache is removed"
+    );
+}
+
+#[test]
+fn accuracy_report_rejects_bad_knobs_and_fabrics_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, needle) in [
+        (&["accuracy", "--knobs", "colour"][..], "sh_order"),
+        (&["accuracy", "--knobs", "sh_order=7", "-o", "o"][..], "SH order 6"),
+        (&["accuracy", "--scenes", "no_such_fabric", "-o", "o"][..], "no_such_fabric"),
+        (&["accuracy", "--size", "2", "-o", "o"][..], "4..=1024"),
+    ] {
+        let out = twill(args, dir.path());
+        let stderr = text(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(!stderr.contains("panicked"), "{args:?} panicked:\n{stderr}");
+        assert!(stderr.contains(needle), "{args:?}: expected {needle:?} in\n{stderr}");
+    }
+}
