@@ -1285,7 +1285,7 @@ mod tests {
         let noisy = vec![(image(1.0), image(0.01)), (image(2.0), image(0.01))];
         let (with_noise, _) = component_errors(&[image(1.1), image(2.1)], &noisy, 16);
         assert!(with_noise.pixel_relative_rmse < biased.pixel_relative_rmse);
-        assert!((with_noise.pixel_relative_rmse - (0.0f64 / 2.5).sqrt()).abs() < 1e-12);
+        assert!(with_noise.pixel_relative_rmse < 1e-6, "{}", with_noise.pixel_relative_rmse);
     }
 
     #[test]
