@@ -1120,7 +1120,7 @@ impl Sweep {
                 ",{n}_mean_rel_rmse,{n}_worst_rel,{n}_worst_config,{n}_pixel_rel_rmse,{n}_equal_error_spp,{n}_ssim"
             );
         }
-        out.push('\n');
+        out.push_str(",gpu_pass_ms\n");
         let pareto = self.pareto();
         for (point, on_front) in self.points.iter().zip(pareto) {
             let (knob, value, preset) = match point.kind {
@@ -1174,7 +1174,9 @@ impl Sweep {
                         e.ssim
                     );
                 }
-                out.push('\n');
+                let passes: Vec<String> =
+                    result.pass_ms.iter().map(|(name, ms)| format!("{name}: {ms:.2}")).collect();
+                let _ = writeln!(out, ",{}", passes.join("; ").replace(',', " "));
             }
         }
         out
