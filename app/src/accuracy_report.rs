@@ -1,5 +1,6 @@
 //! `twill accuracy`: runs the knob sweep (`twill_renderer::accuracy::sweep`) on flat swatches
 //! of several fabrics and writes what it measured: `report.csv` (one row per point and fabric),
+//! `configurations.csv` (each configuration's error per point and fabric),
 //! `report.html` (self-contained: plots of error against time per knob, the Pareto front,
 //! tables, and images side by side with the reference and an error map) and `headline.md`
 //! (the presets' table the README shows). The CSV is also copied to the stage cache folder as
@@ -126,6 +127,7 @@ pub fn run(options: &ReportOptions) -> Result<()> {
         Ok(path)
     };
     let csv_path = write("report.csv", &csv)?;
+    write("configurations.csv", &sweep.configurations_csv())?;
     let html_path = write("report.html", &html(&sweep)?)?;
     let headline = sweep.headline_markdown();
     write("headline.md", &headline)?;

@@ -74,6 +74,14 @@ impl HardConfiguration {
         }
     }
 
+    /// Azimuth between the view and the light, degrees in [0, 180] (180: backlit).
+    #[must_use]
+    pub fn azimuth_apart_deg(&self) -> f64 {
+        let l = self.light_direction();
+        let azimuth = (self.view.y.atan2(self.view.x) - l.y.atan2(l.x)).abs().to_degrees();
+        if azimuth > 180.0 { 360.0 - azimuth } else { azimuth }
+    }
+
     /// One line: angles from the normal, the light's kind and the class.
     #[must_use]
     pub fn describe(&self) -> String {
@@ -82,8 +90,7 @@ impl HardConfiguration {
             Light::Sg { sharpness, .. } => format!("SG λ={sharpness:.0}"),
         };
         let l = self.light_direction();
-        let azimuth = (self.view.y.atan2(self.view.x) - l.y.atan2(l.x)).abs().to_degrees();
-        let azimuth = if azimuth > 180.0 { 360.0 - azimuth } else { azimuth };
+        let azimuth = self.azimuth_apart_deg();
         format!(
             "view {:.0}°, {light} at {:.0}°, {azimuth:.0}° apart in azimuth ({})",
             self.view.z.clamp(-1.0, 1.0).acos().to_degrees(),
@@ -1177,6 +1184,41 @@ impl Sweep {
                 let passes: Vec<String> =
                     result.pass_ms.iter().map(|(name, ms)| format!("{name}: {ms:.2}")).collect();
                 let _ = writeln!(out, ",{}", passes.join("; ").replace(',', " "));
+            }
+        }
+        out
+    }
+
+    /// One CSV row per point, fabric and configuration: the relative error of the image mean
+    /// per component, with the configuration's angles.
+    #[must_use]
+    pub fn configurations_csv(&self) -> String {
+        let mut out = String::from(
+            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel\n",
+        );
+        for point in &self.points {
+            let method = if point.method == Method::Gpu { "gpu" } else { "cpu" };
+            for (fabric, result) in self.fabrics.iter().zip(&point.fabrics) {
+                for (i, (c, e)) in self.configurations.iter().zip(&result.configuration_errors).enumerate() {
+                    let (kind, sharpness) = match c.light {
+                        Light::Directional { .. } => ("directional", String::new()),
+                        Light::Sg { sharpness, .. } => ("sg", format!("{sharpness:.2}")),
+                    };
+                    let l = c.light_direction();
+                    let _ = writeln!(
+                        out,
+                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5}",
+                        fabric.name,
+                        point.label.replace(',', ";"),
+                        c.class.replace(',', ";"),
+                        c.view.z.clamp(-1.0, 1.0).acos().to_degrees(),
+                        l.z.clamp(-1.0, 1.0).acos().to_degrees(),
+                        c.azimuth_apart_deg(),
+                        e[0],
+                        e[1],
+                        e[2]
+                    );
+                }
             }
         }
         out
