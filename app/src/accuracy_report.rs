@@ -451,9 +451,9 @@ fn html(sweep: &Sweep) -> Result<String> {
     for p in sweep.points.iter().filter(|p| matches!(p.kind, PointKind::Preset(_))) {
         let _ = writeln!(
             out,
-            "<h3>{} ({})</h3>",
+            "<h3>{}{}</h3>",
             escape(&p.label),
-            if p.method == Method::Gpu { "GPU" } else { "CPU method" }
+            if p.method == Method::Gpu { " (GPU)" } else { "" }
         );
         out.push_str("<table><tr><th>fabric</th><th>image mean: all / single / multiple</th><th>worst configuration</th><th>per pixel</th><th>SSIM</th><th>bake stages (s)</th><th>GPU passes (ms)</th></tr>\n");
         for (f, r) in sweep.fabrics.iter().zip(&p.fabrics) {

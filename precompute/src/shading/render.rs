@@ -57,7 +57,8 @@ pub fn shade(
                 }
             }
         }
-        total += multiple_scattering(baked, segment, position, wo, &c_light)?;
+        // Truncated SH can ring negative; clamped per channel as the GPU's shade pass does.
+        total += multiple_scattering(baked, segment, position, wo, &c_light)?.max(Rgb::ZERO);
     }
     Ok(total)
 }
