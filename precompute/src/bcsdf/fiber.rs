@@ -144,14 +144,29 @@ impl FiberScattering {
     /// S in fiber angles (θ from the normal plane, φ around the tangent), no cosine factor.
     #[must_use]
     pub fn eval_angles(&self, theta_i: f64, phi_i: f64, theta_o: f64, phi_o: f64) -> Rgb {
+        let (uniform, tt) = self.longitudinal_parts(theta_i, theta_o);
+        uniform + tt * self.tt_azimuthal(phi_o - phi_i)
+    }
+
+    /// S split by its azimuthal dependence: `S(θi, φi, θo, φo) = U + T · N_TT(φo − φi)` with
+    /// U (the R lobe, uniform in azimuth) and T (the TT lobe's longitudinal part) returned here
+    /// and N_TT from [`Self::tt_azimuthal`]. Integrals over azimuth use it to integrate N_TT
+    /// once instead of S at every longitude (`bake::cs_table`).
+    #[must_use]
+    pub fn longitudinal_parts(&self, theta_i: f64, theta_o: f64) -> (Rgb, Rgb) {
         let theta_i = theta_i.clamp(-FRAC_PI_2, FRAC_PI_2);
         let theta_o = theta_o.clamp(-FRAC_PI_2, FRAC_PI_2);
         let f = self.fresnel(theta_i.cos());
         let sum = theta_i + theta_o;
         let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
         let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
-        let n_tt = self.von_mises.pdf(phi_o - phi_i - PI);
-        f * (m_r / (2.0 * PI)) + (Rgb::ONE - f) * self.c_tt * (m_tt * n_tt)
+        (f * (m_r / (2.0 * PI)), (Rgb::ONE - f) * self.c_tt * m_tt)
+    }
+
+    /// The TT lobe's azimuthal density at `phi_o − phi_i` (a von Mises lobe about π).
+    #[must_use]
+    pub fn tt_azimuthal(&self, delta_phi: f64) -> f64 {
+        self.von_mises.pdf(delta_phi - PI)
     }
 
     /// S(ωi, ωo) for unit world-space directions and unit fiber tangent (no cosine factor).
