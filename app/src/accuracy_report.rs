@@ -218,14 +218,23 @@ const COLOURS: [RGBColor; 3] = [RGBColor(31, 119, 180), RGBColor(214, 39, 40), R
 /// An SVG plot: for each named series, (time, error) points joined in order, labelled.
 fn plot(title: &str, x_desc: &str, series: &[Series], highlight: &[(f64, f64, String)]) -> Result<String> {
     let all = series.iter().flat_map(|(_, p, _)| p.iter()).chain(highlight);
-    let (mut x1, mut y1) = (0f64, 0f64);
+    let (mut x0, mut x1, mut y1) = (f64::MAX, 0f64, 0f64);
     for &(x, y, _) in all {
         if x.is_finite() && y.is_finite() && x > 0.0 {
-            (x1, y1) = (x1.max(x), y1.max(y));
+            (x0, x1, y1) = (x0.min(x), x1.max(x), y1.max(y));
         }
     }
-    // Linear from zero: times compare as ratios at a glance.
-    let (x0, x1) = (0.0, if x1 > 0.0 { x1 * 1.15 } else { 1.0 });
+    if x0 > x1 {
+        (x0, x1) = (0.0, 1.0);
+    }
+    // Linear; from zero when the times span more than a factor of two (they compare as ratios
+    // at a glance), else zoomed on them (a knob that costs little time still spreads out).
+    let (x0, x1) = if x0 < 0.5 * x1 {
+        (0.0, x1 * 1.1)
+    } else {
+        let pad = 0.15 * (x1 - x0).max(0.02 * x1);
+        ((x0 - pad).max(0.0), x1 + pad)
+    };
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (560, 360)).into_drawing_area();

@@ -115,7 +115,7 @@ struct ReportArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "draft,interactive")]
     presets: Vec<QualityArg>,
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
-    /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, sos_count,
+    /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, sos_count, sos_sharpness,
     /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, volume_samples, spp, sigma_glo_cm).
     #[arg(long, default_value = "all")]
     knobs: String,

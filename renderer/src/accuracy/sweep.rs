@@ -157,6 +157,7 @@ pub enum Knob {
     PcaComponents,
     SvfResolution,
     SosCount,
+    SosSharpness,
     IirtfPaths,
     CellSize,
     CellDepth,
@@ -166,11 +167,12 @@ pub enum Knob {
 }
 
 impl Knob {
-    pub const ALL: [Knob; 10] = [
+    pub const ALL: [Knob; 11] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::SvfResolution,
         Knob::SosCount,
+        Knob::SosSharpness,
         Knob::IirtfPaths,
         Knob::CellSize,
         Knob::CellDepth,
@@ -187,6 +189,7 @@ impl Knob {
             Self::PcaComponents => "pca_components",
             Self::SvfResolution => "svf_resolution",
             Self::SosCount => "sos_count",
+            Self::SosSharpness => "sos_sharpness",
             Self::IirtfPaths => "iirtf_paths_per_cell",
             Self::CellSize => "cell_size_mfp",
             Self::CellDepth => "cell_depth_mfp",
@@ -218,6 +221,7 @@ impl Knob {
             Self::PcaComponents => vec![2.0, 4.0, 8.0, 16.0],
             Self::SvfResolution => vec![8.0, 12.0, 16.0, 24.0, 32.0],
             Self::SosCount => vec![4.0, 8.0, 16.0, 32.0],
+            Self::SosSharpness => vec![16.0, 32.0, 64.0, 256.0],
             Self::IirtfPaths => vec![24.0, 48.0, 96.0, 192.0, 384.0],
             Self::CellSize => vec![2.0, 3.0, 4.0, 6.0],
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
@@ -234,6 +238,7 @@ impl Knob {
             Self::PcaComponents => bake.pca_components = count,
             Self::SvfResolution => bake.svf_resolution = count,
             Self::SosCount => bake.sos_count = count,
+            Self::SosSharpness => bake.sos_sharpness = value,
             Self::IirtfPaths => bake.iirtf_paths_per_cell = count,
             Self::CellSize => bake.cell_size_mfp = value,
             Self::CellDepth => bake.cell_depth_mfp = value,
@@ -251,6 +256,7 @@ impl Knob {
             Self::PcaComponents => bake.pca_components as f64,
             Self::SvfResolution => bake.svf_resolution as f64,
             Self::SosCount => bake.sos_count as f64,
+            Self::SosSharpness => bake.sos_sharpness,
             Self::IirtfPaths => bake.iirtf_paths_per_cell as f64,
             Self::CellSize => bake.cell_size_mfp,
             Self::CellDepth => bake.cell_depth_mfp,
@@ -1115,7 +1121,7 @@ impl Sweep {
     #[must_use]
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,volume_samples,sigma_glo_cm,sh_order,pca_components,svf_resolution,sos_count,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
+            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,volume_samples,sigma_glo_cm,sh_order,pca_components,svf_resolution,sos_count,sos_sharpness,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
         );
         for stage in Stage::ALL {
             let _ = write!(out, ",stage_{}_s", stage.name());
@@ -1144,7 +1150,7 @@ impl Sweep {
                 let b = &point.bake;
                 let _ = write!(
                     out,
-                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{}",
+                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{},{}",
                     fabric.name,
                     point.label.replace(',', ";"),
                     result.bake_seconds(),
@@ -1157,6 +1163,7 @@ impl Sweep {
                     b.pca_components,
                     b.svf_resolution,
                     b.sos_count,
+                    b.sos_sharpness,
                     b.iirtf_paths_per_cell,
                     b.cell_size_mfp,
                     b.cell_depth_mfp
