@@ -94,8 +94,8 @@ fn compare_component(label: &str, scene: &Scene, component: Component) -> Compar
     c
 }
 
-/// What one comparison measured (2026-11-24, draft bake: lit-side visibility, 4ℓ × 0.5ℓ cells
-/// of 96 paths, transfer interpolated between cells): the relative error of the image mean and
+/// What one comparison measured (2026-11-24, draft bake: lit-side visibility, 32 SGs, 4ℓ × 0.5ℓ
+/// cells of 96 paths, transfer interpolated between cells; with 16 SGs SG λ = 8 single was −11.3%): the relative error of the image mean and
 /// the per-pixel RMSE over the reference mean.
 struct Measured {
     mean: f64,
@@ -146,7 +146,7 @@ fn directional_light_multiple_scattering() {
 
 #[test]
 fn soft_sg_light_single_scattering() {
-    check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.1133, pixel: 0.693 });
+    check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.0889, pixel: 0.633 });
 }
 
 #[test]

@@ -71,7 +71,7 @@ impl Quality {
             Self::Draft => BakeSettings {
                 svf_resolution: 16,
                 pca_components: 8,
-                sos_count: 16,
+                sos_count: 32,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 4.0,
                 cell_depth_mfp: 0.5,
@@ -85,7 +85,7 @@ impl Quality {
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
                 pca_components: 24,
-                sos_count: 32,
+                sos_count: 64,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 2.5,
                 cell_depth_mfp: 1.0,
