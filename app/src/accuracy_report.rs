@@ -427,15 +427,8 @@ fn html(sweep: &Sweep) -> Result<String> {
     // Every point.
     out.push_str("<h2>Every point</h2>\n<p>Errors averaged over the fabrics; green rows are on the Pareto front.</p>\n<table><tr><th>point</th><th>method</th><th>image mean: all</th><th>single</th><th>multiple</th><th>worst configuration</th><th>per pixel</th><th>equal spp</th><th>SSIM</th><th>frame ms</th><th>bake s</th><th>GPU MB</th></tr>\n");
     for (i, p) in sweep.points.iter().enumerate() {
-        let mean = |f: &dyn Fn(&sweep::FabricResult) -> f64| {
-            p.fabrics.iter().map(f).sum::<f64>() / p.fabrics.len().max(1) as f64
-        };
-        let worst = p
-            .fabrics
-            .iter()
-            .map(|f| f.errors[2].worst_relative)
-            .max_by(|a, b| a.abs().total_cmp(&b.abs()))
-            .unwrap_or(0.0);
+        let mean = |f: &dyn Fn(&sweep::FabricResult) -> f64| p.mean_over_fabrics(f);
+        let worst = p.worst_error();
         let _ = writeln!(
             out,
             "<tr{}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:+.1}%</td><td>{}</td><td>{:.0}</td><td>{:.3}</td><td>{:.0}</td><td>{:.1}</td><td>{:.0}</td></tr>",

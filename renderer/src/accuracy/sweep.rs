@@ -591,8 +591,19 @@ impl Point {
         knob.value(&self.bake, &frame)
     }
 
-    fn mean_over_fabrics(&self, f: impl Fn(&FabricResult) -> f64) -> f64 {
+    /// The mean over fabrics of `f` of each fabric's result.
+    pub fn mean_over_fabrics(&self, f: impl Fn(&FabricResult) -> f64) -> f64 {
         self.fabrics.iter().map(f).sum::<f64>() / self.fabrics.len().max(1) as f64
+    }
+
+    /// The worst configuration's relative error of all light over every fabric (signed).
+    #[must_use]
+    pub fn worst_error(&self) -> f64 {
+        self.fabrics
+            .iter()
+            .map(|f| f.errors[2].worst_relative)
+            .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+            .unwrap_or(0.0)
     }
 
     /// Fig. 13 error of all light, averaged over fabrics.
@@ -1239,12 +1250,7 @@ impl Sweep {
         );
         for p in self.points.iter().filter(|p| matches!(p.kind, PointKind::Preset(_))) {
             let mean = |c: usize, f: fn(&ComponentErrors) -> f64| p.mean_over_fabrics(|r| f(&r.errors[c]));
-            let worst = p
-                .fabrics
-                .iter()
-                .map(|r| r.errors[2].worst_relative)
-                .max_by(|a, b| a.abs().total_cmp(&b.abs()))
-                .unwrap_or(0.0);
+            let worst = p.worst_error();
             let _ = writeln!(
                 out,
                 "| {} | {} | {:.1}% / {:.1}% / {:.1}% | {:+.1}% | {:.1}% | {:.0} spp | {:.3} | {:.0} ms | {:.1} s |",
