@@ -479,6 +479,31 @@ fn html(sweep: &Sweep) -> Result<String> {
             );
         }
         out.push_str("</table>\n");
+        out.push_str("<p>By kind of configuration: the mean signed error of the image mean, single / multiple / all.</p><table><tr><th>kind</th>");
+        for f in &sweep.fabrics {
+            let _ = write!(out, "<th>{}</th>", escape(&f.name));
+        }
+        out.push_str("</tr>\n");
+        let classes = sweep.errors_by_class(p, 0);
+        for (class, _, _) in &classes {
+            let _ = write!(out, "<tr><td>{}</td>", escape(class));
+            for fabric in 0..sweep.fabrics.len() {
+                match sweep.errors_by_class(p, fabric).into_iter().find(|(c, _, _)| c == class) {
+                    Some((_, n, e)) => {
+                        let _ = write!(
+                            out,
+                            "<td>{:+.1}% / {:+.1}% / {:+.1}% ({n})</td>",
+                            100.0 * e[0],
+                            100.0 * e[1],
+                            100.0 * e[2]
+                        );
+                    }
+                    None => out.push_str("<td></td>"),
+                }
+            }
+            out.push_str("</tr>\n");
+        }
+        out.push_str("</table>\n");
     }
 
     // Images side by side.

@@ -222,7 +222,11 @@ fn accuracy_report_writes_csv_and_html_and_reuses_only_valid_references() {
     assert!(html.matches("<svg").count() >= 4, "two Pareto plots and one per knob");
     let per_configuration = std::fs::read_to_string(dir.path().join("out/configurations.csv")).unwrap();
     assert_eq!(per_configuration.lines().count(), 1 + 3 * 2, "a row per point and configuration");
-    assert!(html.contains("data:image/png;base64,") && html.contains("Pareto"));
+    assert!(
+        html.contains("data:image/png;base64,")
+            && html.contains("Pareto")
+            && html.contains("By kind of configuration")
+    );
     assert!(std::fs::read_to_string(dir.path().join("out/headline.md")).unwrap().contains("| draft | GPU |"));
     assert_eq!(std::fs::read_to_string(dir.path().join("cache/accuracy/latest-report.csv")).unwrap(), csv);
 

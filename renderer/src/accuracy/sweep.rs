@@ -1207,6 +1207,31 @@ impl Sweep {
         out
     }
 
+    /// The mean signed relative error of the image mean per kind of configuration
+    /// ([`HardConfiguration::class`]) for one point on one fabric: (class, count, [single,
+    /// multiple, all]), in order of first appearance.
+    #[must_use]
+    pub fn errors_by_class(&self, point: &Point, fabric: usize) -> Vec<(&'static str, usize, [f64; 3])> {
+        let mut out: Vec<(&'static str, usize, [f64; 3])> = Vec::new();
+        let Some(result) = point.fabrics.get(fabric) else { return out };
+        for (c, e) in self.configurations.iter().zip(&result.configuration_errors) {
+            let i = out.iter().position(|(class, _, _)| *class == c.class).unwrap_or_else(|| {
+                out.push((c.class, 0, [0.0; 3]));
+                out.len() - 1
+            });
+            out[i].1 += 1;
+            for (sum, value) in out[i].2.iter_mut().zip(e) {
+                *sum += value;
+            }
+        }
+        for (_, n, sums) in &mut out {
+            for v in sums.iter_mut() {
+                *v /= *n as f64;
+            }
+        }
+        out
+    }
+
     /// One CSV row per point, fabric and configuration: the relative error of the image mean
     /// per component, with the configuration's angles.
     #[must_use]
