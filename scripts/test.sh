@@ -6,6 +6,11 @@
 # also installed by setup.sh) and fails when it is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# In CI a skipped GPU or window test would let a broken renderer pass: refuse the skip switch.
+if [ -n "${CI:-}" ] && [ -n "${TWILL_ALLOW_NO_GPU:-}" ]; then
+  echo "error: TWILL_ALLOW_NO_GPU is set while CI is set; CI runs every GPU and window test" >&2
+  exit 2
+fi
 bash scripts/setup.sh
 export PATH="$HOME/.cargo/bin:$PATH"
 # Mesa wants a runtime directory; give it a private one when the session has none.

@@ -316,7 +316,7 @@ fn diagnose_bake_quality() {
                     if component == Component::Single && interpolate_transfer {
                         continue;
                     }
-                    let options = MethodOptions { interpolate_transfer };
+                    let options = MethodOptions { interpolate_transfer, ..MethodOptions::default() };
                     let method =
                         render_flat_with(&scene, &baked, component, METHOD_SPP, 5, options).unwrap().mean();
                     eprintln!(
@@ -488,7 +488,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     let settings = BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3 };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
-    assert_eq!(budget.rungs.len(), 9);
+    assert_eq!(budget.rungs.len(), 10);
     for rung in &budget.rungs {
         assert!(
             rung.relative_error_of_mean.is_finite() && rung.relative_pixel_rmse.is_finite(),
@@ -528,6 +528,14 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         "per-pixel RMSE: interpolated {:.3} vs per cell {:.3}",
         interpolated.relative_pixel_rmse,
         per_cell.relative_pixel_rmse
+    );
+    // Clamping at zero only ever raises a sample: rung 4 is never below its unclamped twin.
+    let unclamped = budget.rung(Component::Multiple, "4'").expect("unclamped rung");
+    assert!(
+        unclamped.relative_error_of_mean <= interpolated.relative_error_of_mean + 1e-12,
+        "unclamped {:+.4} vs clamped {:+.4}",
+        unclamped.relative_error_of_mean,
+        interpolated.relative_error_of_mean
     );
     let midpoint = budget.rung(Component::Single, "2 ").expect("midpoint rung");
     let lit_side = budget.rung(Component::Single, "3 ").expect("lit-side rung");

@@ -241,7 +241,7 @@ pub fn pattern_blocks(drafts: &[WeaveDraft]) -> Vec<[u32; 2]> {
 
 /// `[swatch]`: the flat tiled piece of fabric that is rendered.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct SwatchSection {
     /// Size along x and y in cm, centred on the origin (ignored for fabrics used as-is).
     #[serde(deserialize_with = "positive_pair")]
@@ -256,9 +256,10 @@ impl Default for SwatchSection {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ProjectionKind {
+    #[default]
     Perspective,
     Orthographic,
 }
@@ -267,6 +268,8 @@ pub enum ProjectionKind {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSection {
+    /// Perspective unless given.
+    #[serde(default)]
     pub projection: ProjectionKind,
     pub eye: [f64; 3],
     pub target: [f64; 3],
@@ -765,6 +768,40 @@ mod tests {
             .and_then(|s| s.build().map(|_| ()))
             .unwrap_err()
             .to_string()
+    }
+
+    /// Every documented default applies when its key is left out (docs/SCENE_FORMAT.md), section
+    /// by section: a scene naming only what is required equals one spelling out the defaults.
+    #[test]
+    fn documented_defaults_apply_to_every_section_when_keys_are_left_out() {
+        let parse = |text: &str| SceneFile::parse(text, Path::new("defaults.toml")).unwrap();
+        let minimal = "[fabric]\npreset = \"default\"\n[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n\
+                       [[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+        let scene = parse(minimal);
+        // [swatch]: absent, empty, or with one key given.
+        assert_eq!(scene.swatch, SwatchSection { size_cm: [1.0, 1.0], ground: true });
+        assert_eq!(parse(&format!("{minimal}[swatch]\n")).swatch, scene.swatch);
+        let only_size = parse(&format!("{minimal}[swatch]\nsize_cm = [2, 3]\n")).swatch;
+        assert_eq!(only_size, SwatchSection { size_cm: [2.0, 3.0], ground: true });
+        let only_ground = parse(&format!("{minimal}[swatch]\nground = false\n")).swatch;
+        assert_eq!(only_ground, SwatchSection { size_cm: [1.0, 1.0], ground: false });
+        // [camera]: projection perspective, up +z, 30° field of view, 1 cm film height.
+        let camera = scene.camera;
+        assert_eq!(camera.projection, ProjectionKind::Perspective);
+        assert_eq!((camera.up, camera.fov_y_deg, camera.height_cm), ([0.0, 0.0, 1.0], 30.0, 1.0));
+        // [render], [gpu], [mesh]: every key optional.
+        assert_eq!(scene.render, RenderSection {
+            width: 256,
+            height: 256,
+            spp: 64,
+            max_depth: 64,
+            seed: 1,
+            exposure: 0.0
+        });
+        assert_eq!(parse(&format!("{minimal}[render]\n")).render, scene.render);
+        assert_eq!(parse(&format!("{minimal}[gpu]\n")).gpu, GpuSection::default());
+        assert_eq!(parse(&format!("{minimal}[mesh]\n")).mesh, scene.mesh);
+        SceneFile::parse(minimal, Path::new("defaults.toml")).unwrap().build().expect("builds");
     }
 
     const CAMERA: &str =

@@ -24,7 +24,11 @@
 //! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell;
-//! 4. the method: the IIRTF interpolated between cells at the hit point.
+//! 4. the method: the IIRTF interpolated between cells at the hit point;
+//!
+//! and beside them 4′, the method without clamping multiple scattering at zero. Truncated SH and
+//! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
+//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds.
 //!
 //! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
 //! adds the GPU renderer's frame (primary visibility from the voxel volume, at the scene's
@@ -251,12 +255,13 @@ pub fn error_budget(
         baked.transfer.iirtf.sh_order,
         baked.settings.iirtf_paths_per_cell
     );
-    for (name, interpolate_transfer) in [
-        (format!("3 IIRTF per cell (paper): {cells}"), false),
-        ("4 the method: IIRTF interpolated between cells".into(), true),
+    for (name, interpolate_transfer, clamp_multiple) in [
+        (format!("3 IIRTF per cell (paper): {cells}"), false, true),
+        ("4 the method: IIRTF interpolated between cells".into(), true, true),
+        ("4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(), true, false),
     ] {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer };
+        let options = MethodOptions { interpolate_transfer, clamp_multiple };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
     }

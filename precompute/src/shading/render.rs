@@ -41,6 +41,19 @@ pub fn shade(
     lights: &[(Light, f64, f64)],
     component: Component,
 ) -> Result<Rgb, ShadingError> {
+    shade_segment(baked, segment, position, wo, lights, component, true)
+}
+
+/// [`shade`], with the clamp of multiple scattering at zero optional (`clamp_multiple`).
+fn shade_segment(
+    baked: &Baked,
+    segment: u32,
+    position: Option<DVec3>,
+    wo: DVec3,
+    lights: &[(Light, f64, f64)],
+    component: Component,
+    clamp_multiple: bool,
+) -> Result<Rgb, ShadingError> {
     let mut total = Rgb::ZERO;
     if component != Component::Multiple {
         for (light, v_glo, _) in lights {
@@ -57,8 +70,10 @@ pub fn shade(
                 }
             }
         }
-        // Truncated SH can ring negative; clamped per channel as the GPU's shade pass does.
-        total += multiple_scattering(baked, segment, position, wo, &c_light)?.max(Rgb::ZERO);
+        // Truncated SH and a noisy transfer can go negative; clamped per channel as the GPU's
+        // shade pass does (which biases the mean up where the transfer is noisy).
+        let multiple = multiple_scattering(baked, segment, position, wo, &c_light)?;
+        total += if clamp_multiple { multiple.max(Rgb::ZERO) } else { multiple };
     }
     Ok(total)
 }
@@ -69,11 +84,14 @@ pub struct MethodOptions {
     /// Interpolate transfer between cells at the hit point (`true`, the default) or use the
     /// hit segment's own cell (the paper's constant per cell).
     pub interpolate_transfer: bool,
+    /// Clamp multiple scattering at zero per channel and sample (`true`, the default and the
+    /// GPU's choice) or keep negative values (unbiased in the mean, but not an image).
+    pub clamp_multiple: bool,
 }
 
 impl Default for MethodOptions {
     fn default() -> Self {
-        Self { interpolate_transfer: true }
+        Self { interpolate_transfer: true, clamp_multiple: true }
     }
 }
 
@@ -108,7 +126,7 @@ pub fn render_flat_with(
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     render_primary_hits(scene, spp, seed, |hit, wo, _| {
         let position = options.interpolate_transfer.then(|| hit.local_position.as_dvec3());
-        shade(baked, hit.segment, position, wo, &lights, component)
+        shade_segment(baked, hit.segment, position, wo, &lights, component, options.clamp_multiple)
     })
 }
 
