@@ -775,7 +775,7 @@ mod tests {
     #[test]
     fn documented_defaults_apply_to_every_section_when_keys_are_left_out() {
         let parse = |text: &str| SceneFile::parse(text, Path::new("defaults.toml")).unwrap();
-        let minimal = "[fabric]\npreset = \"default\"\n[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n\
+        let minimal = "[fabric]\npreset = \"default\"\n[camera]\neye = [0, 2, 3]\ntarget = [0, 0, 0]\n\
                        [[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
         let scene = parse(minimal);
         // [swatch]: absent, empty, or with one key given.
