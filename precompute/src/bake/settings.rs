@@ -88,7 +88,7 @@ impl Quality {
                 sos_count: 64,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 2.5,
-                cell_depth_mfp: 1.0,
+                cell_depth_mfp: 0.5,
                 iirtf_paths_per_cell: 160,
                 sh_order: 4,
                 cs_theta_count: 256,
