@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::bake::Cancel;
-use twill_precompute::bake::file::Cache;
+use twill_precompute::bake::file::{Cache, DEFAULT_CACHE_LIMIT_BYTES};
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{
     BakeOutcome, Baked, Stage, StageSource, bake_set, read_bake, write_bake,
@@ -212,8 +212,21 @@ pub(crate) fn open_cache(explicit: Option<&Path>, no_cache: bool) -> Result<Opti
         return Ok(None);
     }
     match explicit.map(Path::to_path_buf).or_else(default_cache_dir) {
-        Some(dir) => Ok(Some(Cache::new(&dir)?)),
+        Some(dir) => Ok(Some(Cache::with_limit(&dir, cache_limit_bytes()?)?)),
         None => Ok(None),
+    }
+}
+
+/// The stage cache's size limit: `$TWILL_CACHE_MAX_MB` megabytes (1 to 1,000,000,000), else
+/// [`DEFAULT_CACHE_LIMIT_BYTES`].
+pub(crate) fn cache_limit_bytes() -> Result<u64> {
+    let Some(value) = std::env::var_os("TWILL_CACHE_MAX_MB").filter(|v| !v.is_empty()) else {
+        return Ok(DEFAULT_CACHE_LIMIT_BYTES);
+    };
+    let text = value.to_string_lossy();
+    match text.trim().parse::<u64>() {
+        Ok(mb @ 1..=1_000_000_000) => Ok(mb << 20),
+        _ => bail!("TWILL_CACHE_MAX_MB = {text:?}: expected whole megabytes in 1..=1000000000"),
     }
 }
 
@@ -293,6 +306,10 @@ pub struct BakeOptions {
     pub cache: Option<PathBuf>,
     pub no_cache: bool,
     pub overrides: Vec<String>,
+    /// Print the stage cache's folder, entries, size and limit instead of baking.
+    pub cache_info: bool,
+    /// Empty the stage cache instead of baking.
+    pub cache_clear: bool,
 }
 
 /// Applies `KNOB=VALUE` overrides to bake settings (through their TOML form, so unknown knobs
@@ -330,6 +347,24 @@ pub(crate) fn default_cache_dir() -> Option<PathBuf> {
 }
 
 pub fn bake(options: &BakeOptions) -> Result<()> {
+    if options.cache_info || options.cache_clear {
+        let Some(cache) = open_cache(options.cache.as_deref(), false)? else {
+            bail!("no stage cache folder: give --cache DIR or set TWILL_CACHE_DIR or HOME");
+        };
+        if options.cache_clear {
+            let removed = cache.clear()?;
+            eprintln!("{}: deleted {removed} cache entries", cache.dir().display());
+        }
+        let info = cache.info();
+        println!(
+            "{}: {} entries, {:.1} MB of {:.0} MB (least recently used entries go first; TWILL_CACHE_MAX_MB sets the limit)",
+            cache.dir().display(),
+            info.entries,
+            info.bytes as f64 / f64::from(1 << 20),
+            info.limit_bytes as f64 / f64::from(1 << 20),
+        );
+        return Ok(());
+    }
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
     let scene = file.build()?;
     let settings = apply_overrides(options.quality.settings(), &options.overrides)?;
@@ -342,14 +377,7 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
         .output
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", options.quality.name())));
-    let cache = if options.no_cache {
-        None
-    } else {
-        match options.cache.clone().or_else(default_cache_dir) {
-            Some(dir) => Some(Cache::new(&dir)?),
-            None => None,
-        }
-    };
+    let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
 
     let bar = ProgressBar::new(1000).with_style(
         ProgressStyle::with_template("{msg:>16} [{bar:40}] {percent:>3}%, {elapsed} elapsed, eta {eta}")

@@ -242,6 +242,13 @@ struct BakeArgs {
     /// (repeatable; the knobs are the fields of `BakeSettings`, see docs/BENCHMARKS.md).
     #[arg(long = "set", value_name = "KNOB=VALUE")]
     overrides: Vec<String>,
+    /// Print the stage cache's folder, entries, size and size limit, and bake nothing
+    /// (the limit: $TWILL_CACHE_MAX_MB, default 4096; least recently used entries go first).
+    #[arg(long, conflicts_with = "no_cache")]
+    cache_info: bool,
+    /// Delete every entry of the stage cache, and bake nothing.
+    #[arg(long, conflicts_with = "no_cache")]
+    cache_clear: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -374,6 +381,8 @@ fn run(cli: Cli) -> Result<()> {
             cache: args.cache,
             no_cache: args.no_cache,
             overrides: args.overrides,
+            cache_info: args.cache_info,
+            cache_clear: args.cache_clear,
         }),
         Command::Render(args) => commands::render(&commands::RenderOptions {
             image: args.image,

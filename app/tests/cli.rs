@@ -7,6 +7,12 @@ fn twill(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_twill")).args(args).current_dir(dir).output().expect("twill runs")
 }
 
+fn twill_env(args: &[&str], dir: &Path, vars: &[(&str, &str)]) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_twill"));
+    command.args(args).current_dir(dir).envs(vars.iter().copied());
+    command.output().expect("twill runs")
+}
+
 fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
@@ -144,7 +150,39 @@ fn bake_writes_a_bake_file_and_reports_every_stage() {
     assert!(dir.path().join("d.twillbake").metadata().unwrap().len() > 1000);
     // The second bake comes entirely from the stage cache.
     let again = twill(&["bake", "--quality", "draft", "--cache", cache_arg, "-o", "d.twillbake"], dir.path());
-    assert!(!text(&again.stderr).contains("computed"), "{}", text(&again.stderr));
+    let again = text(&again.stderr);
+    for stage in ["mean_free_path", "visibility", "transfer", "cs_tables", "gn_tables", "cg_table", "volume"]
+    {
+        let line = again.lines().find(|l| l.trim_start().starts_with(stage));
+        assert!(
+            line.is_some_and(|l| l.split_whitespace().nth(1) == Some("cached")),
+            "{stage} should come from the cache:\n{again}"
+        );
+    }
+
+    // --cache-info lists the entries; --cache-clear empties the folder; a bad limit is named.
+    let info = twill(&["bake", "--cache", cache_arg, "--cache-info"], dir.path());
+    let listed = text(&info.stdout);
+    assert!(info.status.success() && listed.contains("7 entries") && listed.contains("4096 MB"), "{listed}");
+    let limited = twill_env(
+        &["bake", "--cache", cache_arg, "--cache-info"],
+        dir.path(),
+        &[("TWILL_CACHE_MAX_MB", "64")],
+    );
+    assert!(text(&limited.stdout).contains("of 64 MB"), "{}", text(&limited.stdout));
+    let bad = twill_env(
+        &["bake", "--cache", cache_arg, "--cache-info"],
+        dir.path(),
+        &[("TWILL_CACHE_MAX_MB", "-3")],
+    );
+    assert!(!bad.status.success() && text(&bad.stderr).contains("1..=1000000000"), "{}", text(&bad.stderr));
+    let cleared = twill(&["bake", "--cache", cache_arg, "--cache-clear"], dir.path());
+    assert!(
+        cleared.status.success() && text(&cleared.stdout).contains("0 entries"),
+        "{}",
+        text(&cleared.stderr)
+    );
+    assert!(text(&cleared.stderr).contains("deleted 7 cache entries"), "{}", text(&cleared.stderr));
 
     // A file where the cache folder should be, and an unwritable output, are clear errors.
     std::fs::write(dir.path().join("not-a-dir"), "x").unwrap();

@@ -790,14 +790,10 @@ mod tests {
         assert_eq!(camera.projection, ProjectionKind::Perspective);
         assert_eq!((camera.up, camera.fov_y_deg, camera.height_cm), ([0.0, 0.0, 1.0], 30.0, 1.0));
         // [render], [gpu], [mesh]: every key optional.
-        assert_eq!(scene.render, RenderSection {
-            width: 256,
-            height: 256,
-            spp: 64,
-            max_depth: 64,
-            seed: 1,
-            exposure: 0.0
-        });
+        assert_eq!(
+            scene.render,
+            RenderSection { width: 256, height: 256, spp: 64, max_depth: 64, seed: 1, exposure: 0.0 }
+        );
         assert_eq!(parse(&format!("{minimal}[render]\n")).render, scene.render);
         assert_eq!(parse(&format!("{minimal}[gpu]\n")).gpu, GpuSection::default());
         assert_eq!(parse(&format!("{minimal}[mesh]\n")).mesh, scene.mesh);

@@ -760,27 +760,58 @@ impl BakeFile {
     }
 }
 
-/// A directory of bake files named by their cache keys.
+/// A directory of bake files named by their cache keys, at most [`Cache::limit_bytes`] in all.
+///
+/// How it works: a load that hits touches the file's modification time, so modification order
+/// is use order; after every store the least recently used entries are deleted until the
+/// folder fits the limit again (the entry just stored is never deleted, even when it alone is
+/// larger). Opening the cache deletes temporary files that a killed writer left behind
+/// (`.NAME.PID.tmp` whose process is gone, or older than a day where that cannot be told).
 #[derive(Debug, Clone)]
 pub struct Cache {
     dir: PathBuf,
+    limit_bytes: u64,
+}
+
+/// The default size limit of a stage cache: 4 GiB.
+pub const DEFAULT_CACHE_LIMIT_BYTES: u64 = 4 << 30;
+
+/// What a cache holds ([`Cache::info`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CacheInfo {
+    pub entries: usize,
+    pub bytes: u64,
+    pub limit_bytes: u64,
 }
 
 impl Cache {
-    /// Uses `dir`, creating it if missing; fails clearly if it cannot be created or written.
+    /// Uses `dir` with the default size limit, creating it if missing; fails clearly if it
+    /// cannot be created or written.
     pub fn new(dir: &Path) -> Result<Self, BakeFileError> {
+        Self::with_limit(dir, DEFAULT_CACHE_LIMIT_BYTES)
+    }
+
+    /// [`Cache::new`] holding at most `limit_bytes` of entries.
+    pub fn with_limit(dir: &Path, limit_bytes: u64) -> Result<Self, BakeFileError> {
         let cache_err = |source| BakeFileError::CacheDir { dir: dir.to_owned(), source };
         fs::create_dir_all(dir).map_err(cache_err)?;
         // Probe that files can be created here (read-only mounts, permissions).
         let probe = dir.join(format!(".twill-write-probe.{}", std::process::id()));
         fs::write(&probe, b"probe").map_err(cache_err)?;
         let _ = fs::remove_file(&probe);
-        Ok(Self { dir: dir.to_owned() })
+        let cache = Self { dir: dir.to_owned(), limit_bytes };
+        cache.remove_leftover_temporaries();
+        Ok(cache)
     }
 
     #[must_use]
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    #[must_use]
+    pub fn limit_bytes(&self) -> u64 {
+        self.limit_bytes
     }
 
     /// `<dir>/<key hex>.twillbake`.
@@ -791,11 +822,21 @@ impl Cache {
 
     /// The cached bake for `key`, or `None` (recompute) if there is none or it is unusable;
     /// unusable files (corrupt, truncated, stale, other version) are deleted, and why is logged.
+    /// A hit counts as a use (for the least-recently-used eviction).
     #[must_use]
     pub fn load(&self, key: ContentHash) -> Option<BakeFile> {
         let path = self.path_for(key);
         match BakeFile::open(&path, key) {
-            Ok(file) => Some(file),
+            Ok(file) => {
+                let touched = fs::File::options()
+                    .append(true)
+                    .open(&path)
+                    .and_then(|f| f.set_modified(std::time::SystemTime::now()));
+                if let Err(e) = touched {
+                    log::debug!("{}: could not mark as used: {e}", path.display());
+                }
+                Some(file)
+            }
             Err(BakeFileError::NotFound { .. }) => None,
             Err(e @ BakeFileError::Io { .. }) => {
                 log::warn!("{e}; baking again");
@@ -811,12 +852,106 @@ impl Cache {
         }
     }
 
-    /// Writes `writer` atomically under its key; returns the path.
+    /// Writes `writer` atomically under its key, then evicts the least recently used entries
+    /// beyond the limit; returns the path.
     pub fn store(&self, writer: &BakeWriter) -> Result<PathBuf, BakeFileError> {
         let path = self.path_for(writer.key());
         writer.write(&path)?;
+        self.evict_beyond_limit(&path);
         Ok(path)
     }
+
+    /// Entries and their total size.
+    #[must_use]
+    pub fn info(&self) -> CacheInfo {
+        let entries = self.entries();
+        CacheInfo {
+            entries: entries.len(),
+            bytes: entries.iter().map(|e| e.1).sum(),
+            limit_bytes: self.limit_bytes,
+        }
+    }
+
+    /// Deletes every entry; returns how many were deleted.
+    pub fn clear(&self) -> Result<usize, BakeFileError> {
+        let mut removed = 0;
+        for (path, ..) in self.entries() {
+            fs::remove_file(&path).map_err(|source| BakeFileError::Io { file: path, source })?;
+            removed += 1;
+        }
+        Ok(removed)
+    }
+
+    /// `(path, bytes, last use)` of every entry, least recently used first.
+    fn entries(&self) -> Vec<(PathBuf, u64, std::time::SystemTime)> {
+        let Ok(dir) = fs::read_dir(&self.dir) else { return Vec::new() };
+        let mut entries: Vec<_> = dir
+            .filter_map(Result::ok)
+            .filter(|e| e.path().extension().is_some_and(|x| x == CACHE_EXTENSION))
+            .filter_map(|e| {
+                let meta = e.metadata().ok().filter(fs::Metadata::is_file)?;
+                Some((e.path(), meta.len(), meta.modified().ok()?))
+            })
+            .collect();
+        entries.sort_by(|a, b| a.2.cmp(&b.2).then_with(|| a.0.cmp(&b.0)));
+        entries
+    }
+
+    fn evict_beyond_limit(&self, keep: &Path) {
+        let entries = self.entries();
+        let mut total: u64 = entries.iter().map(|e| e.1).sum();
+        for (path, bytes, _) in entries {
+            if total <= self.limit_bytes {
+                break;
+            }
+            if path == keep {
+                continue;
+            }
+            match fs::remove_file(&path) {
+                Ok(()) => {
+                    log::info!("{}: evicted from the stage cache (least recently used)", path.display());
+                    total -= bytes;
+                }
+                Err(e) => log::warn!("{}: could not evict: {e}", path.display()),
+            }
+        }
+    }
+
+    /// Deletes `.NAME.PID.tmp` files whose writer is gone (see the type's docs).
+    fn remove_leftover_temporaries(&self) {
+        let Ok(dir) = fs::read_dir(&self.dir) else { return };
+        let own = std::process::id();
+        let can_tell = Path::new("/proc/self").exists();
+        for entry in dir.filter_map(Result::ok) {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let Some(pid) = leftover_temporary_pid(&name) else { continue };
+            let gone = if can_tell {
+                pid != own && !Path::new(&format!("/proc/{pid}")).exists()
+            } else {
+                entry
+                    .metadata()
+                    .and_then(|m| m.modified())
+                    .ok()
+                    .and_then(|t| t.elapsed().ok())
+                    .is_some_and(|age| age.as_secs() > 24 * 3600)
+            };
+            if gone {
+                match fs::remove_file(entry.path()) {
+                    Ok(()) => log::info!("{}: removed a killed writer's leftover", entry.path().display()),
+                    Err(e) => log::warn!("{}: could not remove: {e}", entry.path().display()),
+                }
+            }
+        }
+    }
+}
+
+/// The writer's process id of an atomic write's temporary `.NAME.PID.tmp` (NAME a cache
+/// entry), or `None` for any other name.
+fn leftover_temporary_pid(name: &str) -> Option<u32> {
+    let inner = name.strip_prefix('.')?.strip_suffix(".tmp")?;
+    let (entry, pid) = inner.rsplit_once('.')?;
+    entry.ends_with(&format!(".{CACHE_EXTENSION}")).then_some(())?;
+    pid.parse().ok()
 }
 
 #[cfg(test)]
@@ -1001,6 +1136,66 @@ mod tests {
         // An unwritable target directory is a clear error naming the file.
         let err = w.write(Path::new("/nonexistent-twill-dir/x.twillbake")).unwrap_err();
         assert!(err.to_string().contains("/nonexistent-twill-dir/x.twillbake"), "{err}");
+    }
+
+    /// Stores beyond the limit evict the least recently used entries (a load counts as a use),
+    /// never the one just stored; `info` and `clear` see every entry; a killed writer's
+    /// temporary is removed when the cache is opened, a live writer's is not.
+    #[test]
+    fn cache_evicts_least_recently_used_entries_beyond_its_limit() {
+        let dir = tempfile::tempdir().unwrap();
+        let writer = |name: &str| {
+            BakeWriter::new(key(name)).section("x", key(name), Array::vector(ArrayData::U8(vec![7; 10_000])))
+        };
+        let one_entry = {
+            let probe = Cache::new(&dir.path().join("probe")).unwrap();
+            fs::metadata(probe.store(&writer("probe")).unwrap()).unwrap().len()
+        };
+        let cache = Cache::with_limit(dir.path(), 3 * one_entry).unwrap();
+        let at = |seconds: u64| std::time::UNIX_EPOCH + std::time::Duration::from_secs(1_000_000 + seconds);
+        let set_used = |name: &str, seconds| {
+            let f = fs::File::options().append(true).open(cache.path_for(key(name))).unwrap();
+            f.set_modified(at(seconds)).unwrap();
+        };
+        for (i, name) in ["a", "b", "c"].into_iter().enumerate() {
+            cache.store(&writer(name)).unwrap();
+            set_used(name, i as u64);
+        }
+        assert_eq!(cache.info(), CacheInfo { entries: 3, bytes: 3 * one_entry, limit_bytes: 3 * one_entry });
+        // Using "a" makes "b" the least recently used: storing "d" evicts "b" only.
+        assert!(cache.load(key("a")).is_some());
+        cache.store(&writer("d")).unwrap();
+        let present = |name: &str| cache.path_for(key(name)).exists();
+        assert_eq!(
+            ["a", "b", "c", "d"].map(present),
+            [true, false, true, true],
+            "the least recently used entry goes first"
+        );
+        // An entry larger than the whole limit is kept (it is what was just baked) alone.
+        let small = Cache::with_limit(dir.path(), 1).unwrap();
+        let kept = small.store(&writer("e")).unwrap();
+        assert!(kept.exists());
+        assert_eq!(small.info().entries, 1);
+        // Leftover temporaries: a dead writer's goes, a live writer's (ours) stays, others stay.
+        let dead = dir.path().join(format!(
+            ".{}.{}.tmp",
+            cache.path_for(key("f")).file_name().unwrap().to_string_lossy(),
+            u32::MAX - 1
+        ));
+        let live = dir.path().join(format!(
+            ".{}.{}.tmp",
+            cache.path_for(key("g")).file_name().unwrap().to_string_lossy(),
+            std::process::id()
+        ));
+        let unrelated = dir.path().join("notes.txt");
+        for path in [&dead, &live, &unrelated] {
+            fs::write(path, b"half").unwrap();
+        }
+        let reopened = Cache::new(dir.path()).unwrap();
+        assert!(!dead.exists() && live.exists() && unrelated.exists());
+        assert_eq!(reopened.clear().unwrap(), 1);
+        assert_eq!(reopened.info().entries, 0);
+        assert!(live.exists() && unrelated.exists(), "clear removes entries only");
     }
 
     #[test]
