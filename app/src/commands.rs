@@ -241,6 +241,8 @@ pub fn render(options: &RenderOptions) -> Result<()> {
     let started = Instant::now();
     let (exemplars, pattern) = if let Some(path) = &options.bake {
         let loaded = read_bake(path)?;
+        let exemplars: Vec<_> = scene.exemplars().iter().collect();
+        loaded.check_made_for(path, &exemplars)?;
         (loaded.exemplars, loaded.pattern)
     } else {
         let cache = open_cache(options.cache.as_deref(), options.no_cache)?;

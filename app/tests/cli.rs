@@ -160,6 +160,19 @@ fn bake_writes_a_bake_file_and_reports_every_stage() {
         );
     }
 
+    // The bake is refused for a scene of another fabric, naming the file and both fabrics.
+    std::fs::write(
+        dir.path().join("gabardine.toml"),
+        "[fabric]\npreset = \"gabardine_twill\"\n[camera]\neye = [0, 1, 2]\ntarget = [0, 0, 0]\n\
+         [[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n",
+    )
+    .unwrap();
+    let out = twill(&["render", "gabardine.toml", "--bake", "d.twillbake", "-o", "g.png"], dir.path());
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("d.twillbake"), "{stderr}");
+    assert!(stderr.contains("another fabric") && stderr.matches("segments").count() >= 2, "{stderr}");
+    assert!(!dir.path().join("g.png").exists());
+
     // --cache-info lists the entries; --cache-clear empties the folder; a bad limit is named.
     let info = twill(&["bake", "--cache", cache_arg, "--cache-info"], dir.path());
     let listed = text(&info.stdout);

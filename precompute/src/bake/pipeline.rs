@@ -213,6 +213,11 @@ pub enum BakeError {
     Pattern(String),
     #[error("{stage}: could not serialize the result: {message}")]
     Serialize { stage: &'static str, message: String },
+    #[error(
+        "{}: this bake was made for another fabric: {bake}; the scene's fabric: {scene} (bake it for this scene, or render the scene it was made for)",
+        file.display()
+    )]
+    OtherFabric { file: std::path::PathBuf, bake: String, scene: String },
 }
 
 impl From<Cancelled> for BakeError {
@@ -425,6 +430,52 @@ pub struct LoadedBake {
     pub key: ContentHash,
     pub pattern: PatternMap,
     pub exemplars: Vec<Baked>,
+    /// The key of each exemplar's volume stage (its geometry and voxel size), to tell which
+    /// fabric the bake was made for ([`LoadedBake::check_made_for`]).
+    volume_keys: Vec<ContentHash>,
+}
+
+impl LoadedBake {
+    /// Refuses a bake (read from `file`) that was not made for the fabric whose exemplars are
+    /// `exemplars` (exemplar 0 first, then a patterned cloth's others), naming both: another
+    /// number of exemplars, segments or fibers, or other fiber geometry.
+    pub fn check_made_for(&self, file: &Path, exemplars: &[&Exemplar]) -> Result<(), BakeError> {
+        let other =
+            |bake: String, scene: String| BakeError::OtherFabric { file: file.to_owned(), bake, scene };
+        if exemplars.len() != self.exemplars.len() {
+            return Err(other(
+                format!("{} exemplar(s)", self.exemplars.len()),
+                format!("{} exemplar(s)", exemplars.len()),
+            ));
+        }
+        for (i, ((baked, key), exemplar)) in
+            self.exemplars.iter().zip(&self.volume_keys).zip(exemplars).enumerate()
+        {
+            let geometry = Hasher::new("twill.geometry").exemplar(exemplar).finish();
+            if volume_key(&geometry, baked.settings.voxels_per_fiber_diameter) == *key {
+                continue;
+            }
+            let scene_segments = exemplar.segment_count();
+            let bake_segments = baked.volume.segments.len();
+            let what = if scene_segments == bake_segments {
+                "the same number of segments, other fiber geometry"
+            } else {
+                "another number of segments"
+            };
+            return Err(other(
+                format!("exemplar {i} with {bake_segments} segments"),
+                format!("{scene_segments} segments ({what})"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The volume stage's key: the geometry's hash and the voxel size.
+fn volume_key(geometry: &ContentHash, voxels_per_fiber_diameter: f64) -> ContentHash {
+    let mut h = Hasher::new("twill.stage");
+    h.stage(Stage::Volume.name(), Stage::Volume.version()).hash(geometry).f64(voxels_per_fiber_diameter);
+    h.finish()
 }
 
 /// Bakes every exemplar of a patterned cloth. All exemplars must have blocks of the same size
@@ -515,10 +566,15 @@ pub fn read_bake(path: &Path) -> Result<LoadedBake, BakeError> {
     let file = BakeFile::open_unkeyed(path)?;
     let pattern: PatternMap = decode_section(&file, "pattern")?;
     let mut exemplars = Vec::new();
+    let mut volume_keys = Vec::new();
     while file.section(&format!("e{}.inputs", exemplars.len())).is_some() {
         let e = format!("e{}.", exemplars.len());
         let inputs = decode_inputs(&file, &format!("{e}inputs"))?;
         let section = |stage: Stage| format!("{e}{}", stage.name());
+        let volume = file
+            .section(&section(Stage::Volume))
+            .ok_or_else(|| corrupt_section(&file, &section(Stage::Volume), "missing".into()))?;
+        volume_keys.push(volume.key);
         exemplars.push(Baked {
             settings: inputs.settings,
             materials: inputs.materials,
@@ -541,7 +597,7 @@ pub fn read_bake(path: &Path) -> Result<LoadedBake, BakeError> {
             ),
         }));
     }
-    Ok(LoadedBake { key: file.key(), pattern, exemplars })
+    Ok(LoadedBake { key: file.key(), pattern, exemplars, volume_keys })
 }
 
 /// The settings and materials a bake was made with, stored as TOML text (materials are
@@ -675,7 +731,7 @@ impl StageKeys {
         let cs = key(Stage::CsTables).hash(&materials).usize(s.sh_order).usize(s.cs_theta_count).finish();
         let gn = key(Stage::GnTables).hash(&materials).finish();
         let cg = key(Stage::CgTable).usize(s.sh_order).usize(CG_DEFAULT_POINTS).finish();
-        let volume = key(Stage::Volume).hash(&geometry).f64(s.voxels_per_fiber_diameter).finish();
+        let volume = volume_key(&geometry, s.voxels_per_fiber_diameter);
         Ok(Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume })
     }
 
@@ -869,6 +925,15 @@ mod tests {
         assert_eq!(loaded.key, set.key());
         assert_eq!(loaded.exemplars, vec![outcome.baked]);
         assert_eq!(loaded.pattern, PatternMap::uniform(0));
+        // Made for this fabric, not for another weave or a patterned cloth of two exemplars.
+        loaded.check_made_for(&path, &[&exemplar]).expect("made for this fabric");
+        let (twill, _) = tiny(WeavePreset::Twill2_2);
+        let err = loaded.check_made_for(&path, &[&twill]).unwrap_err().to_string();
+        assert!(err.contains("x.twillbake") && err.contains("another fabric"), "{err}");
+        assert!(err.contains(&format!("{} segments", exemplar.segment_count())), "{err}");
+        assert!(err.contains(&format!("{} segments", twill.segment_count())), "{err}");
+        let err = loaded.check_made_for(&path, &[&exemplar, &twill]).unwrap_err().to_string();
+        assert!(err.contains("1 exemplar(s)") && err.contains("2 exemplar(s)"), "{err}");
 
         let bytes = std::fs::read(&path).unwrap();
         for position in [0, 9, 70, bytes.len() / 2, bytes.len() - 1] {
