@@ -38,7 +38,7 @@ use super::ssdf::ssdf_all;
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
 use super::svf::{SvfError, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
-use super::volume::{SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
+use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
 use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
@@ -148,6 +148,47 @@ pub struct Baked {
     pub gn: GnTable,
     pub cg: CgTable,
     pub volume: VolumeData,
+}
+
+impl Baked {
+    /// Checks that the sections agree with each other (a file can be intact and still hold
+    /// sections from different bakes): one segment count everywhere, array sizes that match
+    /// their counts, voxel ids and material slots in range, one SH order. Returns what
+    /// disagrees.
+    pub fn check_sections_agree(&self) -> Result<(), String> {
+        let segments = self.volume.segments.len();
+        let expect = |what: &str, got: usize, expected: usize| {
+            if got == expected { Ok(()) } else { Err(format!("{what} is {got}, expected {expected}")) }
+        };
+        expect("segment directions", self.volume.segments.direction.len(), segments)?;
+        let ssdf = &self.visibility.ssdf;
+        expect("visibility (PCA SSDF) segments", ssdf.segment_count, segments)?;
+        expect("PCA mean values", ssdf.mean().len(), ssdf.dims)?;
+        expect("PCA component values", ssdf.components().len(), ssdf.component_count * ssdf.dims)?;
+        expect("PCA coefficients", ssdf.all_coefficients().len(), segments * ssdf.component_count)?;
+        let sos = &self.visibility.sum_of_sg;
+        expect("visibility (sum of SGs) segments", sos.segment_count, segments)?;
+        expect("sum-of-SG weights", sos.all_weights().len(), segments * sos.count)?;
+        expect("sum-of-SG rotations", sos.rotations().len(), segments)?;
+        expect("transfer (IIRTF cells) segments", self.transfer.cells.segment_count(), segments)?;
+        expect("IIRTF matrices", self.transfer.iirtf.cells.len(), self.transfer.cells.cell_count())?;
+        let order = self.transfer.iirtf.sh_order;
+        expect("IIRTF SH order", order, self.settings.sh_order)?;
+        expect("C_S tables", self.cs_tables.len(), self.materials.len())?;
+        for table in self.cs_tables.iter().flatten() {
+            expect("C_S table SH order", table.sh_order(), order)?;
+        }
+        let volume = &self.volume.volume;
+        let voxels = volume.dims.iter().map(|&d| d as usize).product::<usize>();
+        expect("voxel ids", volume.ids.len(), voxels)?;
+        if let Some(id) = volume.ids.iter().find(|&&id| id != EMPTY_VOXEL && id as usize >= segments) {
+            return Err(format!("a voxel names segment {id}, but there are {segments}"));
+        }
+        if let Some(m) = self.volume.segments.material.iter().find(|&&m| m as usize >= self.materials.len()) {
+            return Err(format!("a segment names material slot {m}, but there are {}", self.materials.len()));
+        }
+        Ok(())
+    }
 }
 
 /// Whether a stage ran or came from the cache.
@@ -587,6 +628,9 @@ pub fn read_bake(path: &Path) -> Result<LoadedBake, BakeError> {
             volume: decode_section(&file, &section(Stage::Volume))?,
         });
     }
+    for (i, baked) in exemplars.iter().enumerate() {
+        baked.check_sections_agree().map_err(|what| corrupt_section(&file, &format!("e{i}"), what))?;
+    }
     if exemplars.is_empty() || pattern.exemplar_count() > exemplars.len() {
         return Err(BakeError::File(BakeFileError::InvalidSection {
             name: format!("{}: pattern", path.display()),
@@ -923,7 +967,7 @@ mod tests {
         write_bake(&path, &set).unwrap();
         let loaded = read_bake(&path).unwrap();
         assert_eq!(loaded.key, set.key());
-        assert_eq!(loaded.exemplars, vec![outcome.baked]);
+        assert_eq!(loaded.exemplars, vec![outcome.baked.clone()]);
         assert_eq!(loaded.pattern, PatternMap::uniform(0));
         // Made for this fabric, not for another weave or a patterned cloth of two exemplars.
         loaded.check_made_for(&path, &[&exemplar]).expect("made for this fabric");
@@ -934,6 +978,31 @@ mod tests {
         assert!(err.contains(&format!("{} segments", twill.segment_count())), "{err}");
         let err = loaded.check_made_for(&path, &[&exemplar, &twill]).unwrap_err().to_string();
         assert!(err.contains("1 exemplar(s)") && err.contains("2 exemplar(s)"), "{err}");
+        // An intact file whose sections come from different bakes is refused, naming what.
+        let twill_inputs = BakeInputs { exemplar: &twill, materials: &materials, settings: test_settings() };
+        let twill_baked = bake(&twill_inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked;
+        let mixed_path = dir.path().join("mixed.twillbake");
+        for (what, mixed) in [
+            ("visibility", Baked { visibility: twill_baked.visibility.clone(), ..outcome.baked.clone() }),
+            ("transfer", Baked { transfer: twill_baked.transfer.clone(), ..outcome.baked.clone() }),
+            (
+                "SH order",
+                Baked {
+                    settings: BakeSettings {
+                        sh_order: outcome.baked.settings.sh_order + 1,
+                        ..outcome.baked.settings
+                    },
+                    ..outcome.baked.clone()
+                },
+            ),
+        ] {
+            let mut set = BakeSet::single(outcome.clone());
+            set.exemplars[0].baked = mixed;
+            write_bake(&mixed_path, &set).unwrap();
+            let err = read_bake(&mixed_path).map(|_| ()).unwrap_err().to_string();
+            assert!(err.contains("mixed.twillbake") && err.contains("e0"), "{what}: {err}");
+            assert!(err.contains(what), "{what}: {err}");
+        }
 
         let bytes = std::fs::read(&path).unwrap();
         for position in [0, 9, 70, bytes.len() / 2, bytes.len() - 1] {
