@@ -11,6 +11,11 @@ if [ -n "${CI:-}" ] && [ -n "${TWILL_ALLOW_NO_GPU:-}" ]; then
   echo "error: TWILL_ALLOW_NO_GPU is set while CI is set; CI runs every GPU and window test" >&2
   exit 2
 fi
+# Goldens are blessed by hand (scripts/bless-goldens.sh), never by a test run.
+if [ -n "${TWILL_BLESS:-}" ]; then
+  echo "error: TWILL_BLESS is set; bless goldens with scripts/bless-goldens.sh, not the test command" >&2
+  exit 2
+fi
 bash scripts/setup.sh
 export PATH="$HOME/.cargo/bin:$PATH"
 # Mesa wants a runtime directory; give it a private one when the session has none.

@@ -77,15 +77,42 @@ fn read_rgb_png(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>), String> {
 
 /// Compares an RGBA8 image with the golden `name` (see the metric above). On failure writes
 /// `target/golden-diffs/NAME.actual.png` and `NAME.diff.png` (absolute difference, x4) and
-/// returns the reason. A missing golden fails; `TWILL_BLESS=1` writes it instead.
+/// returns the reason. A missing golden fails. Blessing (`scripts/bless-goldens.sh`, which sets
+/// `TWILL_BLESS=1`) writes the golden instead, after saving the previous one as
+/// `NAME.previous.png` beside its difference from the new image and measuring the change; it
+/// is refused when `CI` is set.
 pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]) -> Result<String, String> {
     let actual: Vec<u8> = rgba.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
     let path = golden_path(name);
     let diff_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/golden-diffs");
     if std::env::var("TWILL_BLESS").is_ok_and(|v| v == "1") {
+        if std::env::var_os("CI").is_some_and(|v| !v.is_empty()) {
+            return Err(format!(
+                "{name}: TWILL_BLESS is refused in CI (CI is set); goldens are blessed by hand"
+            ));
+        }
+        let change = match read_rgb_png(&path) {
+            Ok((gw, gh, previous)) if (gw, gh) == (width, height) => {
+                std::fs::create_dir_all(&diff_dir).expect("create diff folder");
+                write_rgb8_png(&diff_dir.join(format!("{name}.previous.png")), width, height, &previous)
+                    .expect("write the previous golden");
+                let diff: Vec<u8> =
+                    previous.iter().zip(&actual).map(|(a, b)| a.abs_diff(*b).saturating_mul(4)).collect();
+                write_rgb8_png(&diff_dir.join(format!("{name}.diff.png")), width, height, &diff)
+                    .expect("write the difference image");
+                let (rmse, outliers) = golden_metric(&previous, &actual);
+                format!(
+                    "previous golden: RMSE {rmse:.3}, outliers {:.3}% (see {}/{name}.*.png)",
+                    100.0 * outliers,
+                    diff_dir.display()
+                )
+            }
+            Ok((gw, gh, _)) => format!("previous golden was {gw}x{gh}"),
+            Err(_) => "no previous golden".to_owned(),
+        };
         std::fs::create_dir_all(path.parent().expect("goldens folder")).expect("create goldens folder");
         write_rgb8_png(&path, width, height, &actual).expect("write the golden");
-        return Ok(format!("{name}: golden written (TWILL_BLESS=1)"));
+        return Ok(format!("{name}: golden blessed (TWILL_BLESS=1); {change}"));
     }
     let fail = |reason: String, golden: Option<&[u8]>| {
         std::fs::create_dir_all(&diff_dir).expect("create diff folder");
@@ -103,7 +130,7 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
         Ok(g) => g,
         Err(e) => {
             return fail(
-                format!("missing or unreadable golden ({e}); run with TWILL_BLESS=1 to create it"),
+                format!("missing or unreadable golden ({e}); run scripts/bless-goldens.sh to create it"),
                 None,
             );
         }
@@ -111,15 +138,7 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
     if (gw, gh) != (width, height) {
         return fail(format!("golden is {gw}x{gh}, image is {width}x{height}"), None);
     }
-    let n = golden.len() as f64;
-    let sq: f64 = golden.iter().zip(&actual).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum();
-    let rmse = (sq / n).sqrt();
-    let outliers = golden
-        .chunks_exact(3)
-        .zip(actual.chunks_exact(3))
-        .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| x.abs_diff(*y) > GOLDEN_OUTLIER_LEVEL))
-        .count() as f64
-        / (n / 3.0);
+    let (rmse, outliers) = golden_metric(&golden, &actual);
     let summary = format!(
         "RMSE {rmse:.3} (max {GOLDEN_MAX_RMSE}), outliers {:.3}% (max {:.1}%)",
         100.0 * outliers,
@@ -129,6 +148,20 @@ pub fn compare_with_golden(name: &str, width: u32, height: u32, rgba: &[[u8; 4]]
         return fail(summary, Some(&golden));
     }
     Ok(format!("{name}: {summary}"))
+}
+
+/// The golden metric of two RGB8 images of one size: RMSE over 8-bit channels, and the
+/// fraction of pixels with a channel off by more than [`GOLDEN_OUTLIER_LEVEL`].
+fn golden_metric(golden: &[u8], actual: &[u8]) -> (f64, f64) {
+    let n = golden.len() as f64;
+    let sq: f64 = golden.iter().zip(actual).map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2)).sum();
+    let outliers = golden
+        .chunks_exact(3)
+        .zip(actual.chunks_exact(3))
+        .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| x.abs_diff(*y) > GOLDEN_OUTLIER_LEVEL))
+        .count() as f64
+        / (n / 3.0);
+    ((sq / n).sqrt(), outliers)
 }
 
 /// An accuracy band around a measured error, one-sided: `|value|` above `|measured| + margin`
