@@ -43,7 +43,7 @@ use std::fs;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-use crate::atomic_file::write_atomically;
+use crate::atomic_file::{temporary_of, write_atomically, writer_is_gone};
 use crate::fabric::{Exemplar, Tiling, YarnRole};
 
 /// First bytes of every bake file.
@@ -917,25 +917,14 @@ impl Cache {
         }
     }
 
-    /// Deletes `.NAME.PID.tmp` files whose writer is gone (see the type's docs).
+    /// Deletes `.NAME.PID.tmp` files of cache entries whose writer is gone (see the type's docs).
     fn remove_leftover_temporaries(&self) {
         let Ok(dir) = fs::read_dir(&self.dir) else { return };
-        let own = std::process::id();
-        let can_tell = Path::new("/proc/self").exists();
         for entry in dir.filter_map(Result::ok) {
-            let name = entry.file_name().to_string_lossy().into_owned();
-            let Some(pid) = leftover_temporary_pid(&name) else { continue };
-            let gone = if can_tell {
-                pid != own && !Path::new(&format!("/proc/{pid}")).exists()
-            } else {
-                entry
-                    .metadata()
-                    .and_then(|m| m.modified())
-                    .ok()
-                    .and_then(|t| t.elapsed().ok())
-                    .is_some_and(|age| age.as_secs() > 24 * 3600)
-            };
-            if gone {
+            let file_name = entry.file_name().to_string_lossy().into_owned();
+            let Some((name, pid)) = temporary_of(&file_name) else { continue };
+            let entry_name = Path::new(name).extension().is_some_and(|x| x == CACHE_EXTENSION);
+            if entry_name && writer_is_gone(pid, entry.metadata().and_then(|m| m.modified()).ok()) {
                 match fs::remove_file(entry.path()) {
                     Ok(()) => log::info!("{}: removed a killed writer's leftover", entry.path().display()),
                     Err(e) => log::warn!("{}: could not remove: {e}", entry.path().display()),
@@ -943,15 +932,6 @@ impl Cache {
             }
         }
     }
-}
-
-/// The writer's process id of an atomic write's temporary `.NAME.PID.tmp` (NAME a cache
-/// entry), or `None` for any other name.
-fn leftover_temporary_pid(name: &str) -> Option<u32> {
-    let inner = name.strip_prefix('.')?.strip_suffix(".tmp")?;
-    let (entry, pid) = inner.rsplit_once('.')?;
-    entry.ends_with(&format!(".{CACHE_EXTENSION}")).then_some(())?;
-    pid.parse().ok()
 }
 
 #[cfg(test)]
