@@ -15,7 +15,9 @@
 //!
 //! `fabric_edits_rebake_only_what_they_change_and_undo_restores_them` edits a fiber material
 //! (single scattering previewed, then only the transfer and C_S stages computed), flips a weave
-//! cell (only the geometry stages computed), swaps the mesh (no bake at all), saves the scene,
+//! cell (only the geometry stages computed), swaps the mesh (no bake at all), loses the render
+//! device (destroyed by `lose-device`: the viewer opens a new one, uploads the fabric and the
+//! edited mesh again and goes on accumulating), saves the scene,
 //! undoes everything (the bake comes back from the stage cache), saves again, and records UI
 //! frame times while a bake runs; the saved scenes must load and hold exactly the edits.
 //!
@@ -249,6 +251,9 @@ fn fabric_edits_rebake_only_what_they_change_and_undo_restores_them() {
         wait-idle\n\
         mesh builtin cushion\n\
         mesh thickness 1.5\n\
+        wait-spp 1\n\
+        # A lost render device: a new one, the fabric and the edited mesh uploaded again.\n\
+        lose-device\n\
         set spp 2\n\
         wait-spp 2\n\
         screenshot cushion.png\n\
@@ -287,6 +292,9 @@ fn fabric_edits_rebake_only_what_they_change_and_undo_restores_them() {
     ];
     assert_eq!(reports, expected, "stages computed per bake:\n{}", run.stderr);
 
+    // The lost device was replaced (the step waits for that) and the picture went on
+    // accumulating on the new one, on the edited mesh.
+    assert!(run.stderr.contains("lose-device (done after"), "{}", run.stderr);
     let (_, _, cushion) = read_png_rgba(&out.join("cushion.viewport.png"));
     let bright = cushion.iter().filter(|p| p[..3].iter().any(|&c| c > 40)).count();
     assert!(bright > cushion.len() / 10, "the cushion is lit: {bright} of {} pixels", cushion.len());

@@ -154,6 +154,8 @@ struct ScriptRun {
     finished: bool,
     /// When a `spin` step ends.
     spin_until: Option<Instant>,
+    /// Device recoveries counted when a `lose-device` step destroyed the device.
+    recoveries_before_loss: Option<u32>,
 }
 
 /// The state of the last export.
@@ -207,6 +209,8 @@ pub struct ViewerApp {
     last_edit: Instant,
     failed_generation: Option<u64>,
     in_flight: Option<FrameRequest>,
+    /// Render devices replaced after a loss since the start.
+    device_recoveries: u32,
     accumulation: Option<Accumulation>,
     texture: Option<egui::TextureHandle>,
     texture_dirty: bool,
@@ -261,6 +265,7 @@ impl ViewerApp {
                     adapter_info: state.adapter.get_info(),
                     device: state.device.clone(),
                     queue: state.queue.clone(),
+                    own: false,
                 }
             });
             RenderWorker::start(device, cc.egui_ctx.clone())
@@ -313,6 +318,7 @@ impl ViewerApp {
             last_edit: Instant::now(),
             failed_generation: None,
             in_flight: None,
+            device_recoveries: 0,
             accumulation: None,
             texture: None,
             texture_dirty: false,
@@ -334,6 +340,7 @@ impl ViewerApp {
                 expected_error_seen: false,
                 finished: false,
                 spin_until: None,
+                recoveries_before_loss: None,
             }),
             outcome,
         }
@@ -601,6 +608,23 @@ impl ViewerApp {
                     self.last_export = Some(ExportOutcome::Failed(message.clone()));
                     self.messages.error(message);
                 }
+                WorkerEvent::DeviceLost { reason } => {
+                    // The frame in flight is lost with the device: ask again once it is back.
+                    self.in_flight = None;
+                    self.messages.info(format!(
+                        "The render device was lost: {reason}. Opening a new one and uploading the fabric again."
+                    ));
+                }
+                WorkerEvent::DeviceRecovered { adapter, seconds } => {
+                    self.in_flight = None;
+                    self.failed_generation = None;
+                    self.device_recoveries += 1;
+                    if let Some(f) = &mut self.fabric {
+                        f.adapter.clone_from(&adapter);
+                    }
+                    self.messages.info(format!("Rendering again on a new device ({adapter}, ready in {seconds:.1} s)."));
+                }
+                WorkerEvent::DeviceUnavailable { message } => self.messages.error(message),
             }
         }
     }
@@ -1296,6 +1320,21 @@ impl ViewerApp {
                 ctx.request_repaint();
                 Ok(false)
             }
+            Step::LoseDevice => {
+                let Some(worker) = &self.worker else { return Err("no render worker is running".into()) };
+                match run.recoveries_before_loss {
+                    None => {
+                        run.recoveries_before_loss = Some(self.device_recoveries);
+                        worker.lose_device();
+                        Ok(false)
+                    }
+                    Some(before) if self.device_recoveries > before => {
+                        run.recoveries_before_loss = None;
+                        Ok(true)
+                    }
+                    Some(_) => Ok(false),
+                }
+            }
             Step::FrameTimes(path) => {
                 let text = self.frame_times_report();
                 twill_precompute::atomic_file::write_atomically(path, |w| {
@@ -1370,11 +1409,12 @@ fn render_device(state: &eframe::egui_wgpu::RenderState) -> Result<DeviceHandles
             adapter_info: info,
             device: state.device.clone(),
             queue: state.queue.clone(),
+            own: false,
         });
     }
     let gpu = twill_renderer::gpu::Gpu::headless()
         .map_err(|e| format!("could not open a render device beside the window's: {e}"))?;
-    Ok(DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue })
+    Ok(DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true })
 }
 
 /// Reads and parses a scene file; the message says which of the two failed.

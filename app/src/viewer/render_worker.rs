@@ -14,6 +14,15 @@
 //!
 //! Exports render at their own size with the same renderer, a few samples per batch (so a
 //! cancel takes effect quickly), accumulate on the CPU and write the files (see `export.rs`).
+//!
+//! A lost device (a driver reset, a GPU unplugged, or [`RenderWorker::lose_device`], which
+//! destroys the worker's device to simulate one) is noticed through wgpu's device-lost callback
+//! and after every piece of work. The worker then reports [`WorkerEvent::DeviceLost`] instead of
+//! the failure, opens a new device of its own ([`Gpu::headless`]; eframe's device, if the
+//! worker shared it, is eframe's to recover), uploads the current fabric on it again and reports
+//! [`WorkerEvent::DeviceRecovered`]; the viewer then asks for its frame again. If no device can
+//! be opened, [`WorkerEvent::DeviceUnavailable`] says why and frames fail until a later fabric
+//! upload finds one.
 
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
@@ -38,13 +47,19 @@ use super::export::{ExportImage, write_export};
 
 /// Samples per export batch.
 const EXPORT_BATCH_SPP: u32 = 4;
+/// Tries at opening a new device after a loss, and the wait before the second, doubling.
+const RECOVERY_TRIES: u32 = 4;
+const RECOVERY_FIRST_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
 
-/// The device eframe opened, as the renderer needs it.
+/// The device the renderer runs on.
 #[derive(Clone)]
 pub struct DeviceHandles {
     pub adapter_info: wgpu::AdapterInfo,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
+    /// Whether the device is the worker's own (not the window's): only its own device may be
+    /// destroyed to simulate a loss.
+    pub own: bool,
 }
 
 impl DeviceHandles {
@@ -55,9 +70,35 @@ impl DeviceHandles {
             queue: self.queue.clone(),
         }
     }
+
+    /// A new device of the worker's own.
+    fn open_own() -> Result<Self, String> {
+        let gpu = Gpu::headless().map_err(|e| e.to_string())?;
+        Ok(Self { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true })
+    }
+}
+
+/// Why the device was lost, once wgpu or the worker says so.
+type LossReport = Arc<Mutex<Option<String>>>;
+
+/// Watches `device` for loss: the returned report fills in when wgpu calls its device-lost
+/// callback (and the window is woken to show it).
+fn watch_for_loss(device: &wgpu::Device, repaint: &egui::Context) -> LossReport {
+    let report: LossReport = Arc::default();
+    let (slot, repaint) = (Arc::clone(&report), repaint.clone());
+    device.set_device_lost_callback(move |reason, message| {
+        let text = match reason {
+            wgpu::DeviceLostReason::Destroyed => format!("the device was destroyed ({message})"),
+            wgpu::DeviceLostReason::Unknown => format!("the driver lost the device ({message})"),
+        };
+        slot.lock().unwrap_or_else(PoisonError::into_inner).get_or_insert(text);
+        repaint.request_repaint();
+    });
+    report
 }
 
 /// A fabric to upload (it replaces the current one once uploaded).
+#[derive(Clone)]
 pub struct NewFabric {
     pub fabric_id: u64,
     pub quality: Quality,
@@ -146,6 +187,19 @@ pub enum WorkerEvent {
     ExportFailed {
         message: String,
     },
+    /// The render device was lost; the worker is opening a new one.
+    DeviceLost {
+        reason: String,
+    },
+    /// A new device is open and the current fabric is uploaded on it.
+    DeviceRecovered {
+        adapter: String,
+        seconds: f64,
+    },
+    /// No new device could be opened after a loss (or a simulated loss was refused).
+    DeviceUnavailable {
+        message: String,
+    },
 }
 
 #[derive(Default)]
@@ -154,6 +208,7 @@ struct Inbox {
     mesh: Option<MeshRequest>,
     export: Option<ExportRequest>,
     frame: Option<FrameRequest>,
+    lose_device: bool,
     shutdown: bool,
 }
 
@@ -171,7 +226,7 @@ pub struct RenderWorker {
 }
 
 impl RenderWorker {
-    /// Starts the worker on eframe's device.
+    /// Starts the worker on `device` (eframe's, or one of its own).
     pub fn start(device: DeviceHandles, repaint: egui::Context) -> std::io::Result<Self> {
         let shared = Arc::new(Shared {
             inbox: Mutex::new(Inbox::default()),
@@ -182,7 +237,7 @@ impl RenderWorker {
         let thread_shared = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
             .name("twill-render".into())
-            .spawn(move || worker_loop(&device, &thread_shared, &sender, &repaint))?;
+            .spawn(move || worker_loop(device, &thread_shared, &sender, &repaint))?;
         Ok(Self { shared, events, thread: Some(thread) })
     }
 
@@ -223,6 +278,12 @@ impl RenderWorker {
         self.post(|inbox| inbox.export = None);
     }
 
+    /// Simulates losing the render device: the worker destroys its device (when it is its own,
+    /// not the window's) and recovers as from a real loss.
+    pub fn lose_device(&self) {
+        self.post(|inbox| inbox.lose_device = true);
+    }
+
     /// Events since the last call.
     pub fn poll(&self) -> Vec<WorkerEvent> {
         self.events.try_iter().collect()
@@ -240,6 +301,7 @@ impl Drop for RenderWorker {
 }
 
 enum Work {
+    LoseDevice,
     Fabric(NewFabric),
     Mesh(MeshRequest),
     Export(ExportRequest),
@@ -251,6 +313,9 @@ fn next_work(shared: &Shared) -> Option<Work> {
     loop {
         if inbox.shutdown {
             return None;
+        }
+        if std::mem::take(&mut inbox.lose_device) {
+            return Some(Work::LoseDevice);
         }
         if let Some(mesh) = inbox.mesh.take() {
             return Some(Work::Mesh(mesh));
@@ -278,7 +343,7 @@ fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
 }
 
 fn worker_loop(
-    device: &DeviceHandles,
+    mut device: DeviceHandles,
     shared: &Shared,
     sender: &Sender<WorkerEvent>,
     repaint: &egui::Context,
@@ -287,11 +352,27 @@ fn worker_loop(
         let _ = sender.send(event);
         repaint.request_repaint();
     };
+    let mut loss = watch_for_loss(&device.device, repaint);
     let mut renderer: Option<Renderer> = None;
     // The mesh edited in the viewer, which replaces the scene's own for every later upload.
     let mut edited_mesh: Option<MeshRequest> = None;
+    // The fabric uploaded last, uploaded again on a new device after a loss.
+    let mut current: Option<NewFabric> = None;
+    // Lost, and no new device could be opened yet.
+    let mut dead = false;
     while let Some(work) = next_work(shared) {
         match work {
+            Work::LoseDevice if !device.own => send(WorkerEvent::DeviceUnavailable {
+                message: "a device loss can only be simulated on the renderer's own device, not on the \
+                          window's (TWILL_VIEWER_DEVICE=separate gives the renderer one)"
+                    .into(),
+            }),
+            Work::LoseDevice => {
+                device.device.destroy();
+                loss.lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .get_or_insert_with(|| "the device was destroyed (a simulated loss)".into());
+            }
             Work::Mesh(request) => {
                 let started = Instant::now();
                 let outcome = renderer.as_mut().map(|r| {
@@ -317,36 +398,39 @@ fn worker_loop(
             }
             Work::Fabric(fabric) => {
                 let started = Instant::now();
-                let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                    match upload(device, &fabric, edited_mesh.as_ref()) {
-                        // A bad edited mesh: say so and show the fabric on the scene's own.
-                        Err(message) if edited_mesh.is_some() => {
-                            send(WorkerEvent::MeshFailed { message });
-                            edited_mesh = None;
-                            upload(device, &fabric, None)
+                if dead {
+                    match DeviceHandles::open_own() {
+                        Ok(fresh) => {
+                            loss = watch_for_loss(&fresh.device, repaint);
+                            (device, dead) = (fresh, false);
                         }
-                        other => other,
+                        Err(e) => {
+                            send(WorkerEvent::FabricFailed { message: format!("no render device: {e}") });
+                            continue;
+                        }
                     }
-                }));
-                match built {
-                    Ok(Ok(r)) => {
-                        send(WorkerEvent::FabricReady {
-                            fabric_id: fabric.fabric_id,
-                            quality: fabric.quality,
-                            preview: fabric.preview,
-                            adapter: r.adapter().to_owned(),
-                            resident_bytes: r.resident_bytes(),
-                            bounds: r.bounds(),
-                            seconds: started.elapsed().as_secs_f64(),
-                        });
-                        renderer = Some(r);
+                }
+                let built = upload_with_mesh(&device, &fabric, &mut edited_mesh, &send);
+                if is_lost(&device, &loss) {
+                    // The failure (if any) was the loss: the recovery below uploads this fabric.
+                    current = Some(fabric);
+                } else {
+                    match built {
+                        Ok(r) => {
+                            send(WorkerEvent::FabricReady {
+                                fabric_id: fabric.fabric_id,
+                                quality: fabric.quality,
+                                preview: fabric.preview,
+                                adapter: r.adapter().to_owned(),
+                                resident_bytes: r.resident_bytes(),
+                                bounds: r.bounds(),
+                                seconds: started.elapsed().as_secs_f64(),
+                            });
+                            renderer = Some(r);
+                            current = Some(fabric);
+                        }
+                        Err(message) => send(WorkerEvent::FabricFailed { message }),
                     }
-                    Ok(Err(e)) => send(WorkerEvent::FabricFailed {
-                        message: format!("uploading the {} bake failed: {e}", fabric.quality.name()),
-                    }),
-                    Err(payload) => send(WorkerEvent::FabricFailed {
-                        message: format!("uploading the bake crashed: {}", panic_text(payload.as_ref())),
-                    }),
                 }
             }
             Work::Frame(request) => {
@@ -376,18 +460,18 @@ fn worker_loop(
                     request.first_sample,
                     request.first_sample + s.spp
                 );
-                match result {
+                let failure = match result {
                     Ok(Ok(frame)) => {
                         send(WorkerEvent::Frame(Box::new(FrameResult { request, frame, wall_ms })));
+                        continue;
                     }
-                    Ok(Err(e)) => send(WorkerEvent::FrameFailed {
-                        generation: request.generation,
-                        message: format!("render failed: {e}"),
-                    }),
-                    Err(payload) => send(WorkerEvent::FrameFailed {
-                        generation: request.generation,
-                        message: format!("render crashed: {}", panic_text(payload.as_ref())),
-                    }),
+                    Ok(Err(e)) => format!("render failed: {e}"),
+                    Err(payload) => format!("render crashed: {}", panic_text(payload.as_ref())),
+                };
+                // A frame that failed because the device was lost is rendered again after the
+                // recovery below; any other failure is the viewer's to show.
+                if !is_lost(&device, &loss) {
+                    send(WorkerEvent::FrameFailed { generation: request.generation, message: failure });
                 }
             }
             Work::Export(request) => {
@@ -400,16 +484,110 @@ fn worker_loop(
                         send(WorkerEvent::ExportProgress { done, total });
                     })
                 }));
+                let lost = if is_lost(&device, &loss) { " (the render device was lost: export again)" } else { "" };
                 match result {
                     Ok(Ok(Some((files, seconds)))) => send(WorkerEvent::ExportDone { files, seconds }),
                     Ok(Ok(None)) => send(WorkerEvent::ExportFailed { message: "export cancelled".into() }),
-                    Ok(Err(message)) => send(WorkerEvent::ExportFailed { message }),
+                    Ok(Err(message)) => send(WorkerEvent::ExportFailed { message: format!("{message}{lost}") }),
                     Err(payload) => send(WorkerEvent::ExportFailed {
-                        message: format!("export crashed: {}", panic_text(payload.as_ref())),
+                        message: format!("export crashed: {}{lost}", panic_text(payload.as_ref())),
                     }),
                 }
             }
         }
+        let reason = if is_lost(&device, &loss) {
+            loss.lock().unwrap_or_else(PoisonError::into_inner).clone()
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            renderer = None;
+            send(WorkerEvent::DeviceLost { reason });
+            let started = Instant::now();
+            match recover(current.as_ref(), &mut edited_mesh, &send) {
+                Ok((new_device, new_renderer)) => {
+                    loss = watch_for_loss(&new_device.device, repaint);
+                    device = new_device;
+                    let adapter = device.adapter_info.name.clone();
+                    renderer = new_renderer;
+                    send(WorkerEvent::DeviceRecovered { adapter, seconds: started.elapsed().as_secs_f64() });
+                }
+                Err(message) => {
+                    // Frames fail ("no fabric is uploaded yet") until a fabric upload finds a
+                    // device: the next one tries again.
+                    dead = true;
+                    loss.lock().unwrap_or_else(PoisonError::into_inner).take();
+                    send(WorkerEvent::DeviceUnavailable { message });
+                }
+            }
+        }
+    }
+}
+
+/// Whether `device` is lost: wgpu's callback said so (it runs when the device is polled) or
+/// the worker destroyed it.
+fn is_lost(device: &DeviceHandles, loss: &LossReport) -> bool {
+    // A destroyed device reports its loss at its next maintenance; an error here means the same.
+    let polled = device.device.poll(wgpu::PollType::Poll);
+    let mut report = loss.lock().unwrap_or_else(PoisonError::into_inner);
+    if let Err(e) = polled
+        && report.is_none()
+    {
+        *report = Some(format!("polling the device failed: {e}"));
+    }
+    report.is_some()
+}
+
+/// Opens a new device of the worker's own and uploads `fabric` (if any) on it, trying a few
+/// times with a growing wait (a driver that just reset may need a moment).
+fn recover(
+    fabric: Option<&NewFabric>,
+    edited_mesh: &mut Option<MeshRequest>,
+    send: &dyn Fn(WorkerEvent),
+) -> Result<(DeviceHandles, Option<Renderer>), String> {
+    let mut wait = RECOVERY_FIRST_WAIT;
+    let mut last_error = String::new();
+    for attempt in 1..=RECOVERY_TRIES {
+        match DeviceHandles::open_own() {
+            Ok(device) => {
+                let Some(fabric) = fabric else { return Ok((device, None)) };
+                match upload_with_mesh(&device, fabric, edited_mesh, send) {
+                    Ok(renderer) => return Ok((device, Some(renderer))),
+                    Err(e) => last_error = e,
+                }
+            }
+            Err(e) => last_error = format!("no new render device: {e}"),
+        }
+        log::warn!("device recovery, try {attempt} of {RECOVERY_TRIES}: {last_error}");
+        if attempt < RECOVERY_TRIES {
+            std::thread::sleep(wait);
+            wait *= 2;
+        }
+    }
+    Err(format!("the render device was lost and could not be replaced: {last_error}"))
+}
+
+/// Uploads `fabric` on `device` with the edited mesh, or, when that mesh cannot be used (said
+/// with [`WorkerEvent::MeshFailed`] and forgotten), with the scene's own; a panic is an error.
+fn upload_with_mesh(
+    device: &DeviceHandles,
+    fabric: &NewFabric,
+    edited_mesh: &mut Option<MeshRequest>,
+    send: &dyn Fn(WorkerEvent),
+) -> Result<Renderer, String> {
+    let built = std::panic::catch_unwind(AssertUnwindSafe(|| match upload(device, fabric, edited_mesh.as_ref()) {
+        // A bad edited mesh: say so and show the fabric on the scene's own.
+        Err(message) if edited_mesh.is_some() => {
+            send(WorkerEvent::MeshFailed { message });
+            *edited_mesh = None;
+            upload(device, fabric, None)
+        }
+        other => other,
+    }));
+    match built {
+        Ok(Ok(r)) => Ok(r),
+        Ok(Err(e)) => Err(format!("uploading the {} bake failed: {e}", fabric.quality.name())),
+        Err(payload) => Err(format!("uploading the bake crashed: {}", panic_text(payload.as_ref()))),
     }
 }
 

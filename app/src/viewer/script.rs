@@ -3,7 +3,7 @@
 //!
 //! How it works: [`parse_script`] reads one command per line (`#` starts a comment) into
 //! [`Step`]s, with the line number in every error. The viewer runs one step per frame; waiting
-//! steps (`wait-fabric`, `wait-spp`, `wait-export`, `expect-error`, `screenshot`) hold the
+//! steps (`wait-fabric`, `wait-spp`, `wait-export`, `expect-error`, `screenshot`, `lose-device`) hold the
 //! script until their condition holds, each for at most [`STEP_TIMEOUT`]. An error the viewer
 //! shows while a script runs fails the script unless an `expect-error` step is waiting for it.
 //! When the script ends (`quit`, or its last line) the window closes; a failed script makes
@@ -46,6 +46,8 @@
 //! wait-idle                             # until no bake runs and the latest one is on screen
 //! spin SECONDS                          # orbit a little every frame (a user dragging)
 //! frame-times PATH                      # the UI frame times so far, as text; then forget them
+//! lose-device                           # destroy the render device (a simulated loss) and wait
+//!                                       # until the viewer renders on a new one
 //! quit
 //! ```
 
@@ -112,6 +114,7 @@ pub enum Step {
     WaitIdle,
     Spin(f64),
     FrameTimes(PathBuf),
+    LoseDevice,
     Quit,
 }
 
@@ -277,6 +280,7 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             Step::Spin(seconds)
         }
         "frame-times" => Step::FrameTimes(PathBuf::from(args.next().ok_or("missing output file")?)),
+        "lose-device" => Step::LoseDevice,
         "quit" => Step::Quit,
         other => return Err(format!("unknown command {other:?}")),
     };
@@ -332,7 +336,7 @@ mod tests {
     fn the_editing_commands_parse() {
         let text = "flip 1 2\nweave satin_4_1\nrepeat 4 6\nimport-wif a.wif\nfiber weft beta_tt 12.5\n\
                     fiber warp c_r 0.1 0.2 0.3\nmesh builtin cushion\nmesh file m.obj\nmesh thickness 2\n\
-                    undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\n";
+                    undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\nlose-device\n";
         let steps: Vec<Step> =
             parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
         assert_eq!(steps[0], Step::Flip { row: 1, col: 2 });
@@ -341,7 +345,8 @@ mod tests {
         assert_eq!(steps[5], Step::Fiber { slot: 0, field: FiberField::ColourR([0.1, 0.2, 0.3]) });
         assert_eq!(steps[8], Step::Mesh(MeshEdit::Thickness(2.0)));
         assert_eq!(steps[14], Step::Spin(2.5));
-        assert_eq!(steps.len(), 16);
+        assert_eq!(steps[16], Step::LoseDevice);
+        assert_eq!(steps.len(), 17);
     }
 
     #[test]
