@@ -499,7 +499,9 @@ fn patterned_cloth_blocks_render_as_their_own_weave() {
     };
     let probe = scene_with("01", 1.0);
     let twill = &probe.exemplars()[0];
-    let twill_precompute::fabric::Tiling::Periodic { period } = twill.tiling else { panic!("the twill tiles") };
+    let twill_precompute::fabric::Tiling::Periodic { period } = twill.tiling else {
+        panic!("the twill tiles")
+    };
     let block_cm = f64::from(period.x) / f64::from(twill.blocks.nx);
     let height_cm = 4.0 * block_cm;
     let patterned = scene_with("01", height_cm);
@@ -556,13 +558,17 @@ fn patterned_cloth_blocks_render_as_their_own_weave() {
     for weave in 0..2 {
         let n = counts[weave] as f64;
         assert!(n >= 200.0, "weave {weave}: only {n} pixels in block middles");
-        let (own, other, level) = ((sums[weave][0] / n).sqrt(), (sums[weave][1] / n).sqrt(), sums[weave][2] / n);
+        let (own, other, level) =
+            ((sums[weave][0] / n).sqrt(), (sums[weave][1] / n).sqrt(), sums[weave][2] / n);
         eprintln!(
             "weave {weave}: {n} pixels, RMS difference from its own weave's render {:.4}, from the other's {:.4} (of the mean {level:.4})",
             own / level,
             other / level
         );
-        assert!(own <= 1e-3 * level, "weave {weave}: block middles differ from their weave's render by {own}");
+        assert!(
+            own <= 1e-3 * level,
+            "weave {weave}: block middles differ from their weave's render by {own}"
+        );
         assert!(other >= 0.5 * level, "weave {weave}: the other weave renders alike ({other})");
     }
 }

@@ -622,7 +622,9 @@ impl ViewerApp {
                     if let Some(f) = &mut self.fabric {
                         f.adapter.clone_from(&adapter);
                     }
-                    self.messages.info(format!("Rendering again on a new device ({adapter}, ready in {seconds:.1} s)."));
+                    self.messages.info(format!(
+                        "Rendering again on a new device ({adapter}, ready in {seconds:.1} s)."
+                    ));
                 }
                 WorkerEvent::DeviceUnavailable { message } => self.messages.error(message),
             }

@@ -484,11 +484,14 @@ fn worker_loop(
                         send(WorkerEvent::ExportProgress { done, total });
                     })
                 }));
-                let lost = if is_lost(&device, &loss) { " (the render device was lost: export again)" } else { "" };
+                let lost =
+                    if is_lost(&device, &loss) { " (the render device was lost: export again)" } else { "" };
                 match result {
                     Ok(Ok(Some((files, seconds)))) => send(WorkerEvent::ExportDone { files, seconds }),
                     Ok(Ok(None)) => send(WorkerEvent::ExportFailed { message: "export cancelled".into() }),
-                    Ok(Err(message)) => send(WorkerEvent::ExportFailed { message: format!("{message}{lost}") }),
+                    Ok(Err(message)) => {
+                        send(WorkerEvent::ExportFailed { message: format!("{message}{lost}") })
+                    }
                     Err(payload) => send(WorkerEvent::ExportFailed {
                         message: format!("export crashed: {}{lost}", panic_text(payload.as_ref())),
                     }),
@@ -575,15 +578,16 @@ fn upload_with_mesh(
     edited_mesh: &mut Option<MeshRequest>,
     send: &dyn Fn(WorkerEvent),
 ) -> Result<Renderer, String> {
-    let built = std::panic::catch_unwind(AssertUnwindSafe(|| match upload(device, fabric, edited_mesh.as_ref()) {
-        // A bad edited mesh: say so and show the fabric on the scene's own.
-        Err(message) if edited_mesh.is_some() => {
-            send(WorkerEvent::MeshFailed { message });
-            *edited_mesh = None;
-            upload(device, fabric, None)
-        }
-        other => other,
-    }));
+    let built =
+        std::panic::catch_unwind(AssertUnwindSafe(|| match upload(device, fabric, edited_mesh.as_ref()) {
+            // A bad edited mesh: say so and show the fabric on the scene's own.
+            Err(message) if edited_mesh.is_some() => {
+                send(WorkerEvent::MeshFailed { message });
+                *edited_mesh = None;
+                upload(device, fabric, None)
+            }
+            other => other,
+        }));
     match built {
         Ok(Ok(r)) => Ok(r),
         Ok(Err(e)) => Err(format!("uploading the {} bake failed: {e}", fabric.quality.name())),
