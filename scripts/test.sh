@@ -25,6 +25,23 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
   chmod 700 "$XDG_RUNTIME_DIR"
 fi
 
+# Skipped GPU and window tests (only possible with TWILL_ALLOW_NO_GPU=1 outside CI) note
+# themselves in this file (twill_renderer::gpu::report_skip); the run ends with them in a banner,
+# since the test harness hides a passing test's output.
+skip_log="$PWD/target/skipped-tests.txt"
+mkdir -p target
+rm -f "$skip_log"
+export TWILL_SKIP_LOG="$skip_log"
+print_skips() {
+  if [ -s "$skip_log" ]; then
+    echo "=================================================================="
+    echo "SKIPPED: $(wc -l <"$skip_log") GPU or window test(s) did not run (TWILL_ALLOW_NO_GPU=1):"
+    cat "$skip_log"
+    echo "=================================================================="
+  fi
+}
+trap print_skips EXIT
+
 echo "== cargo fmt --check"
 cargo fmt --all --check
 echo "== cargo clippy"

@@ -54,9 +54,7 @@ fn xvfb_run_for(test: &str) -> Option<PathBuf> {
         return Some(path);
     }
     if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") {
-        eprintln!(
-            "SKIPPED {test}: xvfb-run not found (TWILL_ALLOW_NO_GPU=1); install the xvfb package to run it"
-        );
+        twill_renderer::gpu::report_skip(test, "xvfb-run not found; install the xvfb package to run it");
         return None;
     }
     panic!(

@@ -30,6 +30,24 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
 }
 
+/// Says that test `test` skipped, and why, where a person sees it: on stderr (which the test
+/// harness shows only for failures) and, when `TWILL_SKIP_LOG` names a file, as a line appended
+/// to it; `scripts/test.sh` prints that file in a banner at the end of the run.
+pub fn report_skip(test: &str, reason: &str) {
+    let line = format!("SKIPPED {test}: {reason} (TWILL_ALLOW_NO_GPU=1)");
+    eprintln!("{line}");
+    if let Some(path) = std::env::var_os("TWILL_SKIP_LOG") {
+        let appended = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .and_then(|mut f| std::io::Write::write_all(&mut f, format!("{line}\n").as_bytes()));
+        if let Err(e) = appended {
+            eprintln!("could not note the skip in {}: {e}", std::path::Path::new(&path).display());
+        }
+    }
+}
+
 impl Gpu {
     /// Opens the best Vulkan adapter available, without a window.
     pub fn headless() -> Result<Self, GpuError> {
@@ -68,7 +86,7 @@ impl Gpu {
                 Some(gpu)
             }
             Err(e) if std::env::var("TWILL_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
-                eprintln!("SKIPPED {test}: {e} (TWILL_ALLOW_NO_GPU=1)");
+                report_skip(test, &e.to_string());
                 None
             }
             Err(e) => panic!("{test}: {e}. Set TWILL_ALLOW_NO_GPU=1 to skip GPU tests explicitly."),

@@ -490,7 +490,7 @@ fn worker_loop(
                     Ok(Ok(Some((files, seconds)))) => send(WorkerEvent::ExportDone { files, seconds }),
                     Ok(Ok(None)) => send(WorkerEvent::ExportFailed { message: "export cancelled".into() }),
                     Ok(Err(message)) => {
-                        send(WorkerEvent::ExportFailed { message: format!("{message}{lost}") })
+                        send(WorkerEvent::ExportFailed { message: format!("{message}{lost}") });
                     }
                     Err(payload) => send(WorkerEvent::ExportFailed {
                         message: format!("export crashed: {}{lost}", panic_text(payload.as_ref())),
