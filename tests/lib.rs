@@ -51,10 +51,16 @@ pub fn golden_path(name: &str) -> std::path::PathBuf {
 
 /// Golden-image metric: the RMSE of 8-bit sRGB channel values over the image must be at most
 /// `GOLDEN_MAX_RMSE`, and at most `GOLDEN_MAX_OUTLIERS` of the pixels may differ by more than
-/// `GOLDEN_OUTLIER_LEVEL` in any channel (a few fiber-edge pixels flip between drivers).
-pub const GOLDEN_MAX_RMSE: f64 = 3.0;
-pub const GOLDEN_OUTLIER_LEVEL: u8 = 32;
-pub const GOLDEN_MAX_OUTLIERS: f64 = 0.01;
+/// `GOLDEN_OUTLIER_LEVEL` in any channel.
+///
+/// Lavapipe's run-to-run noise, measured 2026-11-25: RMSE 0.000 and no outliers for all five
+/// goldens (the four GPU frames and the viewer's), in two runs on this machine against goldens
+/// blessed on another of its kind — the renders are bit-exact. The bounds leave room for a
+/// different LLVM or CPU vector width changing a few fiber-edge pixels, and no more: half a
+/// level of RMSE, 0.1% of pixels off by more than 16 levels. (They were 3 levels, 1% and 32.)
+pub const GOLDEN_MAX_RMSE: f64 = 0.5;
+pub const GOLDEN_OUTLIER_LEVEL: u8 = 16;
+pub const GOLDEN_MAX_OUTLIERS: f64 = 0.001;
 
 fn read_rgb_png(path: &std::path::Path) -> Result<(u32, u32, Vec<u8>), String> {
     let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
