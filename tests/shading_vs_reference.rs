@@ -488,7 +488,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     let settings = BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3 };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
-    assert_eq!(budget.rungs.len(), 10);
+    assert_eq!(budget.rungs.len(), 12);
     for rung in &budget.rungs {
         assert!(
             rung.relative_error_of_mean.is_finite() && rung.relative_pixel_rmse.is_finite(),
@@ -516,7 +516,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     assert!((again.relative_error_of_mean - fifth.relative_error_of_mean).abs() < 1e-12);
     assert_eq!(
         budget.rungs.iter().position(|r| r.name == "the method again"),
-        Some(5),
+        Some(6),
         "after the single rungs"
     );
     // Interpolating transfer between cells (no block edges) must not lose per-pixel accuracy

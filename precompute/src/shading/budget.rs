@@ -15,7 +15,9 @@
 //! 2. shadow rays from the segment midpoint, on the fiber axis (the paper's V_k);
 //! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k);
 //! 4. the binary visibility image of the bake's resolution (nearest pixel);
-//! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ.
+//! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
+//! 6. the method on the GPU's primary hits: the first occupied voxel of the bake's volume at the
+//!    scene's volume samples ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
 //! Multiple scattering (indirect light through the exact fiber scattering function, one path
 //! per sample, then the method):
@@ -25,6 +27,7 @@
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell;
 //! 4. the method: the IIRTF interpolated between cells at the hit point;
+//! 5. the method on the GPU's primary hits (as single-scattering rung 6);
 //!
 //! and beside them 4′, the method without clamping multiple scattering at zero. Truncated SH and
 //! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
@@ -32,7 +35,8 @@
 //!
 //! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
 //! adds the GPU renderer's frame (primary visibility from the voxel volume, at the scene's
-//! volume samples per tetrahedron) after each component's ladder.
+//! volume samples per tetrahedron) after each component's ladder. The GPU rung minus the last
+//! CPU rung is what the GPU renderer itself adds beyond its primary hits.
 
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -42,7 +46,7 @@ use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
 use super::ShadingError;
-use super::render::{MethodOptions, render_flat_with, render_primary_hits};
+use super::render::{MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::pipeline::Baked;
@@ -228,6 +232,13 @@ pub fn error_budget(
         &film,
         t.elapsed().as_secs_f64(),
     );
+    let voxel_hits = PrimaryHits::Voxels { samples: scene.gpu.volume_samples };
+    let voxels =
+        format!("the GPU's primary hits (first occupied voxel of {} samples)", scene.gpu.volume_samples);
+    let t = Instant::now();
+    let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
+    let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, options)?;
+    push(Component::Single, format!("6 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
 
     // Multiple scattering.
     let fibers = &scene.path_scene.fibers;
@@ -261,10 +272,14 @@ pub fn error_budget(
         ("4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(), true, false),
     ] {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer, clamp_multiple };
+        let options = MethodOptions { interpolate_transfer, clamp_multiple, primary: PrimaryHits::Exact };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
     }
+    let t = Instant::now();
+    let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
+    let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
+    push(Component::Multiple, format!("5 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
     Ok(Budget {
         rungs,
         width,

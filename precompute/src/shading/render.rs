@@ -22,6 +22,7 @@ use super::multiple::{light_sh, multiple_scattering};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
+use crate::bake::volume::{EMPTY_VOXEL, VoxelVolume};
 use crate::image::{Film, PixelRow};
 use crate::pathtrace::integrator::pixel_rng;
 use crate::pathtrace::{Component, Light};
@@ -87,12 +88,25 @@ pub struct MethodOptions {
     /// Clamp multiple scattering at zero per channel and sample (`true`, the default and the
     /// GPU's choice) or keep negative values (unbiased in the mean, but not an image).
     pub clamp_multiple: bool,
+    /// Where camera rays meet the fabric.
+    pub primary: PrimaryHits,
 }
 
 impl Default for MethodOptions {
     fn default() -> Self {
-        Self { interpolate_transfer: true, clamp_multiple: true }
+        Self { interpolate_transfer: true, clamp_multiple: true, primary: PrimaryHits::Exact }
     }
+}
+
+/// Where a camera ray first meets the fabric.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PrimaryHits {
+    /// The exact first ray–capsule hit (what the path tracer sees).
+    Exact,
+    /// The GPU's eye rays (shaders/gbuffer.wgsl) on a flat swatch: the first occupied voxel of
+    /// the bake's volume among `samples` points spread evenly, with one jitter per ray, over the
+    /// ray's path through the volume's depth range; the hit is that sample point.
+    Voxels { samples: u32 },
 }
 
 /// Renders `scene` (its camera at its `[render]` size, its lights) with the paper's method from
@@ -124,10 +138,67 @@ pub fn render_flat_with(
         });
     }
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
-    render_primary_hits(scene, spp, seed, |hit, wo, _| {
-        let position = options.interpolate_transfer.then(|| hit.local_position.as_dvec3());
-        shade_segment(baked, hit.segment, position, wo, &lights, component, options.clamp_multiple)
-    })
+    let shade_at = |segment: u32, local: DVec3, wo: DVec3| {
+        let position = options.interpolate_transfer.then_some(local);
+        shade_segment(baked, segment, position, wo, &lights, component, options.clamp_multiple)
+    };
+    match options.primary {
+        PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {
+            shade_at(hit.segment, hit.local_position.as_dvec3(), wo)
+        }),
+        PrimaryHits::Voxels { samples } => {
+            let volume = &baked.volume.volume;
+            render_camera_rays(scene, spp, seed, |origin, dir, t_max, rng| {
+                match voxel_hit(volume, origin, dir, t_max, samples.max(1), rng.random()) {
+                    Some((segment, local)) => shade_at(segment, local, -dir),
+                    None => Ok(Rgb::ZERO),
+                }
+            })
+        }
+    }
+}
+
+/// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first of `samples`
+/// points `t = t_in + (s + jitter) / samples · (t_out − t_in)` along the ray's path through the
+/// volume's depth range whose voxel holds a segment, as (segment, exemplar-local position).
+fn voxel_hit(
+    volume: &VoxelVolume,
+    origin: DVec3,
+    dir: DVec3,
+    t_max: f64,
+    samples: u32,
+    jitter: f64,
+) -> Option<(u32, DVec3)> {
+    let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
+    let dims = volume.dims.map(i64::from);
+    let extent = size * DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+    let (z0, z1) = (grid_origin.z, grid_origin.z + extent.z);
+    if dir.z.abs() < 1e-12 {
+        return None;
+    }
+    let (ta, tb) = ((z1 - origin.z) / dir.z, (z0 - origin.z) / dir.z);
+    let (t_in, t_out) = (ta.min(tb).max(0.0), ta.max(tb).min(t_max));
+    if t_in >= t_out {
+        return None;
+    }
+    for s in 0..samples {
+        let t = t_in + (f64::from(s) + jitter) / f64::from(samples) * (t_out - t_in);
+        let mut p = origin + t * dir;
+        if volume.periodic {
+            p.x = grid_origin.x + (p.x - grid_origin.x).rem_euclid(extent.x);
+            p.y = grid_origin.y + (p.y - grid_origin.y).rem_euclid(extent.y);
+        }
+        let cell = ((p - grid_origin) / size).floor();
+        let [i, j, k] = [cell.x as i64, cell.y as i64, cell.z as i64];
+        let inside = (0..dims[0]).contains(&i) && (0..dims[1]).contains(&j) && (0..dims[2]).contains(&k);
+        if inside {
+            let id = volume.id_at(i as u32, j as u32, k as u32);
+            if id != EMPTY_VOXEL {
+                return Some((id, p));
+            }
+        }
+    }
+    None
 }
 
 /// Renders `scene`'s camera view (flat swatch) with `shade(hit, ωo, rng)` at every primary
@@ -141,9 +212,27 @@ pub fn render_primary_hits(
     seed: u64,
     shade: impl Fn(&Hit, DVec3, &mut Pcg64Mcg) -> Result<Rgb, ShadingError> + Sync,
 ) -> Result<Film, ShadingError> {
+    let fibers = &scene.path_scene.fibers;
+    render_camera_rays(scene, spp, seed, |origin, dir, t_max, rng| {
+        match fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, None) {
+            Some(hit) => shade(&hit, -dir, rng),
+            None => Ok(Rgb::ZERO),
+        }
+    })
+}
+
+/// Renders `scene`'s camera view with `trace(origin, direction, t_max, rng)` per camera ray:
+/// `spp` jittered film positions per pixel from `pixel_rng(seed, pixel)`, `t_max` where the ray
+/// reaches the ground (if any) first, `rng` a second per-pixel stream for the shading's own
+/// random numbers. Rows are rendered in parallel; the image does not depend on the thread count.
+fn render_camera_rays(
+    scene: &Scene,
+    spp: u32,
+    seed: u64,
+    trace: impl Fn(DVec3, DVec3, f64, &mut Pcg64Mcg) -> Result<Rgb, ShadingError> + Sync,
+) -> Result<Film, ShadingError> {
     let (width, height) = (scene.render.width, scene.render.height);
     let camera = camera_from(&scene.camera, width, height)?;
-    let fibers = &scene.path_scene.fibers;
     let ground_z = scene.path_scene.ground_z;
     let rows: Vec<PixelRow> = (0..height)
         .into_par_iter()
@@ -162,12 +251,7 @@ pub fn render_primary_hits(
                         Some(z) if dir.z < 0.0 && origin.z > z => (origin.z - z) / -dir.z,
                         _ => f64::INFINITY,
                     };
-                    let value = match fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, None)
-                    {
-                        Some(hit) => shade(&hit, -dir, &mut shading_rng)?,
-                        None => Rgb::ZERO,
-                    };
-                    row.add(x, value);
+                    row.add(x, trace(origin, dir, t_max, &mut shading_rng)?);
                 }
             }
             Ok(row)
@@ -182,3 +266,58 @@ pub fn render_primary_hits(
 
 /// Mixed into the seed of the shading's own random stream per pixel.
 const SHADING_STREAM: u64 = 0x5EED_0F5A_DE00_0001;
+
+#[cfg(test)]
+mod tests {
+    use glam::{DVec3, Vec3};
+
+    use super::voxel_hit;
+    use crate::bake::volume::{EMPTY_VOXEL, Occupancy, VoxelVolume};
+
+    /// A 4 x 4 x 4 grid of 1 cm voxels from the origin, empty but for voxel `(i, j, k)` = 7.
+    fn one_voxel(periodic: bool, [i, j, k]: [usize; 3]) -> VoxelVolume {
+        let mut ids = vec![EMPTY_VOXEL; 64];
+        ids[(k * 4 + j) * 4 + i] = 7;
+        VoxelVolume {
+            dims: [4, 4, 4],
+            origin: Vec3::ZERO,
+            voxel_size: Vec3::ONE,
+            periodic,
+            occupancy: Occupancy::CentreInside,
+            ids,
+        }
+    }
+
+    #[test]
+    fn voxel_hits_stop_at_the_first_occupied_sample() {
+        let volume = one_voxel(false, [1, 2, 1]);
+        // Straight down through x = 1.5, y = 2.5: the slab is z in [0, 4], samples at 0.5, 1.5,
+        // ... from the top with jitter 0.5; the first one in voxel k = 1 is z = 1.5.
+        let (id, p) =
+            voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 4, 0.5).unwrap();
+        assert_eq!(id, 7);
+        assert!((p - DVec3::new(1.5, 2.5, 1.5)).length() < 1e-12, "{p}");
+        // Beside the voxel, or cut short by the ground above it, or parallel to the slab: none.
+        assert!(voxel_hit(&volume, DVec3::new(0.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 64, 0.5).is_none());
+        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, 7.9, 64, 0.5).is_none());
+        assert!(voxel_hit(&volume, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY, 64, 0.5).is_none());
+        // Too few samples step over it (as the GPU's would).
+        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 2, 0.0).is_none());
+    }
+
+    #[test]
+    fn periodic_voxel_hits_wrap_across_the_fabric() {
+        let volume = one_voxel(true, [3, 0, 2]);
+        // Three periods over and one back: x = 15.5 wraps to 3.5, y = -3.5 to 0.5; samples every
+        // 0.5 cm from z = 3.75 down, the first in k = 2 at z = 2.75.
+        let (id, p) =
+            voxel_hit(&volume, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY, 8, 0.5).unwrap();
+        assert_eq!(id, 7);
+        assert!((p - DVec3::new(3.5, 0.5, 2.75)).length() < 1e-12, "exemplar-local position {p}");
+        let not_periodic = one_voxel(false, [3, 0, 2]);
+        assert!(
+            voxel_hit(&not_periodic, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY, 8, 0.5)
+                .is_none()
+        );
+    }
+}
