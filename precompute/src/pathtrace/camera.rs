@@ -38,6 +38,15 @@ impl Camera {
         width: usize,
         height: usize,
     ) -> Result<Self, ParamError> {
+        for (name, v) in [("camera.eye", eye), ("camera.target", target), ("camera.up", up)] {
+            if !v.is_finite() {
+                return Err(ParamError::new(
+                    name,
+                    format!("[{}, {}, {}]", v.x, v.y, v.z),
+                    "finite coordinates (no NaN or infinity)",
+                ));
+            }
+        }
         let forward = (target - eye).normalize_or_zero();
         if forward == DVec3::ZERO || !forward.is_finite() {
             return Err(ParamError::new(
