@@ -622,6 +622,9 @@ impl SceneFile {
             check_range("mesh.size_cm", x, 1e-3, 1e4).map_err(param)?;
         }
         self.camera(r.width, r.height).map_err(param)?;
+        // The projection not in use is checked too: a NaN there is a broken file, not a choice.
+        check_range("camera.fov_y_deg", self.camera.fov_y_deg, 0.01, 179.0).map_err(param)?;
+        check_positive("camera.height_cm", self.camera.height_cm).map_err(param)?;
         let extent = match exemplar.tiling {
             Tiling::Periodic { .. } => {
                 let half = Vec2::new(self.swatch.size_cm[0] as f32, self.swatch.size_cm[1] as f32) * 0.5;
