@@ -823,11 +823,14 @@ impl Renderer {
             )
         };
         let lights_gpu = Self::lights_gpu(lights, &plan);
+        // The shader's `array<LightGpu>` binding needs room for one element even when the plan
+        // dropped every light (all below a flat shell): a zeroed one, never read (count 0).
+        let placeholder = [<LightGpu as bytemuck::Zeroable>::zeroed()];
         let lights_buffer = make_buffer(
             &device,
             &self.queue,
             "twill.shade.lights",
-            bytemuck::cast_slice(&lights_gpu),
+            bytemuck::cast_slice(if lights_gpu.is_empty() { &placeholder } else { &lights_gpu }),
             wgpu::BufferUsages::STORAGE,
         );
         let shade_uniforms = ShadeUniformsGpu {
