@@ -696,6 +696,8 @@ impl Renderer {
         first_sample: u32,
     ) -> Result<Frame, RenderError> {
         validate(settings, lights)?;
+        twill_precompute::scene::camera_from(camera, settings.width as usize, settings.height as usize)
+            .map_err(|e| RenderError::Settings(e.to_string()))?;
         if first_sample.checked_add(settings.spp).is_none_or(|end| end > MAX_SAMPLE_INDEX) {
             return Err(RenderError::Settings(format!(
                 "samples {first_sample}..{first_sample}+{}: the sequence ends at {MAX_SAMPLE_INDEX}",
