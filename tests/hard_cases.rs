@@ -2,9 +2,9 @@
 //! through whole paths. Each case renders a small flat swatch (16x16) with the CPU version of
 //! the method (`shading::render_flat`, f64) and as a whole GPU frame on the adapter (lavapipe
 //! without a GPU), or, where a case lives below the frame (a segment's light exactly along its
-//! tangent, empty IIRTF cells, fully visible or occluded segments, the shell map, the TT lobe
-//! at κ = 1e6), evaluates the WGSL functions on every segment of a real bake against their
-//! Rust twins. Every case asserts that every value is finite and non-negative, an energy bound
+//! tangent, empty IIRTF cells, fully visible or occluded segments, the TT lobe at κ = 1e6),
+//! evaluates the WGSL functions on every segment of a real bake against their Rust twins; the
+//! shell at tiny and huge scales is checked through its affine maps. Every case asserts that every value is finite and non-negative, an energy bound
 //! where an exact answer exists, and GPU/CPU agreement within a tolerance stated where it is
 //! used. The numeric-input cases set every numeric field of a full scene (walked from its TOML
 //! keys, so a new field is covered automatically), of the bake settings, of the shell and of
@@ -814,11 +814,11 @@ fn hard_light_exactly_along_a_fiber_and_theta_at_plus_minus_half_pi() {
     for materials in [Materials::Default, Materials::Narrow] {
         let b = baked(materials);
         let segs = segments(b);
-        let wos = [0.0_f32, 1.0, 2.0]; // +t, −t, a fixed oblique direction
         let mut inputs = Vec::new();
         for &(k, s) in &segs {
-            for (code, &wo) in wos.iter().enumerate() {
-                let _ = wo;
+            // ωo codes (the WGSL below decodes the same): 0 = +t, 1 = −t, 2 = a fixed oblique
+            // direction.
+            for code in 0..3_u32 {
                 let t = s.tangent;
                 let wo_vec = match code {
                     0 => t,
