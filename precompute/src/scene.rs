@@ -807,6 +807,19 @@ mod tests {
         "[camera]\nprojection = \"perspective\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n";
 
     #[test]
+    fn the_projection_not_in_use_is_checked_too() {
+        let light = "[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+        for (projection, field) in [("perspective", "height_cm"), ("orthographic", "fov_y_deg")] {
+            for value in ["nan", "inf", "-inf"] {
+                let msg = parse_err(&format!(
+                    "[fabric]\npreset = \"default\"\n[camera]\nprojection = \"{projection}\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n{field} = {value}\n{light}"
+                ));
+                assert!(msg.contains(&format!("camera.{field}")), "{projection} {field} = {value}: {msg}");
+            }
+        }
+    }
+
+    #[test]
     fn errors_name_the_file_line_and_field() {
         let text = format!(
             "[fabric]\npreset = \"default\"\n{CAMERA}[[lights]]\ntype = \"sg\"\naxis = [0, 0, 1]\nsharpness = -3\nintensity = [1, 1, 1]\n"
