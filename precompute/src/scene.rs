@@ -622,6 +622,9 @@ impl SceneFile {
             check_range("mesh.size_cm", x, 1e-3, 1e4).map_err(param)?;
         }
         self.camera(r.width, r.height).map_err(param)?;
+        // The projection not in use is checked too: a NaN there is a broken file, not a choice.
+        check_range("camera.fov_y_deg", self.camera.fov_y_deg, 0.01, 179.0).map_err(param)?;
+        check_positive("camera.height_cm", self.camera.height_cm).map_err(param)?;
         let extent = match exemplar.tiling {
             Tiling::Periodic { .. } => {
                 let half = Vec2::new(self.swatch.size_cm[0] as f32, self.swatch.size_cm[1] as f32) * 0.5;
@@ -802,6 +805,19 @@ mod tests {
 
     const CAMERA: &str =
         "[camera]\nprojection = \"perspective\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n";
+
+    #[test]
+    fn the_projection_not_in_use_is_checked_too() {
+        let light = "[[lights]]\ntype = \"directional\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\n";
+        for (projection, field) in [("perspective", "height_cm"), ("orthographic", "fov_y_deg")] {
+            for value in ["nan", "inf", "-inf"] {
+                let msg = parse_err(&format!(
+                    "[fabric]\npreset = \"default\"\n[camera]\nprojection = \"{projection}\"\neye = [0, 0, 3]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\n{field} = {value}\n{light}"
+                ));
+                assert!(msg.contains(&format!("camera.{field}")), "{projection} {field} = {value}: {msg}");
+            }
+        }
+    }
 
     #[test]
     fn errors_name_the_file_line_and_field() {

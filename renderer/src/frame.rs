@@ -696,6 +696,8 @@ impl Renderer {
         first_sample: u32,
     ) -> Result<Frame, RenderError> {
         validate(settings, lights)?;
+        twill_precompute::scene::camera_from(camera, settings.width as usize, settings.height as usize)
+            .map_err(|e| RenderError::Settings(e.to_string()))?;
         if first_sample.checked_add(settings.spp).is_none_or(|end| end > MAX_SAMPLE_INDEX) {
             return Err(RenderError::Settings(format!(
                 "samples {first_sample}..{first_sample}+{}: the sequence ends at {MAX_SAMPLE_INDEX}",
@@ -823,11 +825,14 @@ impl Renderer {
             )
         };
         let lights_gpu = Self::lights_gpu(lights, &plan);
+        // The shader's `array<LightGpu>` binding needs room for one element even when the plan
+        // dropped every light (all below a flat shell): a zeroed one, never read (count 0).
+        let placeholder = [<LightGpu as bytemuck::Zeroable>::zeroed()];
         let lights_buffer = make_buffer(
             &device,
             &self.queue,
             "twill.shade.lights",
-            bytemuck::cast_slice(&lights_gpu),
+            bytemuck::cast_slice(if lights_gpu.is_empty() { &placeholder } else { &lights_gpu }),
             wgpu::BufferUsages::STORAGE,
         );
         let shade_uniforms = ShadeUniformsGpu {

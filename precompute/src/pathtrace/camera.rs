@@ -38,6 +38,15 @@ impl Camera {
         width: usize,
         height: usize,
     ) -> Result<Self, ParamError> {
+        for (name, v) in [("camera.eye", eye), ("camera.target", target), ("camera.up", up)] {
+            if !v.is_finite() {
+                return Err(ParamError::new(
+                    name,
+                    format!("[{}, {}, {}]", v.x, v.y, v.z),
+                    "finite coordinates (no NaN or infinity)",
+                ));
+            }
+        }
         let forward = (target - eye).normalize_or_zero();
         if forward == DVec3::ZERO || !forward.is_finite() {
             return Err(ParamError::new(
@@ -102,6 +111,24 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn non_finite_points_are_named_as_themselves() {
+        let p = Projection::Perspective { fov_y_deg: 30.0 };
+        let (eye, target, up) = (DVec3::new(0.0, -1.0, 1.0), DVec3::ZERO, DVec3::Z);
+        for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let bad = DVec3::new(0.0, x, 1.0);
+            for (name, e, t, u) in [
+                ("camera.eye", bad, target, up),
+                ("camera.target", eye, bad, up),
+                ("camera.up", eye, target, bad),
+            ] {
+                let err = Camera::new(e, t, u, p, 4, 4).unwrap_err();
+                assert_eq!(err.name, name, "{err}");
+                assert!(err.to_string().contains("finite"), "{err}");
+            }
+        }
+    }
 
     #[test]
     fn centre_ray_looks_at_the_target_and_corners_span_the_field_of_view() {
