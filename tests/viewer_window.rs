@@ -22,6 +22,9 @@
 //! undoes everything (the bake comes back from the stage cache), saves again, and records UI
 //! frame times while a bake runs; the saved scenes must load and hold exactly the edits.
 //!
+//! `the_draft_picture_shows_before_the_final_bake_finishes` starts at interactive quality on an
+//! empty cache and checks that the draft's picture is on screen while the interactive bake runs.
+//!
 //! `a_failed_bake_and_a_missing_scene_are_shown_in_the_window` opens a scene whose fabric cannot
 //! be built, then a scene file that does not exist, and checks that each error appears in the
 //! window while the viewer keeps running (the scripted run above also exports to a folder that
@@ -319,6 +322,29 @@ fn fabric_edits_rebake_only_what_they_change_and_undo_restores_them() {
 
     let frames = std::fs::read_to_string(out.join("frames.txt")).unwrap();
     assert!(frames.contains("while baking: frame interval"), "{frames}");
+}
+
+/// The picture comes first: started on an empty bake cache at interactive quality, the viewer
+/// shows the draft bake's picture while the interactive bake is still in flight (the bake
+/// thread holds until that picture is on screen, so the first frame has the cores to itself).
+/// Prints the time to the first picture; docs/BENCHMARKS.md records it.
+#[test]
+fn the_draft_picture_shows_before_the_final_bake_finishes() {
+    let test = "the_draft_picture_shows_before_the_final_bake_finishes";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    std::fs::write(out.join("first.script"), "wait-fabric draft\nexpect-baking interactive\nquit\n").unwrap();
+    let run = run_viewer(&xvfb, out, &["--quality", "interactive", "--script", "first.script"]);
+    assert!(run.success, "the viewer failed:\n{}", run.stderr);
+    let first = run
+        .stderr
+        .lines()
+        .find_map(|l| l.strip_prefix("script line 1: wait-fabric draft (done after "))
+        .and_then(|rest| rest.strip_suffix(')'))
+        .expect("the draft picture was shown");
+    eprintln!("time to the draft picture: {first} after the window opened");
+    assert!(run.stderr.contains("script line 2: expect-baking interactive (done"), "{}", run.stderr);
 }
 
 #[test]

@@ -667,6 +667,22 @@ impl ViewerApp {
     }
 
     /// Whether the accumulation on screen is of the current view at the viewport's full size.
+    /// Lets a bake thread that holds for the picture go on (`bake.rs`: the picture comes first)
+    /// once the fabric it handed over last has a frame on screen, or when nothing can render it.
+    fn release_bake_for_picture(&self) {
+        if !self.baker.holding() {
+            return;
+        }
+        let handed_over = self.pending_fabric.is_none() && self.uploading.is_empty();
+        let shown = match (&self.accumulation, &self.fabric) {
+            (Some(acc), Some(fabric)) => acc.fabric_id == fabric.id,
+            _ => false,
+        };
+        if (handed_over && shown) || self.worker.is_none() {
+            self.baker.picture_shown();
+        }
+    }
+
     fn picture_is_current(&self) -> bool {
         match (&self.accumulation, &self.fabric) {
             (Some(acc), Some(fabric)) => {
@@ -1072,7 +1088,7 @@ impl ViewerApp {
                 // Whole sixteenths, so the size does not change with every measurement.
                 ((scale * 16.0).floor() / 16.0).clamp(lo, hi)
             }
-            _ => 0.5,
+            _ => 0.25,
         }
     }
 
@@ -1185,6 +1201,11 @@ impl ViewerApp {
             Step::WaitFabric(q) => Ok(self.fabric.as_ref().is_some_and(|f| {
                 f.quality == *q && self.accumulation.as_ref().is_some_and(|a| a.fabric_id == f.id)
             })),
+            Step::ExpectBaking(q) => match self.baker.progress() {
+                Some(p) if p.quality == *q => Ok(true),
+                Some(p) => Err(format!("the bake in flight is {}, not {}", p.quality.name(), q.name())),
+                None => Err(format!("no {} bake is in flight", q.name())),
+            },
             Step::Bake(q) => {
                 self.start_bake(*q);
                 Ok(true)
@@ -1534,6 +1555,7 @@ impl eframe::App for ViewerApp {
         self.shortcuts(&ctx);
         self.handle_bake_events();
         self.handle_worker_events();
+        self.release_bake_for_picture();
         self.refresh_texture(&ctx);
 
         egui::Panel::top("twill.top").show(ui, |ui| self.top_bar(ui));

@@ -13,13 +13,18 @@
 //! viewer forwards a finished bake to the render worker, and keeps showing the old picture until
 //! the new fabric's first frame is ready.
 //!
+//! The picture comes first: render and bake share the cores, so after handing over a bake that
+//! more bakes follow (the draft before the final quality, a material preview before its full
+//! bake), the bake thread holds until the viewer says that bake's picture is on screen
+//! ([`Baker::picture_shown`]), at most [`MAX_PICTURE_HOLD`], and only then starts the next.
+//!
 //! A material edit ([`Baker::start_material_edit`]) first hands over a preview that recomputes
 //! only the single-scattering tables and keeps the previous bake's multiple scattering
 //! (`bake_material_preview`: a fraction of a second), then the full bake, whose transfer stage
 //! is the only slow one left (the geometry stages come from the stage cache).
 
 use std::sync::mpsc::{Receiver, Sender, channel};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use eframe::egui;
@@ -34,6 +39,11 @@ use twill_precompute::scene::{Scene, SceneFile};
 const STAGE_WEIGHTS: [f64; 7] = [0.05, 0.45, 0.35, 0.07, 0.03, 0.02, 0.03];
 /// How often a running bake asks the window to redraw its progress.
 const PROGRESS_REPAINT: Duration = Duration::from_millis(250);
+/// Longest the bake thread waits for the picture of a bake it handed over before going on (a
+/// render that fails or stalls must not stop the bakes).
+pub const MAX_PICTURE_HOLD: Duration = Duration::from_secs(30);
+/// How often a holding bake thread checks for a cancel.
+const HOLD_POLL: Duration = Duration::from_millis(50);
 
 /// A finished bake of the scene's fabric.
 pub struct FabricBake {
@@ -110,6 +120,8 @@ struct Shared {
     progress: Option<BakeProgress>,
     /// Events of the current bake sent and not yet taken by [`Baker::poll`].
     unpolled: usize,
+    /// The bake thread holds until the picture of the bake it handed over is shown.
+    holding: bool,
 }
 
 /// Runs bakes in the background (see the module docs).
@@ -117,6 +129,8 @@ pub struct Baker {
     /// The stage cache's folder (None: the default one).
     cache_dir: Option<std::path::PathBuf>,
     shared: Arc<Mutex<Shared>>,
+    /// Wakes a holding bake thread.
+    released: Arc<Condvar>,
     cancel: Option<Cancel>,
     next_id: u64,
     sender: Sender<(u64, BakeEvent)>,
@@ -129,7 +143,16 @@ impl Baker {
     #[must_use]
     pub fn new(repaint: egui::Context, cache_dir: Option<std::path::PathBuf>) -> Self {
         let (sender, receiver) = channel();
-        Self { cache_dir, shared: Arc::default(), cancel: None, next_id: 1, sender, receiver, repaint }
+        Self {
+            cache_dir,
+            shared: Arc::default(),
+            released: Arc::default(),
+            cancel: None,
+            next_id: 1,
+            sender,
+            receiver,
+            repaint,
+        }
     }
 
     /// Bakes `scene`'s fabric at each of `qualities` in turn, cancelling any bake in flight.
@@ -159,6 +182,7 @@ impl Baker {
                 Some(BakeProgress::starting(qualities.first().copied().unwrap_or(Quality::Draft)));
         }
         let (shared, sender, repaint) = (Arc::clone(&self.shared), self.sender.clone(), self.repaint.clone());
+        let released = Arc::clone(&self.released);
         let cache_dir = self.cache_dir.clone();
         let spawned = std::thread::Builder::new().name("twill-bake".into()).spawn(move || {
             let job = BakeJob {
@@ -166,6 +190,7 @@ impl Baker {
                 qualities: &qualities,
                 preview_from: preview_from.as_deref(),
                 cache_dir: cache_dir.as_deref(),
+                released: &released,
             };
             run_bakes(&job, &scene, &cancel, &shared, &sender, &repaint);
         });
@@ -184,6 +209,24 @@ impl Baker {
         shared.current = 0;
         shared.progress = None;
         shared.unpolled = 0;
+        shared.holding = false;
+        self.released.notify_all();
+    }
+
+    /// Whether the bake thread waits for the picture of the bake it handed over last.
+    #[must_use]
+    pub fn holding(&self) -> bool {
+        lock(&self.shared).holding
+    }
+
+    /// The picture of the bake handed over last is on screen (or will not come): a holding bake
+    /// thread goes on with the next bake.
+    pub fn picture_shown(&self) {
+        let mut shared = lock(&self.shared);
+        if shared.holding {
+            shared.holding = false;
+            self.released.notify_all();
+        }
     }
 
     /// Whether a bake is in flight or has results not yet taken by [`Baker::poll`].
@@ -227,6 +270,7 @@ struct BakeJob<'a> {
     /// Start with a material preview from this bake.
     preview_from: Option<&'a BakedSet>,
     cache_dir: Option<&'a std::path::Path>,
+    released: &'a Condvar,
 }
 
 fn run_bakes(
@@ -254,6 +298,34 @@ fn run_bakes(
             s.progress = progress;
         }
     };
+    // Hands over a bake that more bakes follow, then holds until its picture is shown (see the
+    // module docs); false when the bake was cancelled meanwhile.
+    let report_and_hold = |event: BakeEvent, next: Quality| {
+        {
+            let mut s = lock(shared);
+            if s.current == id {
+                s.holding = true;
+                s.progress = Some(BakeProgress::starting(next));
+            }
+        }
+        report(event);
+        let started = Instant::now();
+        let mut s = lock(shared);
+        while s.current == id && s.holding && !cancel.is_cancelled() {
+            if started.elapsed() >= MAX_PICTURE_HOLD {
+                log::warn!(
+                    "no picture after {} s: going on with the {} bake",
+                    MAX_PICTURE_HOLD.as_secs(),
+                    next.name()
+                );
+                s.holding = false;
+                break;
+            }
+            s = job.released.wait_timeout(s, HOLD_POLL).unwrap_or_else(PoisonError::into_inner).0;
+        }
+        log::debug!("bake thread held {:.2} s for the picture", started.elapsed().as_secs_f64());
+        !cancel.is_cancelled()
+    };
     let scene = match scene_file.build() {
         Ok(scene) => Arc::new(scene),
         Err(e) => {
@@ -269,7 +341,8 @@ fn run_bakes(
             None
         }
     };
-    for &quality in qualities {
+    for (index, &quality) in qualities.iter().enumerate() {
+        let next = qualities.get(index + 1).copied();
         let start = BakeProgress::starting(quality);
         let started = start.started;
         set_progress(Some(start));
@@ -308,11 +381,11 @@ fn run_bakes(
             match previews {
                 Ok(outcomes) if outcomes.len() == all_inputs.len() => {
                     let computed = union_of(outcomes.iter().map(BakeOutcome::computed));
-                    report(BakeEvent::Ready(set(
-                        outcomes.into_iter().map(|o| o.baked).collect(),
-                        computed,
-                        true,
-                    )));
+                    let preview = set(outcomes.into_iter().map(|o| o.baked).collect(), computed, true);
+                    // The full bake of this quality follows.
+                    if !report_and_hold(BakeEvent::Ready(preview), quality) {
+                        return;
+                    }
                 }
                 Err(BakeError::Cancelled) => return,
                 // The full bake below says what is wrong.
@@ -340,7 +413,15 @@ fn run_bakes(
                 }
             }
         }
-        report(BakeEvent::Ready(set(exemplars, union_of(computed.into_iter()), false)));
+        let ready = BakeEvent::Ready(set(exemplars, union_of(computed.into_iter()), false));
+        match next {
+            Some(next) => {
+                if !report_and_hold(ready, next) {
+                    return;
+                }
+            }
+            None => report(ready),
+        }
     }
     set_progress(None);
     repaint.request_repaint();

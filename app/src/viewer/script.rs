@@ -13,6 +13,7 @@
 //!
 //! ```text
 //! wait-fabric draft|interactive|paper   # until that bake's picture is on screen
+//! expect-baking draft|interactive|paper # fails unless a bake of that quality is in flight now
 //! bake draft|interactive|paper          # start a bake (cancels the one in flight)
 //! cancel-bake
 //! orbit DYAW DPITCH                     # degrees
@@ -86,6 +87,7 @@ pub enum Setting {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Step {
     WaitFabric(Quality),
+    ExpectBaking(Quality),
     Bake(Quality),
     CancelBake,
     Orbit { yaw_deg: f64, pitch_deg: f64 },
@@ -153,6 +155,7 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
     };
     let step = match words[0] {
         "wait-fabric" => Step::WaitFabric(quality(args.next())?),
+        "expect-baking" => Step::ExpectBaking(quality(args.next())?),
         "bake" => Step::Bake(quality(args.next())?),
         "cancel-bake" => Step::CancelBake,
         "orbit" => Step::Orbit {
@@ -336,7 +339,8 @@ mod tests {
     fn the_editing_commands_parse() {
         let text = "flip 1 2\nweave satin_4_1\nrepeat 4 6\nimport-wif a.wif\nfiber weft beta_tt 12.5\n\
                     fiber warp c_r 0.1 0.2 0.3\nmesh builtin cushion\nmesh file m.obj\nmesh thickness 2\n\
-                    undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\nlose-device\n";
+                    undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\nlose-device\n\
+                    expect-baking interactive\n";
         let steps: Vec<Step> =
             parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
         assert_eq!(steps[0], Step::Flip { row: 1, col: 2 });
@@ -346,7 +350,8 @@ mod tests {
         assert_eq!(steps[8], Step::Mesh(MeshEdit::Thickness(2.0)));
         assert_eq!(steps[14], Step::Spin(2.5));
         assert_eq!(steps[16], Step::LoseDevice);
-        assert_eq!(steps.len(), 17);
+        assert_eq!(steps[17], Step::ExpectBaking(Quality::Interactive));
+        assert_eq!(steps.len(), 18);
     }
 
     #[test]
