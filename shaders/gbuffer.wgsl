@@ -14,7 +14,9 @@ struct FrameUniforms {
     jitter: vec4<f32>,
     // Bottom of the fabric slab (x) and its thickness (y) in cm; volume samples (z, as f32).
     fabric_z: vec4<f32>,
-    viewport: vec4<f32>,
+    // x: for an orthographic camera, the film plane's offset along the viewing direction
+    // (dot(eye, view)): eye rays start there, as the path tracer's do. Unused for perspective.
+    film: vec4<f32>,
 }
 
 // One tetrahedron: rows of its world -> (u, v, w) affine map, and its four face planes in
@@ -69,7 +71,14 @@ fn fs_main(in: VertexOut) -> GBufferOut {
     if (frame.eye.w > 0.5) {
         dir = normalize(in.world - frame.eye.xyz);
     }
-    let start = to_uvw(tetra, vec4<f32>(in.world, 1.0));
+    // An orthographic eye ray starts on the film plane: the part of a tetrahedron behind it is
+    // not seen (the near plane lies behind the film so that a tetrahedron the film cuts is still
+    // rasterized).
+    var entry = in.world;
+    if (frame.eye.w < 0.5) {
+        entry += max(frame.film.x - dot(in.world, dir), 0.0) * dir;
+    }
+    let start = to_uvw(tetra, vec4<f32>(entry, 1.0));
     let step_dir = to_uvw(tetra, vec4<f32>(dir, 0.0));
     // Where the ray leaves the tetrahedron: the nearest plane it moves out of.
     var t_exit = 3.0e38;
@@ -80,10 +89,9 @@ fn fs_main(in: VertexOut) -> GBufferOut {
             t_exit = min(t_exit, -(dot(plane.xyz, start) + plane.w) / rate);
         }
     }
-    if (!(t_exit < 3.0e38)) {
+    if (!(t_exit < 3.0e38) || t_exit <= 0.0) {
         discard;
     }
-    t_exit = max(t_exit, 0.0);
     let samples = u32(frame.fabric_z.z);
     for (var s = 0u; s < samples; s++) {
         let t = (f32(s) + frame.jitter.z) / f32(samples) * t_exit;
@@ -92,7 +100,7 @@ fn fs_main(in: VertexOut) -> GBufferOut {
         let e = exemplar_at(q.xy);
         let segment = voxel_segment(e, fabric_point);
         if (segment != EMPTY_VOXEL) {
-            let hit = in.world + t * dir;
+            let hit = entry + t * dir;
             let clip = frame.clip_from_world * vec4<f32>(hit, 1.0);
             var out: GBufferOut;
             out.depth = clamp(clip.z / clip.w, 0.0, 1.0);

@@ -118,7 +118,9 @@ struct FrameUniformsGpu {
     eye: [f32; 4],
     jitter: [f32; 4],
     fabric_z: [f32; 4],
-    viewport: [f32; 4],
+    /// x: for an orthographic camera, where its film plane lies along the viewing direction
+    /// (`dot(eye, view)`): eye rays start there, as the path tracer's do. Unused for perspective.
+    film: [f32; 4],
 }
 const _: () = assert!(size_of::<FrameUniformsGpu>() == 128);
 
@@ -807,14 +809,14 @@ impl Renderer {
 
         // Camera and lights.
         let aspect = width as f32 / height as f32;
-        let (clip_from_world, eye) = camera_matrices(camera, aspect, self.shell.bounds);
+        let (clip_from_world, eye, film_plane) = camera_matrices(camera, aspect, self.shell.bounds);
         let frame_buffer = |jitter: [f32; 4]| {
             let uniforms = FrameUniformsGpu {
                 clip_from_world: clip_from_world.to_cols_array_2d(),
                 eye,
                 jitter,
                 fabric_z: [self.fabric_z[0], self.fabric_z[1], plan.volume_samples as f32, 0.0],
-                viewport: [width as f32, height as f32, 0.0, 0.0],
+                film: [film_plane, 0.0, 0.0, 0.0],
             };
             make_buffer(
                 &device,
@@ -1395,9 +1397,12 @@ fn validate(settings: &FrameSettings, lights: &[Light]) -> Result<(), RenderErro
     settings.gpu.validate().map_err(|e| RenderError::Settings(e.to_string()))
 }
 
-/// Clip-from-world matrix (wgpu depth 0..1, near and far fitted around the shell) and the
-/// eye uniform (position with w = 1, or the viewing direction with w = 0).
-fn camera_matrices(camera: &CameraSection, aspect: f32, bounds: (Vec3, Vec3)) -> (Mat4, [f32; 4]) {
+/// Clip-from-world matrix (wgpu depth 0..1, near and far fitted around the shell), the eye
+/// uniform (position with w = 1, or the viewing direction with w = 0) and, for an orthographic
+/// camera, its film plane's offset along the viewing direction (0 for perspective). The
+/// orthographic near plane may lie behind the film so that every tetrahedron the film cuts is
+/// still rasterized; the G-buffer starts each eye ray at the film plane.
+fn camera_matrices(camera: &CameraSection, aspect: f32, bounds: (Vec3, Vec3)) -> (Mat4, [f32; 4], f32) {
     let eye = DVec3::from(camera.eye).as_vec3();
     let target = DVec3::from(camera.target).as_vec3();
     let up = DVec3::from(camera.up).as_vec3();
@@ -1422,14 +1427,14 @@ fn camera_matrices(camera: &CameraSection, aspect: f32, bounds: (Vec3, Vec3)) ->
         ProjectionKind::Perspective => {
             let near = (near - 0.01 * span).max(far * 1e-4);
             let proj = perspective((camera.fov_y_deg as f32).to_radians(), aspect, near, far);
-            (proj * view, eye.extend(1.0).to_array())
+            (proj * view, eye.extend(1.0).to_array(), 0.0)
         }
         ProjectionKind::Orthographic => {
             let half_h = 0.5 * camera.height_cm as f32;
             let half_w = half_h * aspect;
             let near = near - 0.01 * span;
             let proj = orthographic(-half_w, half_w, -half_h, half_h, near, far);
-            (proj * view, forward.extend(0.0).to_array())
+            (proj * view, forward.extend(0.0).to_array(), eye.dot(forward))
         }
     }
 }
