@@ -370,10 +370,17 @@ fn sh_orders_above_what_the_shaders_hold_are_refused_naming_the_limit() {
 /// multiple, all) for the GPU and the CPU method: the image-mean error (Fig. 13 figure, reference
 /// noise subtracted) within 3 points, the per-pixel error within 10% of itself, and the grazing
 /// and backlit configurations' own image-mean errors within 5 points. Measured (draft, 32
-/// SGs): GPU single / multiple / all 18.1% / 11.3% / 13.8% (worst: single +40% grazing and
-/// backlit under SG λ = 2), CPU method 11.7% / 10.2% / 8.8%; grazing −25.7% (GPU) and −8.3%
-/// (CPU), backlit −15.9% and −18.1%. Far from the targets (5%): these
-/// bands catch regressions while the fidelity work goes on.
+/// SGs, 2026-11-25): GPU single / multiple / all 11.8% / 10.1% / 9.7%, CPU method 11.7% / 10.2%
+/// / 8.8%; grazing −34.3% (GPU) and −8.3% (CPU), backlit −15.9% and −18.1%. Far from the
+/// targets (5%): these bands catch regressions while the fidelity work goes on.
+///
+/// The GPU's figures moved on 2026-11-25 when its orthographic eye rays began at the film plane,
+/// as the path tracer's do (before, the GPU also drew fabric behind the film: single 18.1%, all
+/// 13.8%, grazing −25.7%). That fabric's bright top had partly hidden the other grazing bias,
+/// now the whole of the GPU's grazing error: 64 volume samples per tetrahedron step over the top
+/// fibers at a 75° view (the budget's CPU twin of the march: −25 points against exact hits at
+/// 64 samples, within 3 points from 1024 on; docs/BENCHMARKS.md, "Where the GPU's excess at
+/// grazing views came from"). A march to the first occupied voxel (3D DDA) removes it.
 #[test]
 fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     use twill_renderer::accuracy::sweep::{Fabric, Method, ReferenceCache, SweepSettings, run};
@@ -405,7 +412,7 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     // Per method: (single, multiple, all) image-mean error and per-pixel error; then the
     // grazing (1) and backlit (2) configurations' relative error of all light.
     let measured: [([f64; 3], [f64; 3], [f64; 2]); 2] = [
-        ([0.181, 0.113, 0.138], [0.954, 0.543, 0.615], [-0.257, -0.159]),
+        ([0.118, 0.101, 0.097], [0.920, 0.517, 0.579], [-0.343, -0.159]),
         ([0.117, 0.102, 0.088], [1.025, 0.570, 0.636], [-0.083, -0.181]),
     ];
     let mut failures = Vec::new();
