@@ -257,12 +257,29 @@ pub fn parse_hair(bytes: &[u8], file: &Path) -> Result<Vec<Fiber>, FiberIoError>
     if arrays & BIT_POINTS == 0 {
         return Err(r.error(12, format!("array bits {arrays:#x} say the file has no points array")));
     }
-    // Every array needs at least 2 bytes per entry: bound the counts by the file size before
-    // allocating anything.
-    if hair_count > bytes.len() || point_count > bytes.len() {
-        return Err(
-            r.error(4, format!("hair count {hair_count} / point count {point_count} exceed the file size"))
-        );
+    // Bound the counts by what the file can hold before allocating anything: every point takes
+    // 12 bytes of the points array, every hair 2 bytes of the segments array (when present) and
+    // at least 2 points.
+    let body = bytes.len() - HAIR_HEADER_SIZE;
+    let max_points = body / 12;
+    if point_count > max_points {
+        return Err(r.error(
+            8,
+            format!(
+                "point count {point_count} is more than the {body} bytes after the header can hold \
+                 (at most {max_points} points of 12 bytes)"
+            ),
+        ));
+    }
+    let max_hairs = if arrays & BIT_SEGMENTS == 0 { max_points / 2 } else { body / 26 };
+    if hair_count > max_hairs {
+        return Err(r.error(
+            4,
+            format!(
+                "hair count {hair_count} is more than the {body} bytes after the header can hold \
+                 (at most {max_hairs} hairs of 2 or more points)"
+            ),
+        ));
     }
     let mut segments = Vec::with_capacity(hair_count);
     if arrays & BIT_SEGMENTS == 0 {
@@ -472,6 +489,32 @@ mod tests {
         let mut bad = good;
         bad[0] = b'X';
         assert!(parse_hair(&bad, p).unwrap_err().to_string().contains("signature"));
+    }
+
+    #[test]
+    fn hair_headers_claiming_huge_counts_are_refused_before_allocating() {
+        let p = Path::new("huge.hair");
+        // A bare header (plus one point's worth of bytes) claiming a billion points.
+        let mut header = encode_hair(&[]).unwrap();
+        header.extend_from_slice(&[0; 12]);
+        let mut bad = header.clone();
+        bad[8..12].copy_from_slice(&1_000_000_000u32.to_le_bytes());
+        let msg = parse_hair(&bad, p).unwrap_err().to_string();
+        assert!(
+            msg.contains("huge.hair at byte 8")
+                && msg.contains("point count 1000000000")
+                && msg.contains("at most 1 points"),
+            "{msg}"
+        );
+        let mut bad = header;
+        bad[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
+        let msg = parse_hair(&bad, p).unwrap_err().to_string();
+        assert!(
+            msg.contains("huge.hair at byte 4")
+                && msg.contains("hair count 4294967295")
+                && msg.contains("at most 0 hairs"),
+            "{msg}"
+        );
     }
 
     #[test]
