@@ -48,6 +48,11 @@ pub enum PatternError {
          {MAX_PATTERN_SIDE} x {MAX_PATTERN_SIDE}"
     )]
     RowsTooLarge { width: usize, height: usize },
+    #[error(
+        "{}: the PLTE chunk is {len} bytes; a palette is 1 to 256 entries of 3 bytes (3 to 768 bytes)",
+        file.display()
+    )]
+    Palette { file: PathBuf, len: usize },
     #[error("{}: unsupported PNG color type {found}", file.display())]
     ColorType { file: PathBuf, found: String },
 }
@@ -114,6 +119,12 @@ impl PatternMap {
         let (width, height) = (reader.info().width, reader.info().height);
         if width as usize > MAX_PATTERN_SIDE || height as usize > MAX_PATTERN_SIDE {
             return Err(PatternError::PngTooLarge { file: path.to_owned(), width, height });
+        }
+        // png 0.18 panics expanding a palette that is not whole RGB entries: refuse it here.
+        if let Some(palette) = &reader.info().palette
+            && (palette.is_empty() || !palette.len().is_multiple_of(3) || palette.len() > 3 * 256)
+        {
+            return Err(PatternError::Palette { file: path.to_owned(), len: palette.len() });
         }
         let size = reader.output_buffer_size().ok_or_else(|| PatternError::ColorType {
             file: path.to_owned(),
@@ -281,6 +292,24 @@ mod tests {
         }
         let e = PatternMap::from_png(&dir.path().join("missing.png")).unwrap_err();
         assert!(matches!(e, PatternError::Io { .. }) && e.to_string().contains("missing.png"));
+    }
+
+    /// Found by the `png_pattern` fuzz target
+    /// (fuzz/corpus/png_pattern/regression-palette-not-whole-entries.png): a 2 x 1 indexed image
+    /// whose PLTE chunk is 7 bytes made the png crate panic while expanding the palette.
+    #[test]
+    fn fuzz_regression_a_palette_of_partial_entries_is_refused() {
+        const INPUT: [u8; 87] = [
+            0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44, 0x52,
+            0x00, 0x00, 0x00, 0x02, 0x00, 0x00, 0x00, 0x01, 0x08, 0x03, 0x00, 0x00, 0x00, 0xc3, 0xfc, 0x8f,
+            0xb8, 0x00, 0x00, 0x00, 0x07, 0x50, 0x4c, 0x54, 0x45, 0x00, 0x00, 0x00, 0xff, 0xff, 0xff, 0xa5,
+            0x8c, 0x79, 0xcf, 0x1c, 0x00, 0x00, 0x0b, 0x3f, 0x49, 0x44, 0x41, 0x54, 0x78, 0x9c, 0x63, 0x60,
+            0x60, 0x04, 0x00, 0x00, 0x04, 0x00, 0x02, 0xbf, 0x7a, 0x3f, 0x4a, 0x00, 0x00, 0x00, 0x00, 0x49,
+            0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82,
+        ];
+        let e = PatternMap::from_png_bytes(&INPUT, Path::new("pal.png")).unwrap_err();
+        assert!(matches!(e, PatternError::Palette { len: 7, .. }), "{e}");
+        assert!(e.to_string().starts_with("pal.png: the PLTE chunk is 7 bytes"), "{e}");
     }
 
     #[test]
