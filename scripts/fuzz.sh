@@ -9,7 +9,7 @@
 # target/fuzz. New corpus entries and crash files go to a scratch folder (FUZZ_WORK, default a
 # temporary folder that is removed), never into the committed corpus in fuzz/corpus/.
 #
-# Fails (non-zero exit) when a target crashes, panics, leaks, runs out of memory (2 GiB) or
+# Fails (non-zero exit) when a target crashes, panics, runs out of memory (2 GiB) or
 # time (10 s per input); the input is then kept in the scratch folder and named in the output.
 # Prints the executions of every target.
 set -euo pipefail
