@@ -7,9 +7,10 @@ set -euo pipefail
 # mesa-vulkan-drivers + libvulkan1: lavapipe (software Vulkan) for the GPU tests on machines
 # without a GPU. The viewer's window (winit on X11) loads libX11, libXcursor, libXrandr, libXi
 # and libxkbcommon-x11 at run time; xvfb (with xauth, which xvfb-run needs and xvfb only
-# recommends) gives its test (tests/viewer_window.rs) a display.
+# recommends) gives its test (tests/viewer_window.rs) a display. g++: libfuzzer-sys compiles
+# libFuzzer (C++) for the fuzz targets (scripts/fuzz.sh).
 need_packages=(pkg-config mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6
-  libxkbcommon-x11-0)
+  libxkbcommon-x11-0 g++)
 
 missing=()
 for pkg in "${need_packages[@]}"; do

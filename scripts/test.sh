@@ -3,7 +3,8 @@
 # the whole workspace's tests (unit, integration and workspace-level tests in tests/). The GPU
 # tests run on lavapipe (installed by setup.sh) when the machine has no GPU; they fail rather
 # than skip when no Vulkan adapter is found. The viewer's window test runs under Xvfb (xvfb-run,
-# also installed by setup.sh) and fails when it is missing.
+# also installed by setup.sh) and fails when it is missing. Last, every fuzz target (fuzz/) runs
+# for a few seconds on its corpus (scripts/fuzz.sh), so a crash on a known input fails.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # In CI a skipped GPU or window test would let a broken renderer pass: refuse the skip switch.
@@ -48,3 +49,6 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked
+echo "== fuzz targets (scripts/fuzz.sh, ${TWILL_FUZZ_SECONDS:-5} s each)"
+cargo fmt --manifest-path fuzz/Cargo.toml --check
+bash scripts/fuzz.sh "${TWILL_FUZZ_SECONDS:-5}"

@@ -114,7 +114,7 @@ pub struct MaterialsSection {
 /// Most weaves `[pattern]` may add to `[fabric]`'s (map indices go up to `z` = 35).
 pub const MAX_PATTERN_WEAVES: usize = 35;
 /// Largest side, in blocks, of a pattern map.
-pub const MAX_PATTERN_MAP_SIDE: usize = 4096;
+pub const MAX_PATTERN_MAP_SIDE: usize = crate::bake::pattern::MAX_PATTERN_SIDE;
 
 /// `[pattern]`: patterned cloth (paper section 6.4). `weaves` are exemplars 1, 2, ...
 /// (exemplar 0 being `[fabric]`'s own weave); the map says which exemplar each block uses.

@@ -720,7 +720,9 @@ impl BakeFile {
                 .ok_or_else(|| {
                     corrupt(
                         offset_at,
-                        format!("section {name:?}: data at {offset}+{len} lies outside the file"),
+                        format!(
+                            "section {name:?}: data at {offset}+{len} lies outside the file ({got} bytes)"
+                        ),
                     )
                 })?;
             if !seen.insert(name.clone()) {
@@ -1211,6 +1213,45 @@ mod tests {
         assert!(matches!(err, BakeFileError::CacheDir { .. }));
         assert!(err.to_string().contains("plain/cache"), "{err}");
         assert!(matches!(Cache::new(Path::new("/proc/twill-cache")), Err(BakeFileError::CacheDir { .. })));
+    }
+
+    /// `bytes` with the header's body length and checksum made to fit its contents.
+    fn resealed(mut bytes: Vec<u8>) -> Vec<u8> {
+        let body_len = (bytes.len() - HEADER_LEN) as u64;
+        bytes[48..56].copy_from_slice(&body_len.to_le_bytes());
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(&bytes[..CHECKSUM_AT]);
+        hasher.update(&bytes[HEADER_LEN..]);
+        let checksum = *hasher.finalize().as_bytes();
+        bytes[CHECKSUM_AT..HEADER_LEN].copy_from_slice(&checksum);
+        bytes
+    }
+
+    #[test]
+    fn a_section_claiming_a_huge_array_is_refused_before_reading_it() {
+        let w =
+            BakeWriter::new(key("file")).section("h", key("h"), Array::vector(ArrayData::F32(vec![1.0; 3])));
+        let good = bytes_of(&w);
+        let path = Path::new("huge.twillbake");
+        assert!(BakeFile::parse(path, &resealed(good.clone())).is_ok());
+        // The one directory entry: name length, "h", type, rank 1, key, dim, offset, length.
+        let dim_at = HEADER_LEN + 1 + 1 + 2 + 32;
+        let huge: u64 = 1 << 40;
+        let mut bad = good.clone();
+        bad[dim_at..dim_at + 8].copy_from_slice(&huge.to_le_bytes());
+        bad[dim_at + 16..dim_at + 24].copy_from_slice(&(4 * huge).to_le_bytes());
+        let msg = BakeFile::parse(path, &resealed(bad)).unwrap_err().to_string();
+        assert!(
+            msg.contains("huge.twillbake")
+                && msg.contains(&format!("+{}", 4 * huge))
+                && msg.contains(&format!("outside the file ({} bytes)", good.len())),
+            "{msg}"
+        );
+        // A shape whose byte size overflows u64 is refused too.
+        let mut bad = good;
+        bad[dim_at..dim_at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
+        let msg = BakeFile::parse(path, &resealed(bad)).unwrap_err().to_string();
+        assert!(msg.contains("huge.twillbake") && msg.contains("does not fill"), "{msg}");
     }
 
     #[test]

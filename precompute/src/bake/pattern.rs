@@ -11,9 +11,16 @@
 //!   of any bit depth are read (alpha ignored); palette and RGB(A) images are accepted only if
 //!   every pixel is gray (R = G = B); otherwise the error names the file, the pixel and its
 //!   value.
+//! - A map wider or taller than [`MAX_PATTERN_SIDE`] blocks is refused before its blocks are
+//!   allocated: from text, after counting the rows and the first row's length; from a PNG, from
+//!   the size in its header, before any pixel is decoded.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
+
+/// Largest side, in blocks, of a pattern map (a PNG's side in pixels): larger maps are refused
+/// before their blocks are allocated.
+pub const MAX_PATTERN_SIDE: usize = 4096;
 
 /// Why a pattern could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -30,6 +37,22 @@ pub enum PatternError {
     Png { file: PathBuf, source: png::DecodingError },
     #[error("{}: pixel ({x}, {y}) is not gray: {value:?}; pattern images must be grayscale", file.display())]
     NotGray { file: PathBuf, x: u32, y: u32, value: Vec<u16> },
+    #[error(
+        "{}: the image is {width} x {height} pixels; a pattern map has at most \
+         {MAX_PATTERN_SIDE} x {MAX_PATTERN_SIDE} blocks (one per pixel)",
+        file.display()
+    )]
+    PngTooLarge { file: PathBuf, width: u32, height: u32 },
+    #[error(
+        "pattern is {width} x {height} blocks; a pattern map has at most \
+         {MAX_PATTERN_SIDE} x {MAX_PATTERN_SIDE}"
+    )]
+    RowsTooLarge { width: usize, height: usize },
+    #[error(
+        "{}: the PLTE chunk is {len} bytes; a palette is 1 to 256 entries of 3 bytes (3 to 768 bytes)",
+        file.display()
+    )]
+    Palette { file: PathBuf, len: usize },
     #[error("{}: unsupported PNG color type {found}", file.display())]
     ColorType { file: PathBuf, found: String },
 }
@@ -58,12 +81,17 @@ impl PatternMap {
             return Err(PatternError::Empty);
         }
         let height = rows.len();
-        let mut out = vec![0u16; width * height];
+        if width > MAX_PATTERN_SIDE || height > MAX_PATTERN_SIDE {
+            return Err(PatternError::RowsTooLarge { width, height });
+        }
         for (row, text) in rows.iter().enumerate() {
             let got = text.chars().count();
             if got != width {
                 return Err(PatternError::Ragged { row, expected: width, got });
             }
+        }
+        let mut out = vec![0u16; width * height];
+        for (row, text) in rows.iter().enumerate() {
             let by = height - 1 - row;
             for (column, c) in text.chars().enumerate() {
                 let index = c.to_digit(36).ok_or(PatternError::BadChar { row, column, found: c })?;
@@ -73,15 +101,31 @@ impl PatternMap {
         Ok(Self { width: width as u32, height: height as u32, exemplar_of_block: out })
     }
 
-    /// From a grayscale PNG. Returns the map and the gray level of each exemplar index (in the
-    /// image's bit depth).
+    /// From a grayscale PNG file. Returns the map and the gray level of each exemplar index (in
+    /// the image's bit depth).
     pub fn from_png(path: &Path) -> Result<(Self, Vec<u16>), PatternError> {
         let bytes =
             std::fs::read(path).map_err(|source| PatternError::Io { file: path.to_owned(), source })?;
+        Self::from_png_bytes(&bytes, path)
+    }
+
+    /// From the bytes of a grayscale PNG; `path` names the file in errors. An image wider or
+    /// taller than [`MAX_PATTERN_SIDE`] is refused from its header, before any pixel is decoded.
+    pub fn from_png_bytes(bytes: &[u8], path: &Path) -> Result<(Self, Vec<u16>), PatternError> {
         let png_err = |source| PatternError::Png { file: path.to_owned(), source };
-        let mut decoder = png::Decoder::new(Cursor::new(&bytes));
+        let mut decoder = png::Decoder::new(Cursor::new(bytes));
         decoder.set_transformations(png::Transformations::EXPAND);
         let mut reader = decoder.read_info().map_err(png_err)?;
+        let (width, height) = (reader.info().width, reader.info().height);
+        if width as usize > MAX_PATTERN_SIDE || height as usize > MAX_PATTERN_SIDE {
+            return Err(PatternError::PngTooLarge { file: path.to_owned(), width, height });
+        }
+        // png 0.18 panics expanding a palette that is not whole RGB entries: refuse it here.
+        if let Some(palette) = &reader.info().palette
+            && (palette.is_empty() || !palette.len().is_multiple_of(3) || palette.len() > 3 * 256)
+        {
+            return Err(PatternError::Palette { file: path.to_owned(), len: palette.len() });
+        }
         let size = reader.output_buffer_size().ok_or_else(|| PatternError::ColorType {
             file: path.to_owned(),
             found: "image too large".into(),
@@ -248,5 +292,57 @@ mod tests {
         }
         let e = PatternMap::from_png(&dir.path().join("missing.png")).unwrap_err();
         assert!(matches!(e, PatternError::Io { .. }) && e.to_string().contains("missing.png"));
+    }
+
+    /// Found by the `png_pattern` fuzz target
+    /// (fuzz/corpus/png_pattern/regression-palette-not-whole-entries.png): a 2 x 1 indexed image
+    /// whose PLTE chunk is 7 bytes made the png crate panic while expanding the palette.
+    #[test]
+    fn fuzz_regression_a_palette_of_partial_entries_is_refused() {
+        const INPUT: [u8; 87] = [
+            0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44, 0x52,
+            0x00, 0x00, 0x00, 0x02, 0x00, 0x00, 0x00, 0x01, 0x08, 0x03, 0x00, 0x00, 0x00, 0xc3, 0xfc, 0x8f,
+            0xb8, 0x00, 0x00, 0x00, 0x07, 0x50, 0x4c, 0x54, 0x45, 0x00, 0x00, 0x00, 0xff, 0xff, 0xff, 0xa5,
+            0x8c, 0x79, 0xcf, 0x1c, 0x00, 0x00, 0x0b, 0x3f, 0x49, 0x44, 0x41, 0x54, 0x78, 0x9c, 0x63, 0x60,
+            0x60, 0x04, 0x00, 0x00, 0x04, 0x00, 0x02, 0xbf, 0x7a, 0x3f, 0x4a, 0x00, 0x00, 0x00, 0x00, 0x49,
+            0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82,
+        ];
+        let e = PatternMap::from_png_bytes(&INPUT, Path::new("pal.png")).unwrap_err();
+        assert!(matches!(e, PatternError::Palette { len: 7, .. }), "{e}");
+        assert!(e.to_string().starts_with("pal.png: the PLTE chunk is 7 bytes"), "{e}");
+    }
+
+    #[test]
+    fn huge_maps_are_refused_before_allocating() {
+        // A PNG claiming 1e6 x 1e6 pixels (a terabyte decoded) with a few bytes of pixel data.
+        let mut bytes = Vec::new();
+        let mut enc = png::Encoder::new(&mut bytes, 1_000_000, 1_000_000);
+        enc.set_color(png::ColorType::Grayscale);
+        let mut writer = enc.write_header().unwrap();
+        writer.write_chunk(png::chunk::IDAT, &[0x78, 0x9c, 0x03, 0x00]).unwrap();
+        drop(writer);
+        assert!(bytes.len() < 100, "{} bytes", bytes.len());
+        let e = PatternMap::from_png_bytes(&bytes, Path::new("huge.png")).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("huge.png")
+                && msg.contains("1000000 x 1000000")
+                && msg.contains("at most 4096 x 4096"),
+            "{msg}"
+        );
+        // Text rows: too many, or too long, before the blocks are allocated.
+        let tall = vec!["0"; MAX_PATTERN_SIDE + 1];
+        let e = PatternMap::from_rows(&tall).unwrap_err();
+        assert!(matches!(e, PatternError::RowsTooLarge { width: 1, height: 4097 }), "{e}");
+        let wide = ["0".repeat(MAX_PATTERN_SIDE + 1)];
+        assert!(PatternMap::from_rows(&wide).unwrap_err().to_string().contains("4097 x 1 blocks"));
+        // A long first row over many short ones is ragged, found before allocating their product.
+        let mut ragged = vec![String::new(); 4000];
+        ragged[0] = "0".repeat(4000);
+        let e = PatternMap::from_rows(&ragged).unwrap_err();
+        assert!(matches!(e, PatternError::Ragged { row: 1, expected: 4000, got: 0 }), "{e}");
+        // The largest allowed map still reads.
+        let side = ["0".repeat(MAX_PATTERN_SIDE)];
+        assert_eq!(PatternMap::from_rows(&side).unwrap().width as usize, MAX_PATTERN_SIDE);
     }
 }

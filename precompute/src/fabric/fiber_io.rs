@@ -257,12 +257,29 @@ pub fn parse_hair(bytes: &[u8], file: &Path) -> Result<Vec<Fiber>, FiberIoError>
     if arrays & BIT_POINTS == 0 {
         return Err(r.error(12, format!("array bits {arrays:#x} say the file has no points array")));
     }
-    // Every array needs at least 2 bytes per entry: bound the counts by the file size before
-    // allocating anything.
-    if hair_count > bytes.len() || point_count > bytes.len() {
-        return Err(
-            r.error(4, format!("hair count {hair_count} / point count {point_count} exceed the file size"))
-        );
+    // Bound the counts by what the file can hold before allocating anything: every point takes
+    // 12 bytes of the points array, every hair 2 bytes of the segments array (when present) and
+    // at least 2 points.
+    let body = bytes.len() - HAIR_HEADER_SIZE;
+    let max_points = body / 12;
+    if point_count > max_points {
+        return Err(r.error(
+            8,
+            format!(
+                "point count {point_count} is more than the {body} bytes after the header can hold \
+                 (at most {max_points} points of 12 bytes)"
+            ),
+        ));
+    }
+    let max_hairs = if arrays & BIT_SEGMENTS == 0 { max_points / 2 } else { body / 26 };
+    if hair_count > max_hairs {
+        return Err(r.error(
+            4,
+            format!(
+                "hair count {hair_count} is more than the {body} bytes after the header can hold \
+                 (at most {max_hairs} hairs of 2 or more points)"
+            ),
+        ));
     }
     let mut segments = Vec::with_capacity(hair_count);
     if arrays & BIT_SEGMENTS == 0 {
@@ -289,21 +306,29 @@ pub fn parse_hair(bytes: &[u8], file: &Path) -> Result<Vec<Fiber>, FiberIoError>
         }
         points.push(p);
     }
+    // A thickness is a diameter: half of it, the radius, must still be > 0 (half the smallest
+    // positive f32 rounds to 0).
+    let usable = |t: f32| t.is_finite() && 0.5 * t > 0.0;
     let mut radii = Vec::with_capacity(point_count);
     if arrays & BIT_THICKNESS == 0 {
-        radii.resize(point_count, 0.5 * default_thickness);
-        if !(default_thickness.is_finite() && default_thickness > 0.0) {
+        if !usable(default_thickness) {
             return Err(r.error(
                 24,
-                format!("default thickness {default_thickness} must be finite and > 0 (no thickness array)"),
+                format!(
+                    "default thickness {default_thickness:?} must be finite and > {:?} (no thickness array)",
+                    f32::from_bits(1)
+                ),
             ));
         }
+        radii.resize(point_count, 0.5 * default_thickness);
     } else {
         for _ in 0..point_count {
             let at = r.offset;
             let t = r.f32("the thickness array")?;
-            if !(t.is_finite() && t > 0.0) {
-                return Err(r.error(at, format!("thickness {t} must be finite and > 0")));
+            if !usable(t) {
+                return Err(
+                    r.error(at, format!("thickness {t:?} must be finite and > {:?}", f32::from_bits(1)))
+                );
             }
             radii.push(0.5 * t);
         }
@@ -472,6 +497,61 @@ mod tests {
         let mut bad = good;
         bad[0] = b'X';
         assert!(parse_hair(&bad, p).unwrap_err().to_string().contains("signature"));
+    }
+
+    #[test]
+    fn hair_headers_claiming_huge_counts_are_refused_before_allocating() {
+        let p = Path::new("huge.hair");
+        // A bare header (plus one point's worth of bytes) claiming a billion points.
+        let mut header = encode_hair(&[]).unwrap();
+        header.extend_from_slice(&[0; 12]);
+        let mut bad = header.clone();
+        bad[8..12].copy_from_slice(&1_000_000_000u32.to_le_bytes());
+        let msg = parse_hair(&bad, p).unwrap_err().to_string();
+        assert!(
+            msg.contains("huge.hair at byte 8")
+                && msg.contains("point count 1000000000")
+                && msg.contains("at most 1 points"),
+            "{msg}"
+        );
+        let mut bad = header;
+        bad[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
+        let msg = parse_hair(&bad, p).unwrap_err().to_string();
+        assert!(
+            msg.contains("huge.hair at byte 4")
+                && msg.contains("hair count 4294967295")
+                && msg.contains("at most 0 hairs"),
+            "{msg}"
+        );
+    }
+
+    /// Found by the `hair` fuzz target (fuzz/corpus/hair/regression-subnormal-thickness.hair):
+    /// a thickness of the smallest positive f32 was accepted, but its radius, half of it, is 0.
+    #[test]
+    fn fuzz_regression_a_thickness_whose_half_is_zero_is_refused() {
+        let p = Path::new("thin.hair");
+        let tiny = f32::from_bits(1);
+        // The minimized input: no segments or thickness arrays, default thickness `tiny`.
+        let mut bytes = encode_hair(&sample_fibers()).unwrap();
+        bytes[12..16].copy_from_slice(&BIT_POINTS.to_le_bytes());
+        bytes[16..20].copy_from_slice(&2u32.to_le_bytes());
+        bytes[20..24].copy_from_slice(&tiny.to_le_bytes());
+        bytes.truncate(HAIR_HEADER_SIZE);
+        bytes[4..8].copy_from_slice(&1u32.to_le_bytes());
+        bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
+        bytes.extend(std::iter::repeat_n(0u8, 36));
+        let msg = parse_hair(&bytes, p).unwrap_err().to_string();
+        assert!(msg.contains("thin.hair at byte 24") && msg.contains("default thickness 1e-45"), "{msg}");
+        // The same in the thickness array.
+        let mut bytes = encode_hair(&sample_fibers()).unwrap();
+        let thickness_at = 128 + 4 + 60 + 4;
+        bytes[thickness_at..thickness_at + 4].copy_from_slice(&tiny.to_le_bytes());
+        let msg = parse_hair(&bytes, p).unwrap_err().to_string();
+        assert!(msg.contains(&format!("byte {thickness_at}")) && msg.contains("thickness 1e-45"), "{msg}");
+        // Twice that is the thinnest fiber read, and it writes back.
+        bytes[thickness_at..thickness_at + 4].copy_from_slice(&(2.0 * tiny).to_le_bytes());
+        let fibers = parse_hair(&bytes, p).unwrap();
+        assert_eq!(parse_hair(&encode_hair(&fibers).unwrap(), p).unwrap(), fibers);
     }
 
     #[test]

@@ -622,6 +622,36 @@ mod tests {
     }
 
     #[test]
+    fn a_million_threads_are_refused_before_allocating() {
+        // Declared: [WARP] or [WEFT] Threads=1000000, refused from the number alone.
+        let twill = twill_wif("true");
+        for (section, what) in [("[WARP]", "warp ends"), ("[WEFT]", "weft picks")] {
+            let text =
+                twill.replace(&format!("{section}\nThreads=4"), &format!("{section}\nThreads=1000000"));
+            let msg = err(&text);
+            assert!(
+                msg.starts_with("t.wif:")
+                    && msg
+                        .contains(&format!("Threads=1000000: the number of {what} 1000000 is out of range"))
+                    && msg.contains(&format!("1..={MAX_THREADS}")),
+                "{msg}"
+            );
+        }
+        // Not declared: an end or pick numbered 1000000 is refused by the most a file may have.
+        let undeclared = twill.replace("[WARP]\nThreads=4\n", "").replace("[WEFT]\nThreads=4\n", "");
+        for (section, line) in [("[THREADING]", "1000000=1"), ("[TREADLING]", "1000000=1")] {
+            let text = undeclared.replace(&format!("{section}\n1=1"), &format!("{section}\n{line}"));
+            let msg = err(&text);
+            assert!(
+                msg.contains(&format!("{section} {line}"))
+                    && msg
+                        .contains("1000000 is out of range: expected 1..=100000 (the most a file may have)"),
+                "{msg}"
+            );
+        }
+    }
+
+    #[test]
     fn a_missing_file_is_named() {
         let msg = read_wif(Path::new("/no/such/draft.wif")).unwrap_err().to_string();
         assert!(msg.starts_with("/no/such/draft.wif:"), "{msg}");

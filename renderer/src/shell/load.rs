@@ -9,8 +9,8 @@
 //!   every mesh once, untransformed, when there is none), with node transforms applied. glTF's unit
 //!   is the metre, so positions are multiplied by 100 to get centimetres. `TEXCOORD_0` is used; its
 //!   v axis points down in glTF, so v is flipped (v ← 1 − v) into the OBJ convention. Buffers may be
-//!   GLB binary chunks, base64 `data:` URIs or files next to the `.gltf`. Points and lines are
-//!   rejected.
+//!   GLB binary chunks, base64 `data:` URIs or regular files relative to the `.gltf` (at most the
+//!   buffer's declared byteLength is read). Points and lines are rejected.
 //!
 //! Neither parser is trusted not to panic on hostile input: each runs under `catch_unwind`, and a
 //! panic becomes [`ShellError::Parse`].
@@ -238,7 +238,7 @@ fn parse_gltf_inner(bytes: &[u8], source: &str, base_dir: Option<&Path>) -> Resu
             gltf::buffer::Source::Bin => blob.clone().ok_or_else(|| {
                 parse_error(format!("buffer {} refers to a missing GLB BIN chunk", buffer.index()))
             })?,
-            gltf::buffer::Source::Uri(uri) => load_uri(uri, base_dir)
+            gltf::buffer::Source::Uri(uri) => load_uri(uri, base_dir, buffer.length())
                 .map_err(|e| parse_error(format!("buffer {} ({}): {e}", buffer.index(), shorten(uri))))?,
         };
         if data.len() < buffer.length() {
@@ -425,8 +425,10 @@ fn assemble(mode: Mode, indices: &[u32]) -> Option<Vec<[u32; 3]>> {
     }
 }
 
-/// The bytes behind a buffer URI: a base64 `data:` URI or a file relative to `base_dir`.
-fn load_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
+/// The bytes behind a buffer URI: a base64 `data:` URI or a file relative to `base_dir`, of
+/// which at most `declared` bytes (the buffer's byteLength) are read. Absolute paths and files
+/// that are not regular files (devices, pipes, folders) are refused.
+fn load_uri(uri: &str, base_dir: Option<&Path>, declared: usize) -> Result<Vec<u8>, String> {
     if let Some(rest) = uri.strip_prefix("data:") {
         let (_, payload) = rest.split_once(";base64,").ok_or("only base64 data URIs are supported")?;
         return decode_base64(payload);
@@ -435,8 +437,22 @@ fn load_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
         return Err("only data: URIs and relative file paths are supported".to_owned());
     }
     let base_dir = base_dir.ok_or("an external buffer file needs the .gltf's folder")?;
-    let path = base_dir.join(percent_decode(uri)?);
-    std::fs::read(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+    let relative = percent_decode(uri)?;
+    if Path::new(&relative).has_root() {
+        return Err(format!("{relative:?} is an absolute path; buffer files are relative to the .gltf"));
+    }
+    let path = base_dir.join(relative);
+    let cannot_read = |e: std::io::Error| format!("cannot read {}: {e}", path.display());
+    let file = std::fs::File::open(&path).map_err(cannot_read)?;
+    let metadata = file.metadata().map_err(cannot_read)?;
+    if !metadata.is_file() {
+        return Err(format!("{} is not a regular file", path.display()));
+    }
+    // Only the declared bytes are read; a shorter file is reported by the caller.
+    let length = metadata.len().min(declared as u64);
+    let mut data = Vec::with_capacity(length as usize);
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, length), &mut data).map_err(cannot_read)?;
+    Ok(data)
 }
 
 fn shorten(uri: &str) -> String {

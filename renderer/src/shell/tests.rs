@@ -375,6 +375,44 @@ fn gltf_and_glb_assets_load_in_centimetres_with_flipped_v() {
     assert_eq!(shell.tetrahedra.len(), 20 * 3);
 }
 
+/// The GLB asset split into a glTF document whose buffer is the file `uri`, and that buffer.
+fn gltf_with_buffer_file(uri: &str) -> (String, Vec<u8>) {
+    let glb = std::fs::read(asset("wave_patch.glb")).unwrap();
+    let u32_at = |at: usize| u32::from_le_bytes(glb[at..at + 4].try_into().unwrap()) as usize;
+    let json_len = u32_at(12);
+    let json = std::str::from_utf8(&glb[20..20 + json_len]).unwrap().trim_end().to_owned();
+    let bin_len = u32_at(20 + json_len);
+    let bin = glb[28 + json_len..28 + json_len + bin_len].to_vec();
+    let with_uri = json.replacen("{\"byteLength\"", &format!("{{\"uri\":{uri:?},\"byteLength\""), 1);
+    assert_ne!(with_uri, json);
+    (with_uri, bin)
+}
+
+#[test]
+fn external_buffer_files_are_read_relative_to_the_gltf_and_only_as_declared() {
+    let dir = tempfile::tempdir().unwrap();
+    let glb = BaseMesh::load(&asset("wave_patch.glb")).unwrap();
+    let (document, mut bin) = gltf_with_buffer_file("buffer%20file.bin");
+    // Bytes past the declared byteLength are not read.
+    bin.extend_from_slice(&[0xff; 64]);
+    std::fs::write(dir.path().join("buffer file.bin"), &bin).unwrap();
+    let mesh = BaseMesh::parse_gltf(document.as_bytes(), "ext.gltf", Some(dir.path())).unwrap();
+    assert_eq!((mesh.positions, mesh.triangles), (glb.positions, glb.triangles));
+    // Absolute paths, folders and devices are refused, naming the buffer and the path.
+    std::fs::create_dir(dir.path().join("folder")).unwrap();
+    for (uri, expected) in [
+        ("/dev/zero", "\"/dev/zero\" is an absolute path"),
+        ("folder", "folder is not a regular file"),
+        ("missing.bin", "cannot read"),
+    ] {
+        let (document, _) = gltf_with_buffer_file(uri);
+        let (error, text) =
+            error_text(BaseMesh::parse_gltf(document.as_bytes(), "ext.gltf", Some(dir.path())));
+        assert!(matches!(error, ShellError::Parse { .. }), "{text}");
+        assert!(text.contains("ext.gltf") && text.contains("buffer 0") && text.contains(expected), "{text}");
+    }
+}
+
 fn error_text<T>(result: Result<T, ShellError>) -> (ShellError, String) {
     let Err(error) = result else { panic!("expected an error, got Ok") };
     let text = error.to_string();
