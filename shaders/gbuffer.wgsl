@@ -1,54 +1,74 @@
-// Eye rays (paper 5.1): the front faces of every shell tetrahedron are rasterized; each
-// fragment carries the eye ray into the tetrahedron's flat-fabric space (an affine map) and
-// samples the voxel volume at `volume_samples` evenly spaced points between where the ray
-// enters and leaves the tetrahedron, keeping the first non-empty voxel. The fragment writes
-// the hit's world position and ids to the G-buffer and its true depth, so the depth test keeps
-// the nearest hit over all tetrahedra. Needs shared/fabric_data.wgsl before it.
+// Eye rays (paper 5.1), walked through the shell: only the faces on the shell's surface are
+// rasterized (front faces: where an eye ray enters the shell). Each fragment follows its ray
+// from tetrahedron to tetrahedron across shared faces (TetraGpu.neighbors) until it hits or
+// leaves the shell. Inside a tetrahedron the world -> (u, v, w) map is affine, so the ray is a
+// straight line in flat-fabric space, where it steps voxel by voxel (a 3D DDA,
+// shared/fabric_data.wgsl first_occupied_voxel) and stops at the first voxel that holds a
+// segment: the exact first hit on the voxel grid, whatever the view angle or the size of the
+// tetrahedra, found by one fragment per shell layer instead of one per tetrahedron crossed.
+// The fragment writes the hit's world position and ids to the G-buffer and its true depth, so
+// the depth test keeps the nearest hit where the ray enters the shell more than once (folded
+// cloth). Needs shared/fabric_data.wgsl before it.
 // Twin structs: renderer/src/frame.rs (FrameUniformsGpu, TetraGpu).
 
 struct FrameUniforms {
     clip_from_world: mat4x4<f32>,
     // xyz: eye position (perspective) or the viewing direction (orthographic); w: 1 or 0.
     eye: vec4<f32>,
-    // Sub-pixel jitter in clip units (xy), the sample's offset along the ray in [0, 1) (z).
+    // Sub-pixel jitter in clip units (xy); zw unused.
     jitter: vec4<f32>,
-    // Bottom of the fabric slab (x) and its thickness (y) in cm; volume samples (z, as f32).
+    // Bottom of the fabric slab (x) and its thickness (y) in cm; zw unused.
     fabric_z: vec4<f32>,
     // x: for an orthographic camera, the film plane's offset along the viewing direction
     // (dot(eye, view)): eye rays start there, as the path tracer's do. Unused for perspective.
     film: vec4<f32>,
 }
 
-// One tetrahedron: rows of its world -> (u, v, w) affine map, and its four face planes in
-// (u, v, w) space (n . x + d >= 0 inside).
+// One tetrahedron: rows of its world -> (u, v, w) affine map, its four face planes in (u, v, w)
+// space (n . x + d >= 0 inside; plane k is the face opposite corner k), and the tetrahedron
+// across each face (NO_NEIGHBOR on the shell's surface).
 struct TetraGpu {
     uvw_from_world: array<vec4<f32>, 3>,
     planes: array<vec4<f32>, 4>,
+    neighbors: vec4<u32>,
 }
+
+const NO_NEIGHBOR: u32 = 0xffffffffu;
+// Most tetrahedra one eye ray walks through (a guard against a cycle on a malformed shell).
+const MAX_RAY_TETRAS: u32 = 4096u;
+// Tetrahedra in a row an eye ray may cross without moving on (through an edge or a corner).
+const MAX_RAY_STALLS: u32 = 8u;
 
 @group(0) @binding(0) var<uniform> frame: FrameUniforms;
 @group(0) @binding(1) var<storage, read> tetra_corners: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tetras: array<TetraGpu>;
+// The shell's surface faces: tetrahedron * 4 + the corner the face is opposite to.
+@group(0) @binding(3) var<storage, read> surface_faces: array<u32>;
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) world: vec3<f32>,
     @location(1) @interpolate(flat) tetra: u32,
+    // The face (opposite corner k) the ray enters the tetrahedron through.
+    @location(2) @interpolate(flat) face: u32,
 }
 
-// Outward faces of a positively oriented tetrahedron, counter-clockwise seen from outside.
+// Face k of a positively oriented tetrahedron (the corners other than k), counter-clockwise
+// seen from outside.
 const FACE_CORNERS: array<u32, 12> = array<u32, 12>(1u, 2u, 3u, 0u, 3u, 2u, 0u, 1u, 3u, 0u, 2u, 1u);
 
 @vertex
 fn vs_main(@builtin(vertex_index) index: u32) -> VertexOut {
-    let tetra = index / 12u;
-    let corner = FACE_CORNERS[index % 12u];
+    let face = surface_faces[index / 3u];
+    let tetra = face >> 2u;
+    let corner = FACE_CORNERS[(face & 3u) * 3u + index % 3u];
     let world = tetra_corners[tetra * 4u + corner].xyz;
     var out: VertexOut;
     out.clip = frame.clip_from_world * vec4<f32>(world, 1.0);
     out.clip = vec4<f32>(out.clip.xy + frame.jitter.xy * out.clip.w, out.clip.zw);
     out.world = world;
     out.tetra = tetra;
+    out.face = face & 3u;
     return out;
 }
 
@@ -66,48 +86,83 @@ fn to_uvw(t: TetraGpu, p: vec4<f32>) -> vec3<f32> {
 
 @fragment
 fn fs_main(in: VertexOut) -> GBufferOut {
-    let tetra = tetras[in.tetra];
+    // The ray is entry + t dir, t >= 0, entry where it enters the shell.
+    let entry = in.world;
     var dir = frame.eye.xyz;
     if (frame.eye.w > 0.5) {
         dir = normalize(in.world - frame.eye.xyz);
     }
-    // An orthographic eye ray starts on the film plane: the part of a tetrahedron behind it is
-    // not seen (the near plane lies behind the film so that a tetrahedron the film cuts is still
-    // rasterized).
-    var entry = in.world;
+    // An orthographic eye ray starts on the film plane: what lies behind it is not seen (the
+    // near plane lies behind the film so that a shell the film cuts is still rasterized).
+    var t_film = 0.0;
     if (frame.eye.w < 0.5) {
-        entry += max(frame.film.x - dot(in.world, dir), 0.0) * dir;
+        t_film = max(frame.film.x - dot(entry, dir), 0.0);
     }
-    let start = to_uvw(tetra, vec4<f32>(entry, 1.0));
-    let step_dir = to_uvw(tetra, vec4<f32>(dir, 0.0));
-    // Where the ray leaves the tetrahedron: the nearest plane it moves out of.
-    var t_exit = 3.0e38;
-    for (var k = 0u; k < 4u; k++) {
-        let plane = tetra.planes[k];
-        let rate = dot(plane.xyz, step_dir);
-        if (rate < 0.0) {
-            t_exit = min(t_exit, -(dot(plane.xyz, start) + plane.w) / rate);
+    var tetra_id = in.tetra;
+    var entry_face = in.face;
+    var t = 0.0;
+    var budget = 0u;
+    var stalls = 0u;
+    for (var walked = 0u; walked < MAX_RAY_TETRAS; walked++) {
+        let tetra = tetras[tetra_id];
+        let start = to_uvw(tetra, vec4<f32>(entry, 1.0));
+        let step_dir = to_uvw(tetra, vec4<f32>(dir, 0.0));
+        // Where the ray leaves the tetrahedron: the nearest plane it moves out of, other than
+        // the face it came in through (rounding can make a ray that runs nearly along that face
+        // seem to move out of it, and walk back and forth).
+        var t_exit = NO_HIT;
+        var exit_face = 4u;
+        for (var k = 0u; k < 4u; k++) {
+            let plane = tetra.planes[k];
+            let rate = dot(plane.xyz, step_dir);
+            if (rate < 0.0 && k != entry_face) {
+                let t_plane = -(dot(plane.xyz, start) + plane.w) / rate;
+                if (t_plane < t_exit) {
+                    t_exit = t_plane;
+                    exit_face = k;
+                }
+            }
         }
-    }
-    if (!(t_exit < 3.0e38) || t_exit <= 0.0) {
-        discard;
-    }
-    let samples = u32(frame.fabric_z.z);
-    for (var s = 0u; s < samples; s++) {
-        let t = (f32(s) + frame.jitter.z) / f32(samples) * t_exit;
-        let q = start + t * step_dir;
-        let fabric_point = vec3<f32>(q.xy, frame.fabric_z.x + clamp(q.z, 0.0, 1.0) * frame.fabric_z.y);
-        let e = exemplar_at(q.xy);
-        let segment = voxel_segment(e, fabric_point);
-        if (segment != EMPTY_VOXEL) {
-            let hit = entry + t * dir;
-            let clip = frame.clip_from_world * vec4<f32>(hit, 1.0);
-            var out: GBufferOut;
-            out.depth = clamp(clip.z / clip.w, 0.0, 1.0);
-            out.position = vec4<f32>(hit, 1.0);
-            out.ids = vec4<u32>(segment, in.tetra, e, 1u);
-            return out;
+        if (exit_face == 4u) {
+            break;
         }
+        // A ray through an edge or a corner can pass through tetrahedra without moving on; a
+        // few in a row is a ray stuck where f32 cannot tell the faces apart: it is let go.
+        if (t_exit <= t) {
+            stalls += 1u;
+            if (stalls > MAX_RAY_STALLS) {
+                break;
+            }
+        } else {
+            stalls = 0u;
+        }
+        t_exit = max(t_exit, t);
+        let t_from = max(t, t_film);
+        if (t_from < t_exit) {
+            // The ray in flat-fabric space (u, v, z in cm; w in [0, 1] spans the fabric slab).
+            let fabric_start = vec3<f32>(start.xy, frame.fabric_z.x + start.z * frame.fabric_z.y);
+            let fabric_dir = vec3<f32>(step_dir.xy, step_dir.z * frame.fabric_z.y);
+            let voxel = first_occupied_voxel(fabric_start, fabric_dir, t_from, t_exit, &budget);
+            if (voxel.segment != EMPTY_VOXEL) {
+                let hit = entry + voxel.t * dir;
+                let clip = frame.clip_from_world * vec4<f32>(hit, 1.0);
+                var out: GBufferOut;
+                out.depth = clamp(clip.z / clip.w, 0.0, 1.0);
+                out.position = vec4<f32>(hit, 1.0);
+                out.ids = vec4<u32>(voxel.segment, tetra_id, voxel.exemplar, 1u);
+                return out;
+            }
+        }
+        let next = tetra.neighbors[exit_face];
+        if (next == NO_NEIGHBOR || budget >= MAX_RAY_VOXELS) {
+            break;
+        }
+        let across = tetras[next].neighbors;
+        entry_face = select(select(select(3u, 2u, across.z == tetra_id), 1u, across.y == tetra_id), 0u, across.x == tetra_id);
+        tetra_id = next;
+        t = t_exit;
     }
+    // Every way out of the walk leads here, not to a discard inside it: llvmpipe keeps a
+    // discarded invocation stepping through the loop with the others (measured: 16x slower).
     discard;
 }

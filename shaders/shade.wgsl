@@ -45,6 +45,7 @@ struct ShadeUniforms {
 struct TetraGpu {
     uvw_from_world: array<vec4<f32>, 3>,
     planes: array<vec4<f32>, 4>,
+    neighbors: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> shade: ShadeUniforms;

@@ -297,7 +297,7 @@ fn fig13_average_intensity_over_fifty_configurations() {
         size: 12,
         reference_spp: 64,
         method_spp: 4,
-        volume_samples: vec![32, 128],
+        gpu_method: true,
         cpu_method: true,
         ladder_spp: vec![1, 4],
         max_depth: 64,
@@ -316,8 +316,8 @@ fn fig13_average_intensity_over_fifty_configurations() {
         assert!(m.pixel_mse.iter().all(|e| e.is_finite()), "{}", m.name);
     }
     let relative: Vec<f64> = report.methods.iter().map(|m| report.summary(m).average_rmse / rms).collect();
-    // (relative RMSE of the average intensity, excess per-pixel RMSE) of GPU 32, GPU 128, CPU.
-    let measured = [(0.194, 1.08e-2), (0.131, 1.08e-2), (0.138, 1.16e-2)];
+    // (relative RMSE of the average intensity, excess per-pixel RMSE) of the GPU and the CPU.
+    let measured = [(0.194, 1.08e-2), (0.138, 1.16e-2)];
     let mut failures = Vec::new();
     for ((m, r), (mean, pixel)) in report.methods.iter().zip(&relative).zip(measured) {
         let excess = report.summary(m).pixel_excess_rmse;
@@ -328,12 +328,6 @@ fn fig13_average_intensity_over_fifty_configurations() {
         );
     }
     assert!(failures.is_empty(), "{failures:#?}");
-    assert!(
-        relative[1] <= relative[0] * 1.1,
-        "128 volume samples {:.3} vs 32: {:.3}",
-        relative[1],
-        relative[0]
-    );
     let (one, four) = (report.summary(&report.ladder[0]), report.summary(&report.ladder[1]));
     assert!(
         four.pixel_excess_rmse < 0.7 * one.pixel_excess_rmse,

@@ -200,7 +200,6 @@ pub struct RenderOptions {
     pub cache: Option<PathBuf>,
     pub no_cache: bool,
     pub only: Option<Components>,
-    pub volume_samples: Option<u32>,
     pub print_plan: bool,
     pub timings: bool,
 }
@@ -231,10 +230,7 @@ pub(crate) fn cache_limit_bytes() -> Result<u64> {
 }
 
 pub fn render(options: &RenderOptions) -> Result<()> {
-    let mut file = options.image.load_scene()?;
-    if let Some(n) = options.volume_samples {
-        file.gpu.volume_samples = n;
-    }
+    let file = options.image.load_scene()?;
     let scene = file.build()?;
     let settings = frame_settings(&scene, options.only.unwrap_or_default());
 
@@ -600,10 +596,7 @@ pub fn accuracy_budget(
                 let started = Instant::now();
                 let frame = session.render(&scene, &frame_options)?;
                 let seconds = started.elapsed().as_secs_f64();
-                let name = format!(
-                    "GPU renderer: voxel-volume eye rays, {} volume samples",
-                    frame_options.gpu.volume_samples
-                );
+                let name = "GPU renderer: voxel-volume eye rays".to_owned();
                 budget.add_rung(component, name, &frame.radiance_image(), seconds);
             }
         }

@@ -116,7 +116,7 @@ struct ReportArgs {
     presets: Vec<QualityArg>,
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
     /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, sos_count, sos_sharpness,
-    /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, volume_samples, spp, sigma_glo_cm).
+    /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, spp, sigma_glo_cm).
     #[arg(long, default_value = "all")]
     knobs: String,
     /// Skip the CPU version of the method at the presets.
@@ -176,9 +176,9 @@ enum BenchCommand {
         /// Samples per pixel of the method's images.
         #[arg(long, default_value_t = 16)]
         spp: u32,
-        /// Volume samples per tetrahedron, one GPU run each.
-        #[arg(long, value_delimiter = ',', default_value = "32,64,128")]
-        volume_samples: Vec<u32>,
+        /// Skip the GPU method.
+        #[arg(long)]
+        no_gpu: bool,
         /// Path-tracer spp for the equal-error fit.
         #[arg(long, value_delimiter = ',', default_value = "1,2,4,8")]
         ladder: Vec<u32>,
@@ -326,9 +326,6 @@ struct RenderArgs {
     /// Render only one scattering component.
     #[arg(long, value_enum)]
     only: Option<Only>,
-    /// Volume samples per shell tetrahedron (default: the scene's [gpu] volume_samples).
-    #[arg(long)]
-    volume_samples: Option<u32>,
     /// Print the frame plan (the passes this scene needs) before rendering.
     #[arg(long)]
     print_plan: bool,
@@ -394,7 +391,6 @@ fn run(cli: Cli) -> Result<()> {
                 Only::Single => twill_renderer::plan::Components::SingleOnly,
                 Only::Multiple => twill_renderer::plan::Components::MultipleOnly,
             }),
-            volume_samples: args.volume_samples,
             print_plan: args.print_plan,
             timings: args.timings,
         }),
@@ -451,7 +447,7 @@ fn run(cli: Cli) -> Result<()> {
                 size,
                 reference_spp,
                 spp,
-                volume_samples,
+                no_gpu,
                 ladder,
                 quality,
                 no_cpu,
@@ -463,7 +459,7 @@ fn run(cli: Cli) -> Result<()> {
                     size,
                     reference_spp,
                     method_spp: spp,
-                    volume_samples,
+                    gpu_method: !no_gpu,
                     cpu_method: !no_cpu,
                     ladder_spp: ladder,
                     max_depth: 64,

@@ -248,7 +248,7 @@ fn accuracy_report_writes_csv_and_html_and_reuses_only_valid_references() {
         assert!(out.status.success(), "{stdout}\n{stderr}");
         (stdout, stderr)
     };
-    let (stdout, stderr) = run("sh_order=1,volume_samples=16");
+    let (stdout, stderr) = run("sh_order=1,spp=3");
     assert!(stderr.contains("reference 1/2") && stdout.contains("0 of 2 loaded"), "{stdout}\n{stderr}");
     let csv = std::fs::read_to_string(dir.path().join("out/report.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();
@@ -268,7 +268,7 @@ fn accuracy_report_writes_csv_and_html_and_reuses_only_valid_references() {
             }
         }
     }
-    assert!(rows[2].contains("sh_order = 1") && rows[3].contains("volume_samples = 16"), "{csv}");
+    assert!(rows[2].contains("sh_order = 1") && rows[3].contains("spp = 3"), "{csv}");
     let html = std::fs::read_to_string(dir.path().join("out/report.html")).unwrap();
     assert!(html.matches("<svg").count() >= 4, "two Pareto plots and one per knob");
     let per_configuration = std::fs::read_to_string(dir.path().join("out/configurations.csv")).unwrap();

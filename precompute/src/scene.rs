@@ -357,8 +357,6 @@ impl Default for MeshSection {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GpuSection {
-    /// Volume samples per shell tetrahedron along each eye ray (paper: 32, 64 or 128).
-    pub volume_samples: u32,
     /// Standard deviation of the multiple-scattering visibility blur, cm of flat fabric (0: none).
     pub sigma_glo_cm: f64,
     /// Side of each light's shadow map in texels.
@@ -374,7 +372,6 @@ pub struct GpuSection {
 impl Default for GpuSection {
     fn default() -> Self {
         Self {
-            volume_samples: 64,
             sigma_glo_cm: 0.05,
             shadow_map_size: 2048,
             visibility_texture_size: 1024,
@@ -387,7 +384,6 @@ impl Default for GpuSection {
 impl GpuSection {
     /// Checks every field against its valid range.
     pub fn validate(&self) -> Result<(), ParamError> {
-        check_count("gpu.volume_samples", self.volume_samples as usize, 2, 1024)?;
         check_range("gpu.sigma_glo_cm", self.sigma_glo_cm, 0.0, 100.0)?;
         check_count("gpu.shadow_map_size", self.shadow_map_size as usize, 64, 16384)?;
         check_count("gpu.visibility_texture_size", self.visibility_texture_size as usize, 16, 16384)?;
@@ -1047,7 +1043,7 @@ mod tests {
              [mesh]\npath = \"cloth.obj\"\nsize_cm = [3, 4]\n\
              {CAMERA}{LIGHT}\
              [[lights]]\ntype = \"sg\"\naxis = [0.1, 0.2, 0.3]\nsharpness = 1e-4\nintensity = [1e300, 5e-324, 0.30000000000000004]\n\
-             [render]\nseed = 9007199254740993\nexposure = -1.25\n[gpu]\nvolume_samples = 32\n"
+             [render]\nseed = 9007199254740993\nexposure = -1.25\n[gpu]\nshadow_map_size = 512\n"
         );
         let mut spec = SceneFile::parse(&text, Path::new("/some/dir/spec.toml")).unwrap();
         spec.camera.eye = [0.1 + 0.2, 1.0 / 3.0, -2.0_f64.sqrt()];

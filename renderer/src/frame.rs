@@ -2,7 +2,7 @@
 //! scattering and shadow mapping (paper section 5), run pass by pass as the frame plan says.
 //!
 //! How it works: [`Renderer::new`] uploads the shell (tetrahedra with their world → shell
-//! affine maps and face planes, and the top and bottom surfaces) next to an uploaded bake
+//! affine maps, face planes and neighbours, and the top and bottom surfaces) next to an uploaded bake
 //! ([`FabricData`]) and builds the fixed pipelines. [`Renderer::render`] plans the frame
 //! ([`FramePlan`]) and records, in order:
 //! 1. a depth-only shadow map per shadowing light (orthographic, fitted to the shell's bounding
@@ -11,9 +11,10 @@
 //! 3. the visibility V[u, v] per light (PCF or PCSS lookups at X), stored as
 //!    (V · coverage, coverage);
 //! 4. its Gaussian blur by σ_glo (separable, along u then v);
-//! 5. per sample: the G-buffer (front faces of every tetrahedron, volume samples per fragment,
-//!    jittered sub-pixel position and sample offset along the ray), then the shading pass,
-//!    which adds radiance to an accumulation buffer;
+//! 5. per sample: the G-buffer (the shell's surface faces where eye rays enter it; each
+//!    fragment walks its ray through the tetrahedra, stepping voxel by voxel to the first
+//!    occupied voxel; jittered sub-pixel position), then the shading pass, which adds radiance
+//!    to an accumulation buffer;
 //! 6. tone mapping with exposure into an 8-bit image.
 //!
 //! Passes 1–4 run once per frame (they do not depend on the pixel jitter), and only when the
@@ -130,8 +131,11 @@ const _: () = assert!(size_of::<FrameUniformsGpu>() == 128);
 struct TetraGpu {
     uvw_from_world: [[f32; 4]; 3],
     planes: [[f32; 4]; 4],
+    /// The tetrahedron across the face opposite each corner ([`crate::shell::NO_NEIGHBOR`] on
+    /// the shell's surface).
+    neighbors: [u32; 4],
 }
-const _: () = assert!(size_of::<TetraGpu>() == 112);
+const _: () = assert!(size_of::<TetraGpu>() == 128);
 
 /// Twin of `SurfaceVertex` in shaders/shell_surface.wgsl.
 #[repr(C)]
@@ -200,9 +204,12 @@ struct ToneMapUniformsGpu {
 
 /// The shell on the GPU.
 struct ShellGpu {
-    tetra_count: u32,
     tetra_corners: wgpu::Buffer,
     tetras: wgpu::Buffer,
+    /// The shell's surface faces, `tetrahedron * 4 + k` for the face opposite corner `k`: what
+    /// the G-buffer pass rasterizes.
+    surface_faces: wgpu::Buffer,
+    surface_face_count: u32,
     surface_vertices: wgpu::Buffer,
     /// Top-surface vertices come first in `surface_vertices`.
     top_vertex_count: u32,
@@ -350,8 +357,8 @@ fn compute_pipeline(
     })
 }
 
-/// (world → uvw rows, face planes in uvw) of one tetrahedron.
-fn tetra_gpu(corners: &[crate::shell::ShellVertex; 4]) -> TetraGpu {
+/// (world → uvw rows, face planes in uvw, neighbours) of one tetrahedron.
+fn tetra_gpu(corners: &[crate::shell::ShellVertex; 4], neighbors: [u32; 4]) -> TetraGpu {
     let (uvw_from_world, _) = Shell::tetra_affine(corners);
     let rows = [uvw_from_world.row(0), uvw_from_world.row(1), uvw_from_world.row(2)];
     let uvw: Vec<DVec3> = corners.iter().map(|c| c.uvw.as_dvec3()).collect();
@@ -366,13 +373,28 @@ fn tetra_gpu(corners: &[crate::shell::ShellVertex; 4]) -> TetraGpu {
         let n = n * scale;
         *plane = [n.x as f32, n.y as f32, n.z as f32, (-n.dot(others[0])) as f32];
     }
-    TetraGpu { uvw_from_world: rows.map(|r| r.to_array()), planes }
+    TetraGpu { uvw_from_world: rows.map(|r| r.to_array()), planes, neighbors }
 }
 
 fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> ShellGpu {
     let corners: Vec<[f32; 4]> =
         shell.tetrahedra.iter().flat_map(|t| t.iter().map(|v| v.position.extend(1.0).to_array())).collect();
-    let tetras: Vec<TetraGpu> = shell.tetrahedra.iter().map(tetra_gpu).collect();
+    let neighbors = shell.tetra_neighbors();
+    let tetras: Vec<TetraGpu> = shell
+        .tetrahedra
+        .iter()
+        .zip(&neighbors)
+        .map(|(corners, &across)| tetra_gpu(corners, across))
+        .collect();
+    let surface_faces: Vec<u32> = neighbors
+        .iter()
+        .enumerate()
+        .flat_map(|(t, across)| {
+            (0..4_u32)
+                .filter(|&k| across[k as usize] == crate::shell::NO_NEIGHBOR)
+                .map(move |k| t as u32 * 4 + k)
+        })
+        .collect();
     let vertex = |v: &crate::shell::ShellVertex| SurfaceVertexGpu {
         position: v.position.extend(1.0).to_array(),
         uvw: v.uvw.extend(0.0).to_array(),
@@ -383,7 +405,6 @@ fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> Sh
     let usage = wgpu::BufferUsages::STORAGE;
     let uv_size = (shell.uv_max - shell.uv_min).max(glam::Vec2::splat(1e-6));
     ShellGpu {
-        tetra_count: shell.tetrahedra.len() as u32,
         tetra_corners: make_buffer(
             device,
             queue,
@@ -392,6 +413,14 @@ fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> Sh
             usage,
         ),
         tetras: make_buffer(device, queue, "twill.shell.tetras", bytemuck::cast_slice(&tetras), usage),
+        surface_faces: make_buffer(
+            device,
+            queue,
+            "twill.shell.surface_faces",
+            bytemuck::cast_slice(&surface_faces),
+            usage,
+        ),
+        surface_face_count: surface_faces.len() as u32,
         surface_vertices: make_buffer(
             device,
             queue,
@@ -436,6 +465,7 @@ impl Renderer {
                 uniform_entry(0, fragment),
                 storage_entry(1, fragment, true),
                 storage_entry(2, fragment, true),
+                storage_entry(3, fragment, true),
             ],
         });
         let gbuffer_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -590,6 +620,7 @@ impl Renderer {
         self.fabric.gpu_bytes
             + self.shell.tetra_corners.size()
             + self.shell.tetras.size()
+            + self.shell.surface_faces.size()
             + self.shell.surface_vertices.size()
     }
 
@@ -684,8 +715,8 @@ impl Renderer {
     }
 
     /// As [`Renderer::render`], for samples `first_sample .. first_sample + settings.spp` of
-    /// one longer sample sequence (sub-pixel jitter and volume-sample offsets continue where the
-    /// previous frame stopped). The frame's `radiance` is the mean of its own samples, so a
+    /// one longer sample sequence (the sub-pixel jitter continues where the previous frame
+    /// stopped). The frame's `radiance` is the mean of its own samples, so a
     /// viewer that weights each frame by its `spp` and sums them gets the same image as one
     /// frame with all the samples: progressive rendering without keeping state on the GPU.
     /// `first_sample = 0` is exactly [`Renderer::render`].
@@ -815,7 +846,7 @@ impl Renderer {
                 clip_from_world: clip_from_world.to_cols_array_2d(),
                 eye,
                 jitter,
-                fabric_z: [self.fabric_z[0], self.fabric_z[1], plan.volume_samples as f32, 0.0],
+                fabric_z: [self.fabric_z[0], self.fabric_z[1], 0.0, 0.0],
                 film: [film_plane, 0.0, 0.0, 0.0],
             };
             make_buffer(
@@ -883,14 +914,9 @@ impl Renderer {
             let index = first_sample + sample;
             let (jx, jy) = (halton(index + 1, 2) as f32, halton(index + 1, 3) as f32);
             let jitter = if settings.spp == 1 && first_sample == 0 {
-                [0.0, 0.0, 0.5, 0.0]
+                [0.0; 4]
             } else {
-                [
-                    (2.0 * jx - 1.0) / width as f32,
-                    -(2.0 * jy - 1.0) / height as f32,
-                    (0.5 + index as f32 * 0.618_034).fract(),
-                    0.0,
-                ]
+                [(2.0 * jx - 1.0) / width as f32, -(2.0 * jy - 1.0) / height as f32, 0.0, 0.0]
             };
             let uniforms = frame_buffer(jitter);
             let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -903,6 +929,10 @@ impl Renderer {
                         resource: self.shell.tetra_corners.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry { binding: 2, resource: self.shell.tetras.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: self.shell.surface_faces.as_entire_binding(),
+                    },
                 ],
             });
             let query = next_query("eye rays (G-buffer)");
@@ -944,7 +974,7 @@ impl Renderer {
                 pass.set_pipeline(&self.gbuffer_pipeline);
                 pass.set_bind_group(0, &group, &[]);
                 pass.set_bind_group(1, &self.fabric.bind_group, &[]);
-                pass.draw(0..self.shell.tetra_count * 12, 0..1);
+                pass.draw(0..self.shell.surface_face_count * 3, 0..1);
             }
             let query = next_query("shading");
             {
@@ -1374,7 +1404,6 @@ pub fn plan_frame(lights: &[Light], settings: &FrameSettings, flat_normal: Optio
             flat_normal: flat_normal.map(|n| n.as_dvec3().to_array()),
             components: settings.components,
             sigma_glo_cm: settings.gpu.sigma_glo_cm,
-            volume_samples: settings.gpu.volume_samples,
             spp: settings.spp,
         },
     )
@@ -1506,6 +1535,85 @@ pub fn describe_timings(timings: &[PassTiming]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Twin of the walk in shaders/gbuffer.wgsl `fs_main` (f32, as the shader): from a point
+    /// on surface face `face` of tetrahedron `tetra` along `dir`, the tetrahedra the ray passes
+    /// through until it leaves the shell, as (tetrahedron, t where it leaves it).
+    fn walk(tetras: &[TetraGpu], tetra: u32, face: u32, entry: Vec3, dir: Vec3) -> Vec<(u32, f32)> {
+        let to_uvw = |t: &TetraGpu, p: glam::Vec4| {
+            Vec3::new(
+                glam::Vec4::from(t.uvw_from_world[0]).dot(p),
+                glam::Vec4::from(t.uvw_from_world[1]).dot(p),
+                glam::Vec4::from(t.uvw_from_world[2]).dot(p),
+            )
+        };
+        let (mut id, mut entry_face, mut t, mut path) = (tetra, face, 0.0_f32, Vec::new());
+        for _ in 0..4096 {
+            let tet = &tetras[id as usize];
+            let start = to_uvw(tet, entry.extend(1.0));
+            let step = to_uvw(tet, dir.extend(0.0));
+            let (mut t_exit, mut exit_face) = (f32::MAX, 4);
+            for (k, plane) in tet.planes.iter().enumerate() {
+                let n = Vec3::new(plane[0], plane[1], plane[2]);
+                let rate = n.dot(step);
+                if rate < 0.0 && k as u32 != entry_face {
+                    let t_plane = -(n.dot(start) + plane[3]) / rate;
+                    if t_plane < t_exit {
+                        (t_exit, exit_face) = (t_plane, k);
+                    }
+                }
+            }
+            assert!(exit_face < 4, "tetrahedron {id}: no face to leave by");
+            t = t_exit.max(t);
+            path.push((id, t));
+            let next = tet.neighbors[exit_face];
+            if next == crate::shell::NO_NEIGHBOR {
+                return path;
+            }
+            entry_face = tetras[next as usize].neighbors.iter().position(|&n| n == id).unwrap() as u32;
+            id = next;
+        }
+        panic!("the walk did not leave the shell: {:?}", &path[..20]);
+    }
+
+    #[test]
+    fn eye_rays_walk_through_the_shell_and_leave_it_by_the_far_side() {
+        use crate::shell::{BaseMesh, ShellSpec};
+        let mesh = BaseMesh::builtin("swatch", [2.0, 2.0]).unwrap();
+        let shell = Shell::build(&mesh, &ShellSpec::new([-0.0185, 0.0185], 1.0)).unwrap();
+        let neighbors = shell.tetra_neighbors();
+        let tetras: Vec<TetraGpu> =
+            shell.tetrahedra.iter().zip(&neighbors).map(|(c, &n)| tetra_gpu(c, n)).collect();
+        let mut longest = 0;
+        for (t, across) in neighbors.iter().enumerate() {
+            for (k, &neighbor) in across.iter().enumerate() {
+                if neighbor != crate::shell::NO_NEIGHBOR {
+                    continue;
+                }
+                let corners: Vec<Vec3> =
+                    (0..4).filter(|&c| c != k).map(|c| shell.tetrahedra[t][c].position).collect();
+                // Only the top faces, entered from above by a ray 36 degrees off the normal.
+                if corners.iter().any(|c| c.z < 0.0) {
+                    continue;
+                }
+                let entry = (corners[0] + corners[1] + corners[2]) / 3.0;
+                for dir in
+                    [Vec3::new(0.0, 0.55, -0.75), Vec3::new(0.3, -0.2, -0.9), Vec3::new(-0.8, 0.1, -0.2)]
+                {
+                    let path = walk(&tetras, t as u32, k as u32, entry, dir.normalize());
+                    longest = longest.max(path.len());
+                    // It leaves through the bottom (z = -0.0185) or a side (|x| or |y| = 1).
+                    let out = entry + path.last().unwrap().1 * dir.normalize();
+                    let on_side = out.x.abs().max(out.y.abs()) >= 1.0 - 1e-4;
+                    assert!(
+                        (out.z + 0.0185).abs() < 1e-5 || on_side,
+                        "tetrahedron {t}: the ray leaves at {out}"
+                    );
+                }
+            }
+        }
+        assert!(longest <= 12, "a ray walked {longest} tetrahedra");
+    }
 
     #[test]
     fn sg_light_angle_shrinks_with_sharpness() {

@@ -84,7 +84,6 @@ pub struct PlanInputs {
     pub components: Components,
     /// σ_glo in cm.
     pub sigma_glo_cm: f64,
-    pub volume_samples: u32,
     pub spp: u32,
 }
 
@@ -95,7 +94,7 @@ pub enum Pass {
     TopSurface,
     Visibility { lights: usize },
     Blur { sigma_glo_cm: f64 },
-    GBuffer { volume_samples: u32 },
+    GBuffer,
     Shade { single: bool, multiple: bool, paths: Vec<LocalVisibility> },
     ToneMap,
 }
@@ -109,7 +108,7 @@ impl Pass {
             Self::TopSurface => "top surface X[u,v]".into(),
             Self::Visibility { .. } => "visibility V[u,v]".into(),
             Self::Blur { .. } => "blur sigma_glo".into(),
-            Self::GBuffer { .. } => "eye rays (G-buffer)".into(),
+            Self::GBuffer => "eye rays (G-buffer)".into(),
             Self::Shade { .. } => "shading".into(),
             Self::ToneMap => "tone map".into(),
         }
@@ -128,7 +127,6 @@ pub struct FramePlan {
     pub shadow_maps: bool,
     pub blur: bool,
     pub sigma_glo_cm: f64,
-    pub volume_samples: u32,
     pub spp: u32,
 }
 
@@ -186,7 +184,6 @@ impl FramePlan {
             shadow_maps,
             blur: shadow_maps && multiple && inputs.sigma_glo_cm > 0.0,
             sigma_glo_cm: inputs.sigma_glo_cm,
-            volume_samples: inputs.volume_samples,
             spp: inputs.spp,
         }
     }
@@ -230,7 +227,7 @@ impl FramePlan {
         if self.blur {
             passes.push(Pass::Blur { sigma_glo_cm: self.sigma_glo_cm });
         }
-        passes.push(Pass::GBuffer { volume_samples: self.volume_samples });
+        passes.push(Pass::GBuffer);
         let mut paths: Vec<LocalVisibility> = Vec::new();
         for p in [
             LocalVisibility::SsdfSign,
@@ -259,9 +256,7 @@ impl fmt::Display for FramePlan {
                 }
                 Pass::Visibility { lights } => writeln!(f, "  {} ({lights} light layer(s))", pass.name())?,
                 Pass::Blur { sigma_glo_cm } => writeln!(f, "  {} ({sigma_glo_cm} cm)", pass.name())?,
-                Pass::GBuffer { volume_samples } => {
-                    writeln!(f, "  {} ({volume_samples} volume samples per tetrahedron)", pass.name())?;
-                }
+                Pass::GBuffer => writeln!(f, "  {} (to the first occupied voxel)", pass.name())?,
                 Pass::Shade { single, multiple, paths } => {
                     let mut terms = Vec::new();
                     if *single {
@@ -297,7 +292,6 @@ mod tests {
             flat_normal: flat.then_some([0.0, 0.0, 1.0]),
             components: Components::All,
             sigma_glo_cm: 0.05,
-            volume_samples: 64,
             spp: 4,
         }
     }
@@ -326,7 +320,7 @@ mod tests {
             p,
             Pass::ShadowMap { .. } | Pass::TopSurface | Pass::Visibility { .. } | Pass::Blur { .. }
         )));
-        assert!(passes.iter().any(|p| matches!(p, Pass::GBuffer { .. })));
+        assert!(passes.iter().any(|p| matches!(p, Pass::GBuffer)));
     }
 
     #[test]

@@ -113,28 +113,139 @@ fn exemplar_at(uv: vec2<f32>) -> u32 {
     return pattern[u32(by) * fabric.pattern_width + u32(bx)];
 }
 
-// Global id of the segment stored in the voxel containing `p` (flat-fabric cm, z in the
-// exemplar's own coordinates) of exemplar `e`, or EMPTY_VOXEL.
-fn voxel_segment(e: u32, p: vec3<f32>) -> u32 {
+// Most voxels one eye ray visits (a guard: an 89-degree ray across the whole default fabric
+// without meeting a fiber would visit about 2,700).
+const MAX_RAY_VOXELS: u32 = 8192u;
+// Twin of precompute's VOXEL_START_NUDGE: the voxel a ray starts in is that of a point this
+// fraction of the smallest voxel side past its start.
+const VOXEL_START_NUDGE: f32 = 1.0e-3;
+const NO_HIT: f32 = 3.0e38;
+
+struct VoxelHit {
+    // Where the ray enters the voxel (NO_HIT when none is occupied).
+    t: f32,
+    segment: u32,
+    exemplar: u32,
+}
+
+// Where the ray p0 + t d (flat-fabric cm) leaves the pattern block it is in at t.
+fn block_exit(p0: vec3<f32>, d: vec3<f32>, t: f32) -> f32 {
+    if (fabric.pattern_width * fabric.pattern_height <= 1u) {
+        return NO_HIT;
+    }
+    let p = p0.xy + t * d.xy;
+    let block = floor(p / fabric.block_size);
+    var t_exit = NO_HIT;
+    for (var axis = 0u; axis < 2u; axis++) {
+        if (d[axis] != 0.0) {
+            let face = (block[axis] + select(0.0, 1.0, d[axis] > 0.0)) * fabric.block_size[axis];
+            t_exit = min(t_exit, (face - p0[axis]) / d[axis]);
+        }
+    }
+    return max(t_exit, t);
+}
+
+// The first voxel of exemplar e's volume that the ray p0 + t d crosses for t in [t0, t1] and
+// that holds a segment: a 3D DDA (Amanatides & Woo), visiting every voxel the ray crosses in
+// order. Twin of precompute's VoxelVolume::first_occupied. `budget` counts the voxels visited.
+// Written with whole-vector selects rather than indexing a vector by a variable axis, which
+// llvmpipe runs several times slower.
+fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, budget: ptr<function, u32>) -> VoxelHit {
+    var none: VoxelHit;
+    none.t = NO_HIT;
+    none.segment = EMPTY_VOXEL;
     let ex = exemplars[e];
-    var q = p;
-    if (ex.periodic != 0u) {
-        q = vec3<f32>(wrap_f32(p.x, ex.period.x), wrap_f32(p.y, ex.period.y), p.z);
-    }
-    let cell = vec3<i32>(floor((q - ex.volume_origin) / ex.voxel_size));
-    var c = cell;
+    let lo = ex.volume_origin;
+    let size = ex.voxel_size;
     let dims = vec3<i32>(ex.volume_dims);
-    if (ex.periodic != 0u) {
-        c = vec3<i32>(wrap_i32(cell.x, dims.x), wrap_i32(cell.y, dims.y), cell.z);
+    let hi = lo + size * vec3<f32>(ex.volume_dims);
+    let periodic = ex.periodic != 0u;
+    // Axes that are clipped to the grid: z always, x and y when they do not wrap.
+    let clipped = vec3<bool>(!periodic, !periodic, true);
+    let moving = d != vec3<f32>(0.0);
+    // A clipped axis the ray runs level along must start inside the grid.
+    if (any(clipped & !moving & ((p0 < lo) | (p0 >= hi)))) {
+        return none;
     }
-    if (any(c < vec3<i32>(0)) || any(c >= dims)) {
-        return EMPTY_VOXEL;
+    let safe_d = select(vec3<f32>(1.0), d, moving);
+    let ta = (lo - p0) / safe_d;
+    let tb = (hi - p0) / safe_d;
+    let use_axis = clipped & moving;
+    let t_enter = select(vec3<f32>(-NO_HIT), min(ta, tb), use_axis);
+    let t_leave = select(vec3<f32>(NO_HIT), max(ta, tb), use_axis);
+    let t0 = max(t_from, max(t_enter.x, max(t_enter.y, t_enter.z)));
+    let t1 = min(t_to, min(t_leave.x, min(t_leave.y, t_leave.z)));
+    if (!(t0 < t1)) {
+        return none;
     }
-    let local = voxels[ex.voxel_offset + u32((c.z * dims.y + c.y) * dims.x + c.x)];
-    if (local == EMPTY_VOXEL) {
-        return EMPTY_VOXEL;
+    let nudge = VOXEL_START_NUDGE * min(size.x, min(size.y, size.z)) / length(d);
+    let start = p0 + (t0 + min(nudge, 0.5 * (t1 - t0))) * d;
+    var cell = vec3<i32>(floor((start - lo) / size));
+    cell = select(cell, clamp(cell, vec3<i32>(0), dims - vec3<i32>(1)), clipped);
+    let positive = d > vec3<f32>(0.0);
+    let step = select(select(vec3<i32>(0), vec3<i32>(-1), moving), vec3<i32>(1), positive);
+    let face = vec3<f32>(cell + select(vec3<i32>(0), vec3<i32>(1), positive));
+    var t_next = select(vec3<f32>(NO_HIT), (lo + face * size - p0) / safe_d, moving);
+    let t_delta = select(vec3<f32>(NO_HIT), size / abs(safe_d), moving);
+    let plane = u32(dims.x * dims.y);
+    var t = t0;
+    loop {
+        if (*budget >= MAX_RAY_VOXELS) {
+            return none;
+        }
+        *budget += 1u;
+        var c = cell;
+        if (periodic) {
+            c = vec3<i32>(wrap_i32(cell.x, dims.x), wrap_i32(cell.y, dims.y), cell.z);
+        }
+        let local = voxels[ex.voxel_offset + u32(c.z) * plane + u32(c.y * dims.x + c.x)];
+        if (local != EMPTY_VOXEL) {
+            var hit: VoxelHit;
+            hit.t = t;
+            hit.segment = ex.segment_offset + local;
+            hit.exemplar = e;
+            return hit;
+        }
+        // Step along the axis whose next face is nearest.
+        let is_x = t_next.x <= t_next.y && t_next.x <= t_next.z;
+        let is_y = !is_x && t_next.y <= t_next.z;
+        let axis = vec3<bool>(is_x, is_y, !is_x && !is_y);
+        t = min(t_next.x, min(t_next.y, t_next.z));
+        if (t >= t1) {
+            return none;
+        }
+        cell += select(vec3<i32>(0), step, axis);
+        if (any(clipped & ((cell < vec3<i32>(0)) | (cell >= dims)))) {
+            return none;
+        }
+        t_next += select(vec3<f32>(0.0), t_delta, axis);
     }
-    return ex.segment_offset + local;
+    return none;
+}
+
+// The first occupied voxel along p0 + t d (flat-fabric cm), t in [t_start, t_end], over the
+// pattern's exemplars: the ray is cut where it crosses from one pattern block to the next, and
+// each piece is marched through its own exemplar's volume. `budget` counts the voxels visited
+// (over every call for one eye ray); past MAX_RAY_VOXELS the ray gives up.
+fn first_occupied_voxel(p0: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32, budget: ptr<function, u32>) -> VoxelHit {
+    var t = t_start;
+    var hit: VoxelHit;
+    hit.t = NO_HIT;
+    hit.segment = EMPTY_VOXEL;
+    for (var piece = 0u; piece < MAX_RAY_VOXELS; piece++) {
+        if (!(t < t_end) || *budget >= MAX_RAY_VOXELS) {
+            break;
+        }
+        let t_piece = min(block_exit(p0, d, t), t_end);
+        let nudge = VOXEL_START_NUDGE * min(fabric.block_size.x, fabric.block_size.y) / length(d);
+        let e = exemplar_at((p0 + (t + min(nudge, 0.5 * (t_piece - t))) * d).xy);
+        hit = march_exemplar(e, p0, d, t, t_piece, budget);
+        if (hit.segment != EMPTY_VOXEL) {
+            break;
+        }
+        t = t_piece;
+    }
+    return hit;
 }
 
 // a_C[j0, j1] of one channel of a global cell.

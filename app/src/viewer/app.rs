@@ -48,7 +48,7 @@ use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, prese
 use super::mesh::{MeshForm, mesh_panel};
 use super::quality::{
     FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
-    SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, VOLUME_SAMPLES_RANGE, quality_panel,
+    SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, quality_panel,
 };
 use super::render_worker::{
     DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, WorkerEvent,
@@ -1491,16 +1491,6 @@ fn apply_setting(controls: &mut RenderControls, setting: Setting) -> Result<(), 
         Setting::Spp(n) if (TARGET_SPP_RANGE.0..=TARGET_SPP_RANGE.1).contains(&n) => controls.target_spp = n,
         Setting::Spp(_) => {
             return out_of("spp", f64::from(TARGET_SPP_RANGE.0), f64::from(TARGET_SPP_RANGE.1));
-        }
-        Setting::VolumeSamples(n) if (VOLUME_SAMPLES_RANGE.0..=VOLUME_SAMPLES_RANGE.1).contains(&n) => {
-            controls.gpu.volume_samples = n;
-        }
-        Setting::VolumeSamples(_) => {
-            return out_of(
-                "volume samples",
-                f64::from(VOLUME_SAMPLES_RANGE.0),
-                f64::from(VOLUME_SAMPLES_RANGE.1),
-            );
         }
         Setting::SigmaGlo(s) if (SIGMA_GLO_RANGE_CM.0..=SIGMA_GLO_RANGE_CM.1).contains(&s) => {
             controls.gpu.sigma_glo_cm = s;

@@ -44,7 +44,6 @@ pub const TARGET_SPP_RANGE: (u32, u32) = (1, 4096);
 pub const INTERACTION_SCALE_RANGE: (f64, f64) = (0.125, 1.0);
 /// Time the automatic size while moving aims at per frame.
 pub const INTERACTION_BUDGET_MS: f64 = 100.0;
-pub const VOLUME_SAMPLES_RANGE: (u32, u32) = (2, 1024);
 pub const SIGMA_GLO_RANGE_CM: (f64, f64) = (0.0, 1.0);
 pub const PCF_RADIUS_RANGE: (f64, f64) = (0.0, 8.0);
 pub const SHADOW_BIAS_RANGE: (f64, f64) = (0.0, 8.0);
@@ -258,15 +257,6 @@ pub fn quality_panel(
             ui.selectable_value(&mut controls.components, Components::SingleOnly, "single");
             ui.selectable_value(&mut controls.components, Components::MultipleOnly, "multiple");
         });
-        ui.add(
-            egui::Slider::new(
-                &mut controls.gpu.volume_samples,
-                VOLUME_SAMPLES_RANGE.0..=VOLUME_SAMPLES_RANGE.1,
-            )
-            .logarithmic(true)
-            .text("volume samples"),
-        )
-        .on_hover_text("Samples along each eye ray per shell tetrahedron (paper: 32, 64 or 128)");
         ui.add(
             egui::Slider::new(&mut controls.gpu.pcf_radius_texels, PCF_RADIUS_RANGE.0..=PCF_RADIUS_RANGE.1)
                 .clamping(egui::SliderClamping::Edits)

@@ -24,7 +24,7 @@
 //! add-light directional|sg
 //! remove-light INDEX
 //! preset NAME                           # an environment preset, e.g. preset sunset
-//! set exposure|spp|volume-samples|sigma-glo|interaction-scale VALUE
+//! set exposure|spp|sigma-glo|interaction-scale VALUE
 //! wait-spp N                            # until the picture has N samples at full size (it
 //!                                       # fails if it has more: `set spp N` first)
 //! screenshot PATH.png                   # the window; the viewport alone goes to PATH.viewport.png
@@ -78,7 +78,6 @@ pub enum LightField {
 pub enum Setting {
     Exposure(f64),
     Spp(u32),
-    VolumeSamples(u32),
     SigmaGlo(f64),
     InteractionScale(f64),
 }
@@ -206,7 +205,6 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             Step::Set(match key {
                 "exposure" => Setting::Exposure(finite(number(args.next(), "exposure")?, "exposure")?),
                 "spp" => Setting::Spp(number(args.next(), "sample count")?),
-                "volume-samples" => Setting::VolumeSamples(number(args.next(), "volume sample count")?),
                 "sigma-glo" => Setting::SigmaGlo(finite(number(args.next(), "sigma_glo")?, "sigma_glo")?),
                 "interaction-scale" => {
                     Setting::InteractionScale(finite(number(args.next(), "scale")?, "interaction scale")?)

@@ -16,8 +16,8 @@
 //! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k);
 //! 4. the binary visibility image of the bake's resolution (nearest pixel);
 //! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
-//! 6. the method on the GPU's primary hits: the first occupied voxel of the bake's volume at the
-//!    scene's volume samples ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
+//! 6. the method on the GPU's primary hits: the first occupied voxel of the bake's volume along
+//!    the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
 //! Multiple scattering (indirect light through the exact fiber scattering function, one path
 //! per sample, then the method):
@@ -34,8 +34,8 @@
 //! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds.
 //!
 //! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
-//! adds the GPU renderer's frame (primary visibility from the voxel volume, at the scene's
-//! volume samples per tetrahedron) after each component's ladder. The GPU rung minus the last
+//! adds the GPU renderer's frame (primary visibility from the voxel volume) after each
+//! component's ladder. The GPU rung minus the last
 //! CPU rung is what the GPU renderer itself adds beyond its primary hits.
 
 use std::fmt::Write as _;
@@ -232,9 +232,8 @@ pub fn error_budget(
         &film,
         t.elapsed().as_secs_f64(),
     );
-    let voxel_hits = PrimaryHits::Voxels { samples: scene.gpu.volume_samples };
-    let voxels =
-        format!("the GPU's primary hits (first occupied voxel of {} samples)", scene.gpu.volume_samples);
+    let voxel_hits = PrimaryHits::Voxels;
+    let voxels = "the GPU's primary hits (first occupied voxel)";
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, options)?;

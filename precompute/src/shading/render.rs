@@ -22,7 +22,7 @@ use super::multiple::{light_sh, multiple_scattering};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
-use crate::bake::volume::{EMPTY_VOXEL, VoxelVolume};
+use crate::bake::volume::VoxelVolume;
 use crate::image::{Film, PixelRow};
 use crate::pathtrace::integrator::pixel_rng;
 use crate::pathtrace::{Component, Light};
@@ -103,10 +103,9 @@ impl Default for MethodOptions {
 pub enum PrimaryHits {
     /// The exact first ray–capsule hit (what the path tracer sees).
     Exact,
-    /// The GPU's eye rays (shaders/gbuffer.wgsl) on a flat swatch: the first occupied voxel of
-    /// the bake's volume among `samples` points spread evenly, with one jitter per ray, over the
-    /// ray's path through the volume's depth range; the hit is that sample point.
-    Voxels { samples: u32 },
+    /// The GPU's eye rays (shaders/gbuffer.wgsl) on a flat swatch: the first voxel of the bake's
+    /// volume that the ray crosses and that holds a segment; the hit is where the ray enters it.
+    Voxels,
 }
 
 /// Renders `scene` (its camera at its `[render]` size, its lights) with the paper's method from
@@ -146,10 +145,10 @@ pub fn render_flat_with(
         PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {
             shade_at(hit.segment, hit.local_position.as_dvec3(), wo)
         }),
-        PrimaryHits::Voxels { samples } => {
+        PrimaryHits::Voxels => {
             let volume = &baked.volume.volume;
-            render_camera_rays(scene, spp, seed, |origin, dir, t_max, rng| {
-                match voxel_hit(volume, origin, dir, t_max, samples.max(1), rng.random()) {
+            render_camera_rays(scene, spp, seed, |origin, dir, t_max, _| {
+                match voxel_hit(volume, origin, dir, t_max) {
                     Some((segment, local)) => shade_at(segment, local, -dir),
                     None => Ok(Rgb::ZERO),
                 }
@@ -158,47 +157,19 @@ pub fn render_flat_with(
     }
 }
 
-/// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first of `samples`
-/// points `t = t_in + (s + jitter) / samples · (t_out − t_in)` along the ray's path through the
-/// volume's depth range whose voxel holds a segment, as (segment, exemplar-local position).
-fn voxel_hit(
-    volume: &VoxelVolume,
-    origin: DVec3,
-    dir: DVec3,
-    t_max: f64,
-    samples: u32,
-    jitter: f64,
-) -> Option<(u32, DVec3)> {
-    let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
-    let dims = volume.dims.map(i64::from);
-    let extent = size * DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
-    let (z0, z1) = (grid_origin.z, grid_origin.z + extent.z);
-    if dir.z.abs() < 1e-12 {
-        return None;
+/// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first voxel the ray
+/// crosses that holds a segment ([`VoxelVolume::first_occupied`]), as (segment, exemplar-local
+/// position of the point where the ray enters it).
+fn voxel_hit(volume: &VoxelVolume, origin: DVec3, dir: DVec3, t_max: f64) -> Option<(u32, DVec3)> {
+    let (segment, t) = volume.first_occupied(origin, dir, 0.0, t_max)?;
+    let mut p = origin + t * dir;
+    if volume.periodic {
+        let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
+        let extent = size * DVec3::new(f64::from(volume.dims[0]), f64::from(volume.dims[1]), 1.0);
+        p.x = grid_origin.x + (p.x - grid_origin.x).rem_euclid(extent.x);
+        p.y = grid_origin.y + (p.y - grid_origin.y).rem_euclid(extent.y);
     }
-    let (ta, tb) = ((z1 - origin.z) / dir.z, (z0 - origin.z) / dir.z);
-    let (t_in, t_out) = (ta.min(tb).max(0.0), ta.max(tb).min(t_max));
-    if t_in >= t_out {
-        return None;
-    }
-    for s in 0..samples {
-        let t = t_in + (f64::from(s) + jitter) / f64::from(samples) * (t_out - t_in);
-        let mut p = origin + t * dir;
-        if volume.periodic {
-            p.x = grid_origin.x + (p.x - grid_origin.x).rem_euclid(extent.x);
-            p.y = grid_origin.y + (p.y - grid_origin.y).rem_euclid(extent.y);
-        }
-        let cell = ((p - grid_origin) / size).floor();
-        let [i, j, k] = [cell.x as i64, cell.y as i64, cell.z as i64];
-        let inside = (0..dims[0]).contains(&i) && (0..dims[1]).contains(&j) && (0..dims[2]).contains(&k);
-        if inside {
-            let id = volume.id_at(i as u32, j as u32, k as u32);
-            if id != EMPTY_VOXEL {
-                return Some((id, p));
-            }
-        }
-    }
-    None
+    Some((segment, p))
 }
 
 /// Renders `scene`'s camera view (flat swatch) with `shade(hit, ωo, rng)` at every primary
@@ -289,35 +260,29 @@ mod tests {
     }
 
     #[test]
-    fn voxel_hits_stop_at_the_first_occupied_sample() {
+    fn voxel_hits_stop_where_the_ray_enters_the_first_occupied_voxel() {
         let volume = one_voxel(false, [1, 2, 1]);
-        // Straight down through x = 1.5, y = 2.5: the slab is z in [0, 4], samples at 0.5, 1.5,
-        // ... from the top with jitter 0.5; the first one in voxel k = 1 is z = 1.5.
-        let (id, p) =
-            voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 4, 0.5).unwrap();
+        // Straight down through x = 1.5, y = 2.5: the ray enters voxel k = 1 at its top, z = 2.
+        let (id, p) = voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
-        assert!((p - DVec3::new(1.5, 2.5, 1.5)).length() < 1e-12, "{p}");
-        // Beside the voxel, or cut short by the ground above it, or parallel to the slab: none.
-        assert!(voxel_hit(&volume, DVec3::new(0.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 64, 0.5).is_none());
-        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, 7.9, 64, 0.5).is_none());
-        assert!(voxel_hit(&volume, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY, 64, 0.5).is_none());
-        // Too few samples step over it (as the GPU's would).
-        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY, 2, 0.0).is_none());
+        assert!((p - DVec3::new(1.5, 2.5, 2.0)).length() < 1e-12, "{p}");
+        // Beside the voxel, or cut short by the ground above it: none.
+        assert!(voxel_hit(&volume, DVec3::new(0.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY).is_none());
+        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, 7.9).is_none());
+        // Level with the slab, through the voxel's row: it enters at x = 1.
+        let (_, p) = voxel_hit(&volume, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY).unwrap();
+        assert!((p - DVec3::new(1.0, 2.5, 1.5)).length() < 1e-12, "{p}");
     }
 
     #[test]
     fn periodic_voxel_hits_wrap_across_the_fabric() {
         let volume = one_voxel(true, [3, 0, 2]);
-        // Three periods over and one back: x = 15.5 wraps to 3.5, y = -3.5 to 0.5; samples every
-        // 0.5 cm from z = 3.75 down, the first in k = 2 at z = 2.75.
-        let (id, p) =
-            voxel_hit(&volume, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY, 8, 0.5).unwrap();
+        // Three periods over and one back: x = 15.5 wraps to 3.5, y = -3.5 to 0.5; the ray
+        // enters voxel k = 2 at z = 3.
+        let (id, p) = voxel_hit(&volume, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
-        assert!((p - DVec3::new(3.5, 0.5, 2.75)).length() < 1e-12, "exemplar-local position {p}");
+        assert!((p - DVec3::new(3.5, 0.5, 3.0)).length() < 1e-12, "exemplar-local position {p}");
         let not_periodic = one_voxel(false, [3, 0, 2]);
-        assert!(
-            voxel_hit(&not_periodic, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY, 8, 0.5)
-                .is_none()
-        );
+        assert!(voxel_hit(&not_periodic, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY).is_none());
     }
 }

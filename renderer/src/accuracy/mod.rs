@@ -10,7 +10,7 @@
 //!   channel.
 //! - Per configuration [`run`] renders an orthographic view of the flat swatch
 //!   (`height_cm = 0.4`, a few weave periods) with: the path tracer at `reference_spp` (the
-//!   reference), the GPU method once per entry of `volume_samples`, optionally the CPU version
+//!   reference), the GPU method, optionally the CPU version
 //!   of the method (`shading::render_flat`, exact fiber intersection), and the path tracer again
 //!   at each `ladder_spp` with another seed (what a cheaper path-traced image would cost).
 //! - Errors ([`Report`]): the RMSE over all configurations and channels of the image-average
@@ -98,8 +98,8 @@ pub struct ExperimentSettings {
     pub reference_spp: u32,
     /// Samples per pixel of the method's images (GPU and CPU).
     pub method_spp: u32,
-    /// One GPU run per entry (volume samples per tetrahedron).
-    pub volume_samples: Vec<u32>,
+    /// Run the GPU method.
+    pub gpu_method: bool,
     /// Also run the CPU version of the method.
     pub cpu_method: bool,
     /// Path-traced images at these spp, for the equal-error fit.
@@ -116,8 +116,8 @@ impl ExperimentSettings {
         if self.ladder_spp.is_empty() || self.ladder_spp.contains(&0) {
             return bad("the path-tracer ladder needs at least one spp, each >= 1");
         }
-        if self.volume_samples.iter().any(|&n| !(1..=1024).contains(&n)) {
-            return bad("volume samples must be in 1..=1024");
+        if !self.gpu_method && !self.cpu_method {
+            return bad("run the GPU method, the CPU method or both");
         }
         Ok(())
     }
@@ -215,11 +215,10 @@ pub fn run(
     let path_settings =
         |spp, seed| RenderSettings { spp, max_depth: settings.max_depth, component: Component::All, seed };
     let mut reference = MethodResult::new("path tracer (reference)".into(), settings.reference_spp, n);
-    let mut methods: Vec<MethodResult> = settings
-        .volume_samples
-        .iter()
-        .map(|v| MethodResult::new(format!("GPU method, {v} volume samples"), settings.method_spp, n))
-        .collect();
+    let mut methods = Vec::new();
+    if settings.gpu_method {
+        methods.push(MethodResult::new("GPU method".into(), settings.method_spp, n));
+    }
     if settings.cpu_method {
         methods.push(MethodResult::new("CPU method (exact hits)".into(), settings.method_spp, n));
     }
@@ -251,12 +250,11 @@ pub fn run(
         average_variance.push(avg_var);
         pixel_variance.push(px_var);
 
-        for (result, &samples) in methods.iter_mut().zip(&settings.volume_samples) {
-            frame.gpu.volume_samples = samples;
+        if settings.gpu_method {
             let started = Instant::now();
             let out = session.render(scene, &frame)?;
             let seconds = started.elapsed().as_secs_f64();
-            result.add(&out.radiance_image(), &truth, seconds);
+            methods[0].add(&out.radiance_image(), &truth, seconds);
         }
         if settings.cpu_method {
             let started = Instant::now();

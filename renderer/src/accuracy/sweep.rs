@@ -161,13 +161,12 @@ pub enum Knob {
     IirtfPaths,
     CellSize,
     CellDepth,
-    VolumeSamples,
     Spp,
     SigmaGlo,
 }
 
 impl Knob {
-    pub const ALL: [Knob; 11] = [
+    pub const ALL: [Knob; 10] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::SvfResolution,
@@ -176,7 +175,6 @@ impl Knob {
         Knob::IirtfPaths,
         Knob::CellSize,
         Knob::CellDepth,
-        Knob::VolumeSamples,
         Knob::Spp,
         Knob::SigmaGlo,
     ];
@@ -193,7 +191,6 @@ impl Knob {
             Self::IirtfPaths => "iirtf_paths_per_cell",
             Self::CellSize => "cell_size_mfp",
             Self::CellDepth => "cell_depth_mfp",
-            Self::VolumeSamples => "volume_samples",
             Self::Spp => "spp",
             Self::SigmaGlo => "sigma_glo_cm",
         }
@@ -210,7 +207,7 @@ impl Knob {
     /// Whether it changes the bake (else only the frame).
     #[must_use]
     pub fn is_bake_knob(self) -> bool {
-        !matches!(self, Self::VolumeSamples | Self::Spp | Self::SigmaGlo)
+        !matches!(self, Self::Spp | Self::SigmaGlo)
     }
 
     /// The values swept by default (around the draft preset; the GPU holds SH order 6 at most).
@@ -225,7 +222,6 @@ impl Knob {
             Self::IirtfPaths => vec![24.0, 48.0, 96.0, 192.0, 384.0],
             Self::CellSize => vec![2.0, 3.0, 4.0, 6.0],
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
-            Self::VolumeSamples => vec![16.0, 32.0, 64.0, 128.0],
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
         }
@@ -242,7 +238,6 @@ impl Knob {
             Self::IirtfPaths => bake.iirtf_paths_per_cell = count,
             Self::CellSize => bake.cell_size_mfp = value,
             Self::CellDepth => bake.cell_depth_mfp = value,
-            Self::VolumeSamples => frame.gpu.volume_samples = count as u32,
             Self::Spp => frame.spp = count as u32,
             Self::SigmaGlo => frame.gpu.sigma_glo_cm = value,
         }
@@ -260,7 +255,6 @@ impl Knob {
             Self::IirtfPaths => bake.iirtf_paths_per_cell as f64,
             Self::CellSize => bake.cell_size_mfp,
             Self::CellDepth => bake.cell_depth_mfp,
-            Self::VolumeSamples => f64::from(frame.gpu.volume_samples),
             Self::Spp => f64::from(frame.spp),
             Self::SigmaGlo => frame.gpu.sigma_glo_cm,
         }
@@ -575,7 +569,6 @@ pub struct Point {
     pub method: Method,
     pub bake: BakeSettings,
     pub spp: u32,
-    pub volume_samples: u32,
     pub sigma_glo_cm: f64,
     /// In [`Sweep::fabrics`] order.
     pub fabrics: Vec<FabricResult>,
@@ -586,8 +579,7 @@ impl Point {
     #[must_use]
     pub fn value_of(&self, knob: Knob) -> f64 {
         let mut frame = placeholder_frame();
-        (frame.spp, frame.gpu.volume_samples, frame.gpu.sigma_glo_cm) =
-            (self.spp, self.volume_samples, self.sigma_glo_cm);
+        (frame.spp, frame.gpu.sigma_glo_cm) = (self.spp, self.sigma_glo_cm);
         knob.value(&self.bake, &frame)
     }
 
@@ -826,7 +818,6 @@ pub fn run(
             method: Method::Gpu,
             bake: *bake_settings,
             spp: 0,
-            volume_samples: 0,
             sigma_glo_cm: 0.0,
             fabrics: Vec::new(),
         };
@@ -842,8 +833,7 @@ pub fn run(
                 // Bake knobs were applied above; this applies frame knobs.
                 knob.apply(value, &mut bake_settings.clone(), &mut frame);
             }
-            (gpu_point.spp, gpu_point.volume_samples, gpu_point.sigma_glo_cm) =
-                (frame.spp, frame.gpu.volume_samples, frame.gpu.sigma_glo_cm);
+            (gpu_point.spp, gpu_point.sigma_glo_cm) = (frame.spp, frame.gpu.sigma_glo_cm);
             // One device, re-uploaded only when the fabric or bake changes.
             let reuse = matches!(&session, Some((_, f, k)) if *f == fabric_index && *k == key);
             if !reuse {
@@ -879,7 +869,7 @@ pub fn run(
                 )?);
             }
         }
-        (cpu_point.spp, cpu_point.volume_samples, cpu_point.sigma_glo_cm) = (settings.method_spp, 0, 0.0);
+        (cpu_point.spp, cpu_point.sigma_glo_cm) = (settings.method_spp, 0.0);
         points.push(gpu_point);
         if !cpu_point.fabrics.is_empty() {
             points.push(cpu_point);
@@ -1132,7 +1122,7 @@ impl Sweep {
     #[must_use]
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,volume_samples,sigma_glo_cm,sh_order,pca_components,svf_resolution,sos_count,sos_sharpness,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
+            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,sigma_glo_cm,sh_order,pca_components,svf_resolution,sos_count,sos_sharpness,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
         );
         for stage in Stage::ALL {
             let _ = write!(out, ",stage_{}_s", stage.name());
@@ -1161,14 +1151,13 @@ impl Sweep {
                 let b = &point.bake;
                 let _ = write!(
                     out,
-                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{},{}",
+                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{}",
                     fabric.name,
                     point.label.replace(',', ";"),
                     result.bake_seconds(),
                     1e3 * result.frame_seconds,
                     result.resident_bytes as f64 / 1e6,
                     point.spp,
-                    point.volume_samples,
                     point.sigma_glo_cm,
                     b.sh_order,
                     b.pca_components,
@@ -1381,6 +1370,6 @@ mod tests {
             }
         }
         let e = Knob::parse("sh").unwrap_err().to_string();
-        assert!(e.contains("sh_order") && e.contains("volume_samples"), "{e}");
+        assert!(e.contains("sh_order") && e.contains("sigma_glo_cm"), "{e}");
     }
 }

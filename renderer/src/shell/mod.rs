@@ -38,6 +38,8 @@ pub use mesh::{
     BaseMesh, DEGENERATE_SINE, MAX_COORDINATE_CM, MAX_DIAGONAL_CM, MIN_DIAGONAL_CM, RepairReport,
 };
 
+/// [`Shell::tetra_neighbors`] of a face on the shell's surface.
+pub const NO_NEIGHBOR: u32 = u32::MAX;
 /// Thinnest supported shell, in centimetres (absolute floor; see [`MIN_THICKNESS_RELATIVE`]).
 pub const MIN_THICKNESS_CM: f32 = 1e-6;
 /// The shell must be at least this times the mesh's largest |coordinate| thick, so that f32
@@ -301,6 +303,44 @@ impl Shell {
             .as_mat4()
         };
         (affine(world, uvw), affine(uvw, world))
+    }
+
+    /// For each tetrahedron, the tetrahedron across each of its faces: entry `k` is the one
+    /// sharing the face opposite corner `k` (the corners other than `k`), or [`NO_NEIGHBOR`]
+    /// where that face is on the shell's surface. Eye rays walk from tetrahedron to tetrahedron
+    /// through these (shaders/gbuffer.wgsl).
+    #[must_use]
+    pub fn tetra_neighbors(&self) -> Vec<[u32; 4]> {
+        let face_key = |tet: &[u32; 4], k: usize| {
+            let mut key = [0_u32; 3];
+            let mut n = 0;
+            for (corner, &v) in tet.iter().enumerate() {
+                if corner != k {
+                    key[n] = v;
+                    n += 1;
+                }
+            }
+            key.sort_unstable();
+            key
+        };
+        let mut first_use: std::collections::HashMap<[u32; 3], (u32, usize)> =
+            std::collections::HashMap::with_capacity(2 * self.tetra_indices.len());
+        let mut neighbors = vec![[NO_NEIGHBOR; 4]; self.tetra_indices.len()];
+        for (t, tet) in self.tetra_indices.iter().enumerate() {
+            for k in 0..4 {
+                match first_use.entry(face_key(tet, k)) {
+                    std::collections::hash_map::Entry::Occupied(other) => {
+                        let (u, j) = *other.get();
+                        neighbors[t][k] = u;
+                        neighbors[u as usize][j] = t as u32;
+                    }
+                    std::collections::hash_map::Entry::Vacant(slot) => {
+                        slot.insert((t as u32, k));
+                    }
+                }
+            }
+        }
+        neighbors
     }
 
     /// Total world volume of the shell (cm³), the sum of its tetrahedra.

@@ -187,6 +187,32 @@ fn internal_faces_pair_up_and_boundary_is_top_bottom_and_border() {
 }
 
 #[test]
+fn tetra_neighbors_share_a_face_both_ways_and_leave_only_the_surface_open() {
+    for (name, shell) in test_shells() {
+        let neighbors = shell.tetra_neighbors();
+        let mut open = 0;
+        for (t, (tet, across)) in shell.tetra_indices.iter().zip(&neighbors).enumerate() {
+            for (k, &u) in across.iter().enumerate() {
+                if u == NO_NEIGHBOR {
+                    open += 1;
+                    continue;
+                }
+                let other = shell.tetra_indices[u as usize];
+                let shared: Vec<u32> = tet.iter().copied().filter(|v| other.contains(v)).collect();
+                assert_eq!(shared.len(), 3, "{name}: tetrahedra {t} and {u} share {shared:?}");
+                assert!(!shared.contains(&tet[k]), "{name}: face {k} of {t} is not opposite corner {k}");
+                assert!(
+                    neighbors[u as usize].contains(&(t as u32)),
+                    "{name}: {u} does not point back to {t}"
+                );
+            }
+        }
+        let surface = shell.top_triangles.len() + shell.bottom_triangles.len() + shell.side_triangles.len();
+        assert_eq!(open, surface, "{name}: open faces are the surface triangles");
+    }
+}
+
+#[test]
 fn surfaces_face_outward() {
     for (name, shell) in test_shells() {
         // The closed surface encloses exactly the tetrahedra's volume, with the right sign.
