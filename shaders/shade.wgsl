@@ -12,24 +12,11 @@ override ENABLE_SSDF_SIGN: bool = true;
 override ENABLE_SUM_OF_SG: bool = true;
 override ENABLE_SSDF_ERF: bool = true;
 override ENABLE_GLOBAL_VISIBILITY: bool = true;
+// The light arriving in every cell, A c_in, was computed once for the frame (transfer.wgsl):
+// the light's SH is the same at every pixel (a shell with one flat-fabric frame and no shadow
+// maps), so each pixel reads it instead of multiplying eight transfer matrices.
+override ENABLE_FRAME_TRANSFER: bool = false;
 
-const LIGHT_DIRECTIONAL: u32 = 0u;
-const LIGHT_SG: u32 = 1u;
-
-struct LightGpu {
-    // Unit direction toward the light (world).
-    direction: vec3<f32>,
-    kind: u32,
-    // Irradiance (directional) or intensity (SG), linear RGB.
-    color: vec3<f32>,
-    sharpness: f32,
-    // Shadow/visibility layer, or -1 when the light is unoccluded.
-    layer: i32,
-    // Weights of the sum-of-SGs and erf-SSDF paths (they add to 1).
-    w_sum_of_sg: f32,
-    w_ssdf_erf: f32,
-    _pad: f32,
-}
 
 struct ShadeUniforms {
     // x: lights, y: image width, z: image height, w: unused.
@@ -56,6 +43,32 @@ struct TetraGpu {
 @group(0) @binding(5) var visibility_sharp: texture_2d_array<f32>;
 @group(0) @binding(6) var visibility_blurred: texture_2d_array<f32>;
 @group(0) @binding(7) var<storage, read_write> accumulation: array<vec4<f32>>;
+// A c_in per cell for this frame, `cell * sh_count + j` (ENABLE_FRAME_TRANSFER; else unused).
+@group(0) @binding(8) var<storage, read> cell_transfer: array<vec4<f32>>;
+
+// transferred_at (shared/shading.wgsl) from the frame's cell_transfer: the cells' A c_in,
+// interpolated around the shaded point, or the segment's own cell's.
+fn frame_transferred_at(e: u32, segment: u32, p: vec3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
+    let n = fabric.sh_count;
+    let around = cell_interpolation(e, p);
+    var found = false;
+    for (var k = 0u; k < 8u; k++) {
+        let w = around.weights[k];
+        if (w > 0.0) {
+            let base = around.cells[k] * n;
+            for (var j = 0u; j < n; j++) {
+                (*coeffs)[j] += w * cell_transfer[base + j].xyz;
+            }
+            found = true;
+        }
+    }
+    let own = segments[segment].cell;
+    if (!found && cell_flags[own] != 0u) {
+        for (var j = 0u; j < n; j++) {
+            (*coeffs)[j] += cell_transfer[own * n + j].xyz;
+        }
+    }
+}
 
 // Bilinear lookup of a (V * coverage, coverage) texture at shell coordinates uv (cm): V
 // averaged over covered texels, 1 where nothing is covered.
@@ -136,7 +149,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             }
             radiance += v_sharp * light.color * single;
         }
-        if (ENABLE_MULTIPLE && v_blurred > 0.0) {
+        if (ENABLE_MULTIPLE && !ENABLE_FRAME_TRANSFER && v_blurred > 0.0) {
             var sharpness = -1.0;
             if (light.kind == LIGHT_SG) {
                 sharpness = light.sharpness;
@@ -150,7 +163,16 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         // The shaded point in the exemplar's coordinates (as the G-buffer pass found it).
         let z = fabric.z_range.x + clamp(uvw.z, 0.0, 1.0) * (fabric.z_range.y - fabric.z_range.x);
         let p = vec3<f32>(uvw.xy, z);
-        radiance += max(shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
+        if (ENABLE_FRAME_TRANSFER) {
+            var coeffs: array<vec3<f32>, 49>;
+            for (var j = 0u; j < fabric.sh_count; j++) {
+                coeffs[j] = vec3<f32>(0.0);
+            }
+            frame_transferred_at(e, segment, p, &coeffs);
+            radiance += max(multiple_from_transferred(segment, wo, &coeffs), vec3<f32>(0.0));
+        } else {
+            radiance += max(shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
+        }
     }
     let index = id.y * width + id.x;
     accumulation[index] += vec4<f32>(radiance, 1.0);

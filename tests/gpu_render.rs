@@ -168,6 +168,37 @@ fn sample_batches_add_up_to_one_frame() {
 }
 
 #[test]
+fn the_cell_transfer_once_per_frame_equals_the_per_pixel_product() {
+    // A flat swatch lit from above: every pixel receives the same light SH, so each cell's A c_in
+    // is computed once for the frame (the plan's cell-transfer pass) instead of by every pixel.
+    // Same image as the per-pixel product (the same f32 operations in the same order), for a
+    // directional light and an SG light, and multiple scattering is really there.
+    let Some(gpu) = Gpu::for_test("the_cell_transfer_once_per_frame_equals_the_per_pixel_product") else {
+        return;
+    };
+    let sky =
+        "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
+    let scene = scene(&format!("{FABRIC}{}", camera_above(0.4)), &[SUN, sky]);
+    let mut settings = frame_settings(&scene, Components::MultipleOnly);
+    (settings.width, settings.height, settings.spp) = (40, 32, 2);
+    let mut session = SceneRenderer::with_gpu(gpu, &scene, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let once = session.render(&scene, &settings).expect("frame renders");
+    assert!(pass_names(&once).iter().any(|p| p == "cell transfer A c_in"), "{}", once.plan);
+    let per_pixel_settings = FrameSettings { frame_transfer: false, ..settings.clone() };
+    let per_pixel = session.render(&scene, &per_pixel_settings).expect("frame renders");
+    assert!(!per_pixel.plan.cell_transfer, "{}", per_pixel.plan);
+    let mut largest = 0.0_f32;
+    for (a, b) in once.radiance.iter().zip(&per_pixel.radiance) {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-3), "{a:?} vs {b:?}");
+            largest = largest.max(b[c]);
+        }
+    }
+    assert!(largest > 0.01, "multiple scattering lights the frame ({largest})");
+}
+
+#[test]
 fn a_mesh_edit_replaces_only_the_shell() {
     // The viewer's mesh edit: set_shell on a renderer of the swatch gives the same picture as a
     // renderer built on the cushion, without uploading the fabric again.

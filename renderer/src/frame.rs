@@ -11,14 +11,18 @@
 //! 3. the visibility V[u, v] per light (PCF or PCSS lookups at X), stored as
 //!    (V · coverage, coverage);
 //! 4. its Gaussian blur by σ_glo (separable, along u then v);
-//! 5. per sample: the G-buffer (the shell's surface faces where eye rays enter it; each
+//! 5. when every pixel receives the same light SH (a shell with one flat-fabric frame and no
+//!    shadow maps: the flat swatch), the light arriving in every IIRTF cell, A c_in, once for
+//!    the frame (shaders/transfer.wgsl), which the shading pass then interpolates instead of
+//!    multiplying eight transfer matrices per pixel;
+//! 6. per sample: the G-buffer (the shell's surface faces where eye rays enter it; each
 //!    fragment walks its ray through the tetrahedra, stepping voxel by voxel to the first
 //!    occupied voxel; jittered sub-pixel position), then the shading pass, which adds radiance
 //!    to an accumulation buffer;
-//! 6. tone mapping with exposure into an 8-bit image.
+//! 7. tone mapping with exposure into an 8-bit image.
 //!
-//! Passes 1–4 run once per frame (they do not depend on the pixel jitter), and only when the
-//! plan has shadow maps. The shading pipeline is specialized by override constants from the
+//! Passes 1–5 run once per frame (they do not depend on the pixel jitter); 1–4 only when the
+//! plan has shadow maps, 5 only when it has none and the shell one frame. The shading pipeline is specialized by override constants from the
 //! plan, so a local-visibility path no light needs is not compiled. With `TIMESTAMP_QUERY`
 //! each pass is timed on the GPU; [`Frame::timings`] sums them per pass.
 //!
@@ -76,6 +80,10 @@ pub struct FrameSettings {
     pub filmic: bool,
     pub components: Components,
     pub gpu: GpuSection,
+    /// Compute each cell's transferred light once per frame where every pixel receives the same
+    /// light SH (one flat-fabric frame, no shadow maps); `false` forces the per-pixel product
+    /// (the two agree to f32 rounding; tests compare them).
+    pub frame_transfer: bool,
 }
 
 /// Time one pass took, summed over the frame's samples.
@@ -124,6 +132,16 @@ struct FrameUniformsGpu {
     film: [f32; 4],
 }
 const _: () = assert!(size_of::<FrameUniformsGpu>() == 128);
+
+/// Twin of `TransferUniforms` in shaders/transfer.wgsl.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TransferUniformsGpu {
+    counts: [u32; 4],
+    /// Rows of the shell's common world → uvw linear map; `[0][3]` the slab thickness (cm).
+    uvw_from_world: [[f32; 4]; 3],
+}
+const _: () = assert!(size_of::<TransferUniformsGpu>() == 64);
 
 /// Twin of `TetraGpu` in shaders/gbuffer.wgsl and shaders/shade.wgsl.
 #[repr(C)]
@@ -210,6 +228,9 @@ struct ShellGpu {
     /// the G-buffer pass rasterizes.
     surface_faces: wgpu::Buffer,
     surface_face_count: u32,
+    /// The rows of the world → uvw map's linear part when every tetrahedron has the same one
+    /// (within [`UNIFORM_FRAME_TOLERANCE`]): the flat swatch.
+    uniform_frame: Option<[[f32; 4]; 3]>,
     surface_vertices: wgpu::Buffer,
     /// Top-surface vertices come first in `surface_vertices`.
     top_vertex_count: u32,
@@ -229,6 +250,7 @@ struct ShadeVariant {
     sum_of_sg: bool,
     ssdf_erf: bool,
     global_visibility: bool,
+    frame_transfer: bool,
 }
 
 /// Shell-mapped fabric renderer on one device.
@@ -247,6 +269,8 @@ pub struct Renderer {
     blur_pipeline: wgpu::ComputePipeline,
     tonemap_pipeline: wgpu::ComputePipeline,
     shade_layout: wgpu::BindGroupLayout,
+    transfer_layout: wgpu::BindGroupLayout,
+    transfer_pipeline: wgpu::ComputePipeline,
     shade_pipelines: HashMap<ShadeVariant, wgpu::ComputePipeline>,
     timestamps: bool,
 }
@@ -376,6 +400,23 @@ fn tetra_gpu(corners: &[crate::shell::ShellVertex; 4], neighbors: [u32; 4]) -> T
     TetraGpu { uvw_from_world: rows.map(|r| r.to_array()), planes, neighbors }
 }
 
+/// Largest difference, relative to the row's length, between two tetrahedra's linear maps that
+/// still counts as one frame (f32 rounding of maps computed per tetrahedron: ~1e-7).
+const UNIFORM_FRAME_TOLERANCE: f32 = 1e-5;
+
+/// The linear part of the world → uvw map shared by every tetrahedron, if they share one.
+fn uniform_frame(tetras: &[TetraGpu]) -> Option<[[f32; 4]; 3]> {
+    let first = tetras.first()?;
+    let rows = first.uvw_from_world.map(|r| glam::Vec3::new(r[0], r[1], r[2]));
+    let same = tetras.iter().all(|t| {
+        (0..3).all(|i| {
+            let row = glam::Vec3::new(t.uvw_from_world[i][0], t.uvw_from_world[i][1], t.uvw_from_world[i][2]);
+            (row - rows[i]).length() <= UNIFORM_FRAME_TOLERANCE * rows[i].length()
+        })
+    });
+    same.then(|| rows.map(|r| r.extend(0.0).to_array()))
+}
+
 fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> ShellGpu {
     let corners: Vec<[f32; 4]> =
         shell.tetrahedra.iter().flat_map(|t| t.iter().map(|v| v.position.extend(1.0).to_array())).collect();
@@ -421,6 +462,7 @@ fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> Sh
             usage,
         ),
         surface_face_count: surface_faces.len() as u32,
+        uniform_frame: uniform_frame(&tetras),
         surface_vertices: make_buffer(
             device,
             queue,
@@ -437,7 +479,7 @@ fn upload_shell(device: &wgpu::Device, queue: &wgpu::Queue, shell: &Shell) -> Sh
 }
 
 /// The renderer needs this many storage buffers in one shader stage (shading pass).
-const STORAGE_BUFFERS_NEEDED: u32 = 16;
+const STORAGE_BUFFERS_NEEDED: u32 = 17;
 
 impl Renderer {
     /// Uploads the shell and builds the pipelines. `fabric` must come from the same device.
@@ -582,8 +624,27 @@ impl Renderer {
                 texture_entry(5, float, array),
                 texture_entry(6, float, array),
                 storage_entry(7, compute, false),
+                storage_entry(8, compute, true),
             ],
         });
+        let transfer_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("twill.transfer.bind_group_layout"),
+            entries: &[
+                uniform_entry(0, compute),
+                storage_entry(1, compute, true),
+                storage_entry(2, compute, false),
+            ],
+        });
+        let transfer_pipeline = {
+            let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("twill.transfer.pipeline_layout"),
+                bind_group_layouts: &[Some(&transfer_layout), Some(&fabric.layout)],
+                immediate_size: 0,
+            });
+            let module =
+                shader_module(&device, "twill.transfer.shader", pass_source(true, shaders::TRANSFER));
+            compute_pipeline(&device, "twill.transfer.pipeline", &module, Some(&layout), &[])
+        };
         if let Some(error) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Gpu { label: "pipeline setup".into(), message: error.to_string() });
         }
@@ -603,6 +664,8 @@ impl Renderer {
             blur_pipeline,
             tonemap_pipeline,
             shade_layout,
+            transfer_layout,
+            transfer_pipeline,
             shade_pipelines: HashMap::new(),
             timestamps,
         })
@@ -639,7 +702,7 @@ impl Renderer {
     /// Plans a frame for these lights and settings.
     #[must_use]
     pub fn plan(&self, lights: &[Light], settings: &FrameSettings) -> FramePlan {
-        plan_frame(lights, settings, self.shell.flat_normal)
+        plan_frame(lights, settings, self.shell.flat_normal, self.shell.uniform_frame.is_some())
     }
 
     fn shade_pipeline(&mut self, variant: ShadeVariant) -> &wgpu::ComputePipeline {
@@ -660,9 +723,65 @@ impl Renderer {
                 ("ENABLE_SUM_OF_SG", flag(variant.sum_of_sg)),
                 ("ENABLE_SSDF_ERF", flag(variant.ssdf_erf)),
                 ("ENABLE_GLOBAL_VISIBILITY", flag(variant.global_visibility)),
+                ("ENABLE_FRAME_TRANSFER", flag(variant.frame_transfer)),
             ];
             compute_pipeline(device, "twill.shade.pipeline", &module, Some(&layout), &constants)
         })
+    }
+
+    /// Records the once-per-frame cell transfer (shaders/transfer.wgsl) when the plan has it,
+    /// and returns its output buffer (`cells × sh_count` vec4s); otherwise a one-element buffer
+    /// the shading pass binds but does not read.
+    fn encode_cell_transfer(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        plan: &FramePlan,
+        lights: &wgpu::Buffer,
+        light_count: usize,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::STORAGE;
+        let frame = self.shell.uniform_frame.filter(|_| plan.cell_transfer);
+        let Some(mut rows) = frame else {
+            return make_buffer(&self.device, &self.queue, "twill.transfer.unused", &[0; 16], usage);
+        };
+        let cells = self.fabric.arrays.cell_flags.len() as u32;
+        let sh_count = self.fabric.arrays.header.sh_count;
+        rows[0][3] = self.fabric_z[1];
+        let uniforms =
+            TransferUniformsGpu { counts: [light_count as u32, cells, 0, 0], uvw_from_world: rows };
+        let uniforms = make_buffer(
+            &self.device,
+            &self.queue,
+            "twill.transfer.uniforms",
+            bytemuck::bytes_of(&uniforms),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let output = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("twill.transfer.cells"),
+            size: (u64::from(cells.max(1)) * u64::from(sh_count) * 16).max(16),
+            usage,
+            mapped_at_creation: false,
+        });
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("twill.transfer.bind_group"),
+            layout: &self.transfer_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniforms.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: lights.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: output.as_entire_binding() },
+            ],
+        });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("twill.transfer.pass"),
+            timestamp_writes: timestamps,
+        });
+        pass.set_pipeline(&self.transfer_pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.set_bind_group(1, &self.fabric.bind_group, &[]);
+        pass.dispatch_workgroups(cells.div_ceil(64), 1, 1);
+        drop(pass);
+        output
     }
 
     /// `settings` within the adapter's texture limit: an image larger than
@@ -750,6 +869,7 @@ impl Renderer {
             sum_of_sg: plan.uses(LocalVisibility::SumOfSg),
             ssdf_erf: plan.uses(LocalVisibility::SsdfErf),
             global_visibility: plan.shadow_maps,
+            frame_transfer: plan.cell_transfer,
         };
         self.shade_pipeline(variant);
         let shade_pipeline = &self.shade_pipelines[&variant];
@@ -758,6 +878,7 @@ impl Renderer {
         let pass_instances = plan.shadow_layers() as usize
             + if plan.shadow_maps { 2 } else { 0 }
             + if plan.blur { 2 } else { 0 }
+            + usize::from(plan.cell_transfer)
             + 2 * settings.spp as usize
             + 1;
         let queries = self.timestamps.then(|| {
@@ -868,6 +989,11 @@ impl Renderer {
             bytemuck::cast_slice(if lights_gpu.is_empty() { &placeholder } else { &lights_gpu }),
             wgpu::BufferUsages::STORAGE,
         );
+        let cell_transfer =
+            self.encode_cell_transfer(&mut encoder, &plan, &lights_buffer, lights_gpu.len(), {
+                let query = if plan.cell_transfer { next_query("cell transfer A c_in") } else { None };
+                compute_timestamps(queries.as_ref(), query)
+            });
         let shade_uniforms = ShadeUniformsGpu {
             counts: [lights_gpu.len() as u32, width, height, 0],
             eye,
@@ -906,6 +1032,7 @@ impl Renderer {
                     resource: wgpu::BindingResource::TextureView(&array_view(&vis_blurred)),
                 },
                 wgpu::BindGroupEntry { binding: 7, resource: accumulation.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 8, resource: cell_transfer.as_entire_binding() },
             ],
         });
 
@@ -1388,9 +1515,15 @@ fn light_direction(light: &Light) -> DVec3 {
     }
 }
 
-/// Plans a frame (also usable without a device, e.g. for `--print-plan`).
+/// Plans a frame (also usable without a device, e.g. for `--print-plan`). `uniform_frame`:
+/// every tetrahedron of the shell has the same world → flat-fabric frame.
 #[must_use]
-pub fn plan_frame(lights: &[Light], settings: &FrameSettings, flat_normal: Option<Vec3>) -> FramePlan {
+pub fn plan_frame(
+    lights: &[Light],
+    settings: &FrameSettings,
+    flat_normal: Option<Vec3>,
+    uniform_frame: bool,
+) -> FramePlan {
     let plan_lights: Vec<PlanLight> = lights
         .iter()
         .map(|l| match *l {
@@ -1405,6 +1538,7 @@ pub fn plan_frame(lights: &[Light], settings: &FrameSettings, flat_normal: Optio
             components: settings.components,
             sigma_glo_cm: settings.gpu.sigma_glo_cm,
             spp: settings.spp,
+            uniform_frame: uniform_frame && settings.frame_transfer,
         },
     )
 }

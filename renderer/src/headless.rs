@@ -89,6 +89,7 @@ pub fn frame_settings(scene: &Scene, components: Components) -> FrameSettings {
         filmic: true,
         components,
         gpu: scene.gpu,
+        frame_transfer: true,
     }
 }
 

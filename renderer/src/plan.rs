@@ -85,17 +85,34 @@ pub struct PlanInputs {
     /// σ_glo in cm.
     pub sigma_glo_cm: f64,
     pub spp: u32,
+    /// Every tetrahedron of the shell has the same world → flat-fabric frame (the flat swatch):
+    /// then the lights' SH is the same at every pixel unless shadow maps vary it.
+    pub uniform_frame: bool,
 }
 
 /// One pass of a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Pass {
-    ShadowMap { light: usize, filter: GlobalVisibility },
+    ShadowMap {
+        light: usize,
+        filter: GlobalVisibility,
+    },
     TopSurface,
-    Visibility { lights: usize },
-    Blur { sigma_glo_cm: f64 },
+    Visibility {
+        lights: usize,
+    },
+    Blur {
+        sigma_glo_cm: f64,
+    },
+    /// The light arriving in every IIRTF cell, A c_in, once per frame (when c_in is the same at
+    /// every pixel: one flat-fabric frame, no shadow maps).
+    CellTransfer,
     GBuffer,
-    Shade { single: bool, multiple: bool, paths: Vec<LocalVisibility> },
+    Shade {
+        single: bool,
+        multiple: bool,
+        paths: Vec<LocalVisibility>,
+    },
     ToneMap,
 }
 
@@ -108,6 +125,7 @@ impl Pass {
             Self::TopSurface => "top surface X[u,v]".into(),
             Self::Visibility { .. } => "visibility V[u,v]".into(),
             Self::Blur { .. } => "blur sigma_glo".into(),
+            Self::CellTransfer => "cell transfer A c_in".into(),
             Self::GBuffer => "eye rays (G-buffer)".into(),
             Self::Shade { .. } => "shading".into(),
             Self::ToneMap => "tone map".into(),
@@ -126,6 +144,8 @@ pub struct FramePlan {
     pub multiple: bool,
     pub shadow_maps: bool,
     pub blur: bool,
+    /// Multiple scattering reads each cell's A c_in from a once-per-frame pass.
+    pub cell_transfer: bool,
     pub sigma_glo_cm: f64,
     pub spp: u32,
 }
@@ -183,6 +203,7 @@ impl FramePlan {
             multiple,
             shadow_maps,
             blur: shadow_maps && multiple && inputs.sigma_glo_cm > 0.0,
+            cell_transfer: multiple && !shadow_maps && inputs.uniform_frame,
             sigma_glo_cm: inputs.sigma_glo_cm,
             spp: inputs.spp,
         }
@@ -227,6 +248,9 @@ impl FramePlan {
         if self.blur {
             passes.push(Pass::Blur { sigma_glo_cm: self.sigma_glo_cm });
         }
+        if self.cell_transfer {
+            passes.push(Pass::CellTransfer);
+        }
         passes.push(Pass::GBuffer);
         let mut paths: Vec<LocalVisibility> = Vec::new();
         for p in [
@@ -257,6 +281,9 @@ impl fmt::Display for FramePlan {
                 Pass::Visibility { lights } => writeln!(f, "  {} ({lights} light layer(s))", pass.name())?,
                 Pass::Blur { sigma_glo_cm } => writeln!(f, "  {} ({sigma_glo_cm} cm)", pass.name())?,
                 Pass::GBuffer => writeln!(f, "  {} (to the first occupied voxel)", pass.name())?,
+                Pass::CellTransfer => {
+                    writeln!(f, "  {} (once per frame: one fabric frame, no shadows)", pass.name())?;
+                }
                 Pass::Shade { single, multiple, paths } => {
                     let mut terms = Vec::new();
                     if *single {
@@ -293,6 +320,7 @@ mod tests {
             components: Components::All,
             sigma_glo_cm: 0.05,
             spp: 4,
+            uniform_frame: flat,
         }
     }
 
@@ -321,6 +349,22 @@ mod tests {
             Pass::ShadowMap { .. } | Pass::TopSurface | Pass::Visibility { .. } | Pass::Blur { .. }
         )));
         assert!(passes.iter().any(|p| matches!(p, Pass::GBuffer)));
+        // One fabric frame and no shadows: the cells' transferred light once per frame.
+        assert!(plan.cell_transfer && passes.contains(&Pass::CellTransfer));
+    }
+
+    #[test]
+    fn the_cell_transfer_runs_only_where_every_pixel_sees_the_same_light() {
+        let sky = PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 8.0 };
+        // A curved shell (frames differ, shadow maps vary the light): per pixel.
+        assert!(!FramePlan::new(&[SUN, sky], &inputs(false)).cell_transfer);
+        // A flat shell whose UV map differs between triangles: per pixel.
+        let skewed = PlanInputs { uniform_frame: false, ..inputs(true) };
+        assert!(!FramePlan::new(&[SUN, sky], &skewed).cell_transfer);
+        // No multiple scattering: nothing to transfer.
+        let single = PlanInputs { components: Components::SingleOnly, ..inputs(true) };
+        let plan = FramePlan::new(&[SUN, sky], &single);
+        assert!(!plan.cell_transfer && !plan.passes().contains(&Pass::CellTransfer));
     }
 
     #[test]

@@ -27,6 +27,8 @@ pub const VISIBILITY: &str = include_str!("../../shaders/visibility.wgsl");
 pub const BLUR: &str = include_str!("../../shaders/blur.wgsl");
 /// Deferred shading: single and multiple scattering per pixel.
 pub const SHADE: &str = include_str!("../../shaders/shade.wgsl");
+/// The light arriving in every IIRTF cell, once per frame (flat shells without shadow maps).
+pub const TRANSFER: &str = include_str!("../../shaders/transfer.wgsl");
 /// Exposure, tone curve and sRGB encoding.
 pub const TONEMAP: &str = include_str!("../../shaders/tonemap.wgsl");
 /// `sh_eval_f32`, `sh_rotate_f32`, `sh_zonal_rotated_f32`: real spherical harmonics up to order

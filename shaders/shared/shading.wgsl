@@ -8,6 +8,25 @@
 const LOBE_R: u32 = 0u;
 const LOBE_TT: u32 = 1u;
 const HALF_PI: f32 = 1.5707963267948966;
+// A light as the passes that shade read it. Twin: renderer/src/frame.rs (LightGpu).
+const LIGHT_DIRECTIONAL: u32 = 0u;
+const LIGHT_SG: u32 = 1u;
+
+struct LightGpu {
+    // Unit direction toward the light (world).
+    direction: vec3<f32>,
+    kind: u32,
+    // Irradiance (directional) or intensity (SG), linear RGB.
+    color: vec3<f32>,
+    sharpness: f32,
+    // Shadow/visibility layer, or -1 when the light is unoccluded.
+    layer: i32,
+    // Weights of the sum-of-SGs and erf-SSDF paths (they add to 1).
+    w_sum_of_sg: f32,
+    w_ssdf_erf: f32,
+    _pad: f32,
+}
+
 // |w - (w.t) t| at or below which w lies along +-t and has no azimuth: perpendicular(t) is used
 // (bake::cs_table::AZIMUTH_MIN_PERP; f32 rounding alone leaves up to ~2e-7).
 const AZIMUTH_MIN_PERP: f32 = 1e-6;
@@ -312,11 +331,28 @@ fn add_transferred(cell: u32, weight: f32, n: u32, c_in: ptr<function, array<vec
     }
 }
 
-// Multiple scattering (multiple.rs multiple_scattering): per channel,
-// C_S[theta_o] . (R_wo c_T), c_T = A c_in interpolated between the cells around the shaded
-// point p (exemplar cm; CellGrid::interpolation), or the segment's own cell where all eight
-// are empty.
-fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
+// c_T = A c_in interpolated between the cells around the shaded point p (exemplar cm;
+// CellGrid::interpolation), or the segment's own cell where all eight are empty, added to
+// `coeffs` (multiple.rs multiple_scattering, its first half).
+fn transferred_at(e: u32, segment: u32, p: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
+    let n = fabric.sh_count;
+    let around = cell_interpolation(e, p);
+    var found = false;
+    for (var k = 0u; k < 8u; k++) {
+        if (around.weights[k] > 0.0) {
+            add_transferred(around.cells[k], around.weights[k], n, c_in, coeffs);
+            found = true;
+        }
+    }
+    let own = segments[segment].cell;
+    if (!found && cell_flags[own] != 0u) {
+        add_transferred(own, 1.0, n, c_in, coeffs);
+    }
+}
+
+// Multiple scattering from the transferred light c_T at the shaded point (multiple.rs
+// multiple_scattering, its second half): per channel, C_S[theta_o] . (R_wo c_T).
+fn multiple_from_transferred(segment: u32, wo: vec3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
     let s = segments[segment];
     let m = materials[s.material];
     if (m.model != MATERIAL_FIBER) {
@@ -331,30 +367,28 @@ fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<f
     let x = clamp((space.theta_o + HALF_PI) / PI * f32(rows - 1u), 0.0, f32(rows - 1u));
     let k = min(u32(x), rows - 2u);
     let ft = x - f32(k);
-    // c_T interpolated between cells, then one rotation into omega_o-space for all three channels.
-    var coeffs: array<vec3<f32>, 49>;
-    for (var j = 0u; j < n; j++) {
-        coeffs[j] = vec3<f32>(0.0);
-    }
-    let around = cell_interpolation(e, p);
-    var found = false;
-    for (var k = 0u; k < 8u; k++) {
-        if (around.weights[k] > 0.0) {
-            add_transferred(around.cells[k], around.weights[k], n, c_in, &coeffs);
-            found = true;
-        }
-    }
-    if (!found && cell_flags[s.cell] != 0u) {
-        add_transferred(s.cell, 1.0, n, c_in, &coeffs);
-    }
-    sh_rotate_rgb_f32(order, rotation, &coeffs);
+    // One rotation into omega_o-space for all three channels.
+    sh_rotate_rgb_f32(order, rotation, coeffs);
     var out = vec3<f32>(0.0);
     for (var j = 0u; j < n; j++) {
         let row0 = ((s.material * rows + k) * n + j) * 3u;
         let row1 = ((s.material * rows + k + 1u) * n + j) * 3u;
         let a = vec3<f32>(cs_table[row0], cs_table[row0 + 1u], cs_table[row0 + 2u]);
         let b = vec3<f32>(cs_table[row1], cs_table[row1 + 1u], cs_table[row1 + 2u]);
-        out += coeffs[j] * (a + ft * (b - a));
+        out += (*coeffs)[j] * (a + ft * (b - a));
     }
     return out;
+}
+
+// Multiple scattering (multiple.rs multiple_scattering): per channel,
+// C_S[theta_o] . (R_wo c_T), c_T = A c_in interpolated between the cells around the shaded
+// point p (exemplar cm; CellGrid::interpolation), or the segment's own cell where all eight
+// are empty.
+fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>) -> vec3<f32> {
+    var coeffs: array<vec3<f32>, 49>;
+    for (var j = 0u; j < fabric.sh_count; j++) {
+        coeffs[j] = vec3<f32>(0.0);
+    }
+    transferred_at(e, segment, p, c_in, &coeffs);
+    return multiple_from_transferred(segment, wo, &coeffs);
 }

@@ -162,7 +162,7 @@ mod tests {
         let built = scene.build().unwrap();
         let mut settings = frame_settings(&built, Components::All);
         (settings.width, settings.height, settings.spp) = (2, 1, spp);
-        let plan = plan_frame(&built.path_scene.lights, &settings, None);
+        let plan = plan_frame(&built.path_scene.lights, &settings, None, false);
         FrameResult {
             request: FrameRequest {
                 generation,

@@ -1064,6 +1064,7 @@ impl ViewerApp {
                 filmic: true,
                 components: key.components,
                 gpu: key.gpu,
+                frame_transfer: true,
             },
             first_sample,
         };
@@ -1129,6 +1130,7 @@ impl ViewerApp {
                 filmic: c.filmic,
                 components: c.components,
                 gpu: c.gpu,
+                frame_transfer: true,
             },
             image_path: path,
             scene_toml: toml,

@@ -348,6 +348,7 @@ fn placeholder_frame() -> FrameSettings {
         filmic: true,
         components: Components::All,
         gpu: twill_precompute::scene::GpuSection::default(),
+        frame_transfer: true,
     }
 }
 

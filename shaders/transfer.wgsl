@@ -1,0 +1,58 @@
+// The light arriving in every IIRTF cell, A_cell c_in, once per frame (paper 5.3, hoisted out of
+// the shading pass): where the lights' SH c_in is the same at every pixel (a shell whose
+// tetrahedra share one flat-fabric frame, lit without shadow maps), every pixel would multiply
+// the same eight transfer matrices by the same vector. One invocation per cell computes c_in
+// (shared/shading.wgsl light_sh_accumulate, as the shading pass does) and A c_in; the shading
+// pass then interpolates the results (shade.wgsl frame_transferred_at). Needs the shared
+// library before it. Twin structs: renderer/src/frame.rs (TransferUniformsGpu, LightGpu).
+
+struct TransferUniforms {
+    // x: lights, y: cells, zw: unused.
+    counts: vec4<u32>,
+    // Rows of the linear part of the shell's world -> (u, v, w) map (the same in every
+    // tetrahedron); w of row 0: the fabric slab's thickness in cm.
+    uvw_from_world: array<vec4<f32>, 3>,
+}
+
+@group(0) @binding(0) var<uniform> transfer: TransferUniforms;
+@group(0) @binding(1) var<storage, read> lights: array<LightGpu>;
+@group(0) @binding(2) var<storage, read_write> cell_transfer: array<vec4<f32>>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let cell = id.x;
+    if (cell >= transfer.counts.y) {
+        return;
+    }
+    let n = fabric.sh_count;
+    if (cell_flags[cell] == 0u) {
+        for (var j = 0u; j < n; j++) {
+            cell_transfer[cell * n + j] = vec4<f32>(0.0);
+        }
+        return;
+    }
+    let m = transfer.uvw_from_world;
+    let h = transfer.uvw_from_world[0].w;
+    var c_in: array<vec3<f32>, 49>;
+    for (var j = 0u; j < 49u; j++) {
+        c_in[j] = vec3<f32>(0.0);
+    }
+    for (var i = 0u; i < transfer.counts.x; i++) {
+        let light = lights[i];
+        let d = light.direction;
+        let dir = normalize(vec3<f32>(dot(m[0].xyz, d), dot(m[1].xyz, d), h * dot(m[2].xyz, d)));
+        var sharpness = -1.0;
+        if (light.kind == LIGHT_SG) {
+            sharpness = light.sharpness;
+        }
+        light_sh_accumulate(fabric.sh_order, dir, sharpness, light.color, &c_in);
+    }
+    var c_t: array<vec3<f32>, 49>;
+    for (var j = 0u; j < n; j++) {
+        c_t[j] = vec3<f32>(0.0);
+    }
+    add_transferred(cell, 1.0, n, &c_in, &c_t);
+    for (var j = 0u; j < n; j++) {
+        cell_transfer[cell * n + j] = vec4<f32>(c_t[j], 0.0);
+    }
+}
