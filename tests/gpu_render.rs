@@ -12,7 +12,7 @@ use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake, bake_set};
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::image::{Estimate, compare};
 use twill_precompute::pathtrace::{self, Component};
-use twill_precompute::scene::{Scene, SceneFile};
+use twill_precompute::scene::{GpuSection, Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
 use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX};
 use twill_renderer::gpu::Gpu;
@@ -196,6 +196,47 @@ fn the_cell_transfer_once_per_frame_equals_the_per_pixel_product() {
         }
     }
     assert!(largest > 0.01, "multiple scattering lights the frame ({largest})");
+}
+
+#[test]
+fn shell_space_visibility_is_reused_until_the_lights_or_the_shell_change() {
+    // Shadow maps, X[u,v], V[u,v] and the blur do not depend on the camera or the sample: a
+    // second frame of the cushion under the same lights (a progressive batch, a camera move)
+    // reuses them and gives the same picture; a light edit or a new shell runs them again.
+    let Some(gpu) = Gpu::for_test("shell_space_visibility_is_reused_until_the_lights_or_the_shell_change")
+    else {
+        return;
+    };
+    let cushion_head = format!("{FABRIC}[mesh]\nbuiltin = \"cushion\"\nsize_cm = [1.0, 1.0]\n");
+    let cushion = scene(&format!("{cushion_head}{}", camera_above(0.5)), &[SUN]);
+    let mut settings = frame_settings(&cushion, Components::All);
+    (settings.width, settings.height, settings.spp) = (40, 32, 1);
+    settings.gpu.visibility_texture_size = 128;
+    settings.gpu.shadow_map_size = 256;
+    let mut session = SceneRenderer::with_gpu(gpu, &cushion, &[default_bake()], &PatternMap::uniform(0))
+        .expect("cushion uploads");
+    let shadowed = |frame: &Frame| pass_names(frame).iter().any(|p| p.starts_with("shadow map"));
+    let first = session.render(&cushion, &settings).expect("cushion renders");
+    assert!(shadowed(&first), "the first frame renders its shadow maps: {:?}", pass_names(&first));
+    let again = session.render(&cushion, &settings).expect("cushion renders");
+    assert!(!shadowed(&again), "the same lights reuse them: {:?}", pass_names(&again));
+    assert_eq!(again.radiance, first.radiance, "reused visibility, same picture");
+    let moved = scene(&format!("{cushion_head}{}", camera_above(0.3)), &[SUN]);
+    assert!(!shadowed(&session.render(&moved, &settings).expect("renders")), "a camera move reuses them");
+    let relit = scene(
+        &format!("{cushion_head}{}", camera_above(0.5)),
+        &[SUN.replace("-0.5, 0.3", "-0.4, 0.3").as_str()],
+    );
+    assert!(shadowed(&session.render(&relit, &settings).expect("renders")), "a light edit reruns them");
+    let blurrier =
+        FrameSettings { gpu: GpuSection { sigma_glo_cm: 0.1, ..settings.gpu }, ..settings.clone() };
+    assert!(shadowed(&session.render(&relit, &blurrier).expect("renders")), "a setting edit reruns them");
+    let z = session.renderer.fabric_z_range();
+    let drape_head = format!("{FABRIC}[mesh]\nbuiltin = \"drape\"\nsize_cm = [1.0, 1.0]\n");
+    let drape = scene(&format!("{drape_head}{}", camera_above(0.5)), &[SUN]);
+    let shell = shell_for_mesh(&drape.mesh, drape.swatch.size_cm, &drape.base_dir, z).expect("drape shell");
+    session.renderer.set_shell(&shell);
+    assert!(shadowed(&session.render(&drape, &blurrier).expect("renders")), "a new shell reruns them");
 }
 
 #[test]

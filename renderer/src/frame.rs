@@ -22,7 +22,10 @@
 //! 7. tone mapping with exposure into an 8-bit image.
 //!
 //! Passes 1–5 run once per frame (they do not depend on the pixel jitter); 1–4 only when the
-//! plan has shadow maps, 5 only when it has none and the shell one frame. The shading pipeline is specialized by override constants from the
+//! plan has shadow maps, 5 only when it has none and the shell one frame. Passes 1–4 do not
+//! depend on the camera either: their result is kept and reused by the next frame while the
+//! lights, the plan's shadow filters, the GPU settings and the shell are the same
+//! ([`ShellVisibility`]), so progressive batches and camera moves skip them. The shading pipeline is specialized by override constants from the
 //! plan, so a local-visibility path no light needs is not compiled. With `TIMESTAMP_QUERY`
 //! each pass is timed on the GPU; [`Frame::timings`] sums them per pass.
 //!
@@ -253,6 +256,15 @@ struct ShadeVariant {
     frame_transfer: bool,
 }
 
+/// Shell-space visibility V[u, v] of a frame with shadow maps (passes 1–4), and a hash of what
+/// it depends on: the lights, the plan's shadow filters, the GPU settings and the shell. It does
+/// not depend on the camera or the sample, so progressive batches and camera moves reuse it.
+struct ShellVisibility {
+    key: u64,
+    sharp: wgpu::Texture,
+    blurred: wgpu::Texture,
+}
+
 /// Shell-mapped fabric renderer on one device.
 pub struct Renderer {
     device: wgpu::Device,
@@ -271,6 +283,10 @@ pub struct Renderer {
     shade_layout: wgpu::BindGroupLayout,
     transfer_layout: wgpu::BindGroupLayout,
     transfer_pipeline: wgpu::ComputePipeline,
+    /// Bumped by every [`Renderer::set_shell`]: part of what shell-space visibility depends on.
+    shell_generation: u64,
+    /// The last frame's shell-space visibility, reused while what it depends on is unchanged.
+    shell_visibility: Option<ShellVisibility>,
     shade_pipelines: HashMap<ShadeVariant, wgpu::ComputePipeline>,
     timestamps: bool,
 }
@@ -666,6 +682,8 @@ impl Renderer {
             shade_layout,
             transfer_layout,
             transfer_pipeline,
+            shell_generation: 0,
+            shell_visibility: None,
             shade_pipelines: HashMap::new(),
             timestamps,
         })
@@ -815,6 +833,20 @@ impl Renderer {
     /// stays. `shell` must span [`Renderer::fabric_z_range`] (see `headless::shell_for_mesh`).
     pub fn set_shell(&mut self, shell: &Shell) {
         self.shell = upload_shell(&self.device, &self.queue, shell);
+        self.shell_generation += 1;
+        self.shell_visibility = None;
+    }
+
+    /// What shell-space visibility depends on, hashed (see [`ShellVisibility`]).
+    fn visibility_key(&self, lights: &[Light], plan: &FramePlan, settings: &FrameSettings) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut hasher = std::collections::hash_map::DefaultHasher::new();
+        let described = format!(
+            "{lights:?}|{:?}|{}|{}|{:?}|{}",
+            plan.lights, plan.blur, plan.sigma_glo_cm, settings.gpu, self.shell_generation
+        );
+        described.hash(&mut hasher);
+        hasher.finish()
     }
 
     /// The baked fabric slab's depth range (cm), which a shell must span.
@@ -873,11 +905,20 @@ impl Renderer {
         };
         self.shade_pipeline(variant);
         let shade_pipeline = &self.shade_pipelines[&variant];
+        // Shell-space visibility is reused from the previous frame when nothing it depends on
+        // changed (a progressive batch, a camera move).
+        let visibility_key = plan.shadow_maps.then(|| self.visibility_key(lights, &plan, settings));
+        let cached_visibility = self
+            .shell_visibility
+            .as_ref()
+            .filter(|cached| Some(cached.key) == visibility_key)
+            .map(|cached| (cached.sharp.clone(), cached.blurred.clone()));
+        let visibility_passes = cached_visibility.is_none() && plan.shadow_maps;
 
         // Queries: two per pass instance.
-        let pass_instances = plan.shadow_layers() as usize
-            + if plan.shadow_maps { 2 } else { 0 }
-            + if plan.blur { 2 } else { 0 }
+        let pass_instances = if visibility_passes { plan.shadow_layers() as usize } else { 0 }
+            + if visibility_passes { 2 } else { 0 }
+            + if visibility_passes && plan.blur { 2 } else { 0 }
             + usize::from(plan.cell_transfer)
             + 2 * settings.spp as usize
             + 1;
@@ -904,7 +945,9 @@ impl Renderer {
         let vis_texture = |label: &str, usage: wgpu::TextureUsages| {
             texture_2d(&device, label, [vis_size, vis_size, layers], wgpu::TextureFormat::Rg32Float, usage)
         };
-        let (vis_sharp, vis_blurred) = if plan.shadow_maps {
+        let (vis_sharp, vis_blurred) = if let Some(cached) = cached_visibility {
+            cached
+        } else if plan.shadow_maps {
             let storage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING;
             let sharp = vis_texture("twill.visibility.sharp", storage);
             let light_matrices = self.light_matrices(lights, &plan);
@@ -1114,6 +1157,11 @@ impl Renderer {
                 pass.set_bind_group(1, &self.fabric.bind_group, &[]);
                 pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
             }
+        }
+
+        if let Some(key) = visibility_key.filter(|_| visibility_passes) {
+            let (sharp, blurred) = (vis_sharp.clone(), vis_blurred.clone());
+            self.shell_visibility = Some(ShellVisibility { key, sharp, blurred });
         }
 
         // Tone mapping.
