@@ -1,8 +1,8 @@
 //! The GPU frame: shell-mapped volume ray casting, SG single scattering, SH multiple
 //! scattering and shadow mapping (paper section 5), run pass by pass as the frame plan says.
 //!
-//! How it works: [`Renderer::new`] uploads the shell (tetrahedra with their world → shell
-//! affine maps, face planes and neighbours, and the top and bottom surfaces) next to an uploaded bake
+//! How it works: [`Renderer::new`] uploads the shell (tetrahedra with their world → shell affine
+//! maps, face planes and neighbours, and the top and bottom surfaces) next to an uploaded bake
 //! ([`FabricData`]) and builds the fixed pipelines. [`Renderer::render`] plans the frame
 //! ([`FramePlan`]) and records, in order:
 //! 1. a depth-only shadow map per shadowing light (orthographic, fitted to the shell's bounding
@@ -21,13 +21,13 @@
 //!    to an accumulation buffer;
 //! 7. tone mapping with exposure into an 8-bit image.
 //!
-//! Passes 1–5 run once per frame (they do not depend on the pixel jitter); 1–4 only when the
-//! plan has shadow maps, 5 only when it has none and the shell one frame. Passes 1–4 do not
-//! depend on the camera either: their result is kept and reused by the next frame while the
-//! lights, the plan's shadow filters, the GPU settings and the shell are the same
-//! ([`ShellVisibility`]), so progressive batches and camera moves skip them. The shading pipeline is specialized by override constants from the
-//! plan, so a local-visibility path no light needs is not compiled. With `TIMESTAMP_QUERY`
-//! each pass is timed on the GPU; [`Frame::timings`] sums them per pass.
+//! Passes 1–5 run once per frame (they do not depend on the pixel jitter); 1–4 only when the plan
+//! has shadow maps, 5 only when it has none and the shell one frame. Passes 1–4 do not depend on
+//! the camera either: their result is kept and reused by the next frame while the lights, the
+//! plan's shadow filters, the GPU settings and the shell are the same ([`ShellVisibility`]), so
+//! progressive batches and camera moves skip them. The shading pipeline is specialized by override
+//! constants from the plan, so a local-visibility path no light needs is not compiled. With
+//! `TIMESTAMP_QUERY` each pass is timed on the GPU; [`Frame::timings`] sums them per pass.
 //!
 //! PCSS for SG lights needs a light size, which an SG does not have; we use the angle α at which
 //! the lobe falls to 1/e of its peak, `cos α = 1 − 1/λ` (α ≈ sqrt(2/λ) for sharp lobes; α = 90°
