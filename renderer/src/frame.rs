@@ -1717,6 +1717,100 @@ pub fn describe_timings(timings: &[PassTiming]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fabric_data::{ExemplarGpu, FabricHeaderGpu, MaterialGpu, SegmentGpu};
+
+    /// Size and (member, offset) of WGSL struct `name` in `source` by naga's layout rules (what
+    /// the GPU reads), padding members (`_pad...`) left out.
+    fn wgsl_struct(source: &str, name: &str) -> (u32, Vec<(String, u32)>) {
+        let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).expect("naga lays the module out");
+        let (handle, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("no struct {name} in the WGSL"));
+        let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("{name} is not a struct") };
+        let fields = members
+            .iter()
+            .filter_map(|m| m.name.clone().filter(|n| !n.starts_with('_')).map(|n| (n, m.offset)))
+            .collect();
+        (layouter[handle].size, fields)
+    }
+
+    /// Size and (field, offset) of a Rust GPU struct, its `pad` fields left out.
+    macro_rules! rust_struct {
+        ($t:ty; $($field:ident),*) => {
+            (
+                size_of::<$t>() as u32,
+                vec![$((stringify!($field).to_owned(), std::mem::offset_of!($t, $field) as u32)),*],
+            )
+        };
+    }
+
+    #[test]
+    fn every_gpu_struct_matches_its_wgsl_twin_in_size_and_field_offsets() {
+        let gbuffer = pass_source(true, shaders::GBUFFER);
+        let shade = pass_source(true, shaders::SHADE);
+        let transfer = pass_source(true, shaders::TRANSFER);
+        let shared = pass_source(true, "");
+        let cases = [
+            (
+                "FrameUniforms",
+                &gbuffer,
+                rust_struct!(FrameUniformsGpu; clip_from_world, eye, jitter, fabric_z, film),
+            ),
+            ("TetraGpu", &gbuffer, rust_struct!(TetraGpu; uvw_from_world, planes, neighbors)),
+            ("TetraGpu", &shade, rust_struct!(TetraGpu; uvw_from_world, planes, neighbors)),
+            ("TransferUniforms", &transfer, rust_struct!(TransferUniformsGpu; counts, uvw_from_world)),
+            (
+                "SurfaceVertex",
+                &shaders::SHELL_SURFACE.to_owned(),
+                rust_struct!(SurfaceVertexGpu; position, uvw),
+            ),
+            (
+                "SurfaceUniforms",
+                &shaders::SHELL_SURFACE.to_owned(),
+                rust_struct!(SurfaceUniformsGpu; light_clip_from_world, uv_rect),
+            ),
+            (
+                "VisibilityUniforms",
+                &shaders::VISIBILITY.to_owned(),
+                rust_struct!(VisibilityUniformsGpu; light_clip_from_world, filters, info),
+            ),
+            ("BlurUniforms", &shaders::BLUR.to_owned(), rust_struct!(BlurUniformsGpu; axis)),
+            (
+                "LightGpu",
+                &shade,
+                rust_struct!(LightGpu; direction, kind, color, sharpness, layer, w_sum_of_sg, w_ssdf_erf),
+            ),
+            ("ShadeUniforms", &shade, rust_struct!(ShadeUniformsGpu; counts, eye, uv_rect, fabric)),
+            ("ToneMapUniforms", &shaders::TONEMAP.to_owned(), rust_struct!(ToneMapUniformsGpu; size, scale)),
+            (
+                "FabricHeader",
+                &shared,
+                rust_struct!(FabricHeaderGpu; exemplar_count, sh_order, sh_count, svf_resolution,
+                    pca_components, sos_count, sos_sharpness, cs_theta_count, cg_points, gn_intervals,
+                    pattern_width, pattern_height, block_size, z_range),
+            ),
+            (
+                "ExemplarGpu",
+                &shared,
+                rust_struct!(ExemplarGpu; volume_origin, voxel_offset, voxel_size, periodic, volume_dims,
+                    segment_offset, period, pca_offset, segment_count, cell_origin, cell_offset, cell_size,
+                    cell_blocks_x, cell_dims, cell_blocks_y),
+            ),
+            ("SegmentGpu", &shared, rust_struct!(SegmentGpu; direction, material, cell, sos_rotation)),
+            (
+                "MaterialGpu",
+                &shared,
+                rust_struct!(MaterialGpu; c_r, model, c_tt, beta_r, albedo, beta_tt, gamma_tt),
+            ),
+        ];
+        for (name, source, rust) in cases {
+            assert_eq!(wgsl_struct(source, name), rust, "{name}: WGSL (naga) against Rust");
+        }
+    }
 
     /// Twin of the walk in shaders/gbuffer.wgsl `fs_main` (f32, as the shader): from a point
     /// on surface face `face` of tetrahedron `tetra` along `dir`, the tetrahedra the ray passes
