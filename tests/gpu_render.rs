@@ -218,8 +218,18 @@ fn shell_space_visibility_is_reused_until_the_lights_or_the_shell_change() {
     let shadowed = |frame: &Frame| pass_names(frame).iter().any(|p| p.starts_with("shadow map"));
     let first = session.render(&cushion, &settings).expect("cushion renders");
     assert!(shadowed(&first), "the first frame renders its shadow maps: {:?}", pass_names(&first));
+    assert!(first.reused.is_empty(), "{:?}", first.reused);
     let again = session.render(&cushion, &settings).expect("cushion renders");
     assert!(!shadowed(&again), "the same lights reuse them: {:?}", pass_names(&again));
+    // The frame says which of its plan's passes it reused, by their plan names.
+    let shell_space: Vec<String> = pass_names(&first)
+        .into_iter()
+        .filter(|p| !again.timings.as_ref().unwrap().iter().any(|t| &t.pass == p))
+        .collect();
+    assert_eq!(
+        again.reused, shell_space,
+        "reused passes are the ones the first frame ran and this one did not"
+    );
     assert_eq!(again.radiance, first.radiance, "reused visibility, same picture");
     let moved = scene(&format!("{cushion_head}{}", camera_above(0.3)), &[SUN]);
     assert!(!shadowed(&session.render(&moved, &settings).expect("renders")), "a camera move reuses them");

@@ -45,7 +45,7 @@ use twill_precompute::shading::sg_path_weights;
 
 use crate::fabric_data::{FabricData, make_buffer};
 use crate::gpu::Gpu;
-use crate::plan::{Components, FramePlan, GlobalVisibility, LocalVisibility, PlanInputs, PlanLight};
+use crate::plan::{Components, FramePlan, GlobalVisibility, LocalVisibility, Pass, PlanInputs, PlanLight};
 use crate::shaders;
 use crate::shell::Shell;
 
@@ -108,6 +108,9 @@ pub struct Frame {
     pub plan: FramePlan,
     /// GPU time per pass, when the adapter has timestamp queries.
     pub timings: Option<Vec<PassTiming>>,
+    /// Passes of the plan this frame did not run because it reused an earlier frame's result
+    /// (shell-space visibility: shadow maps, X, V, blur), by their plan names.
+    pub reused: Vec<String>,
 }
 
 impl Frame {
@@ -1265,7 +1268,24 @@ impl Renderer {
             }
             None => None,
         };
-        Ok(Frame { width, height, radiance, display: display_pixels, plan, timings })
+        let reused = if visibility_passes {
+            Vec::new()
+        } else {
+            plan.passes()
+                .iter()
+                .filter(|p| {
+                    matches!(
+                        p,
+                        Pass::ShadowMap { .. }
+                            | Pass::TopSurface
+                            | Pass::Visibility { .. }
+                            | Pass::Blur { .. }
+                    )
+                })
+                .map(Pass::name)
+                .collect()
+        };
+        Ok(Frame { width, height, radiance, display: display_pixels, plan, timings, reused })
     }
 
     /// Orthographic light frusta fitted to the shell's bounding sphere.
@@ -1357,7 +1377,12 @@ impl Renderer {
                 array_layer_count: Some(1),
                 ..Default::default()
             });
-            let query = next_query("shadow maps");
+            // Named as the plan names it, so timings and plan speak of the same passes.
+            let name = plan.lights.iter().find(|l| l.shadow_layer == Some(layer)).map_or_else(
+                || "shadow map".to_owned(),
+                |l| Pass::ShadowMap { light: l.light, filter: l.global }.name(),
+            );
+            let query = next_query(&name);
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("twill.shadow.pass"),
                 color_attachments: &[],

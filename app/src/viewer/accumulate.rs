@@ -21,6 +21,8 @@ use super::render_worker::FrameResult;
 pub struct BatchInfo {
     pub plan: FramePlan,
     pub timings: Option<Vec<PassTiming>>,
+    /// Passes the batch did not run because it reused an earlier frame's result.
+    pub reused: Vec<String>,
     pub wall_ms: f64,
     pub spp: u32,
 }
@@ -114,6 +116,7 @@ fn batch_info(result: &FrameResult) -> BatchInfo {
     BatchInfo {
         plan: result.frame.plan.clone(),
         timings: result.frame.timings.clone(),
+        reused: result.frame.reused.clone(),
         wall_ms: result.wall_ms,
         spp: result.request.settings.spp,
     }
@@ -179,6 +182,7 @@ mod tests {
                 display: vec![[0; 4]; 2],
                 plan,
                 timings: None,
+                reused: Vec::new(),
             },
             wall_ms: 1.0,
         }

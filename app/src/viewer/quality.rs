@@ -300,6 +300,9 @@ pub fn quality_panel(
                     Some(t) => {
                         ui.label(format!("GPU time per pass, last batch ({} spp):", b.spp));
                         ui.label(egui::RichText::new(describe_timings(t).trim_end()).monospace().small());
+                        if !b.reused.is_empty() {
+                            ui.label(format!("Reused from an earlier frame: {}.", b.reused.join(", ")));
+                        }
                     }
                     None => {
                         ui.label("GPU time per pass: the adapter has no timestamp queries.");
