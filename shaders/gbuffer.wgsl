@@ -99,12 +99,18 @@ fn fs_main(in: VertexOut) -> GBufferOut {
         t_film = max(frame.film.x - dot(entry, dir), 0.0);
     }
     var tetra_id = in.tetra;
-    var entry_face = in.face;
+    var previous = NO_NEIGHBOR;
     var t = 0.0;
     var budget = 0u;
     var stalls = 0u;
     for (var walked = 0u; walked < MAX_RAY_TETRAS; walked++) {
         let tetra = tetras[tetra_id];
+        // The face the ray came in through: the one shared with the previous tetrahedron.
+        var entry_face = in.face;
+        if (previous != NO_NEIGHBOR) {
+            let across = tetra.neighbors;
+            entry_face = select(select(select(3u, 2u, across.z == previous), 1u, across.y == previous), 0u, across.x == previous);
+        }
         let start = to_uvw(tetra, vec4<f32>(entry, 1.0));
         let step_dir = to_uvw(tetra, vec4<f32>(dir, 0.0));
         // Where the ray leaves the tetrahedron: the nearest plane it moves out of, other than
@@ -157,8 +163,7 @@ fn fs_main(in: VertexOut) -> GBufferOut {
         if (next == NO_NEIGHBOR || budget >= MAX_RAY_VOXELS) {
             break;
         }
-        let across = tetras[next].neighbors;
-        entry_face = select(select(select(3u, 2u, across.z == tetra_id), 1u, across.y == tetra_id), 0u, across.x == tetra_id);
+        previous = tetra_id;
         tetra_id = next;
         t = t_exit;
     }

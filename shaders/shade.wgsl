@@ -50,8 +50,7 @@ struct TetraGpu {
 // interpolated around the shaded point, or the segment's own cell's.
 fn frame_transferred_at(e: u32, segment: u32, p: vec3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
     let n = fabric.sh_count;
-    let around = cell_interpolation(e, p);
-    var found = false;
+    let around = transfer_cells(e, segment, p);
     for (var k = 0u; k < 8u; k++) {
         let w = around.weights[k];
         if (w > 0.0) {
@@ -59,13 +58,6 @@ fn frame_transferred_at(e: u32, segment: u32, p: vec3<f32>, coeffs: ptr<function
             for (var j = 0u; j < n; j++) {
                 (*coeffs)[j] += w * cell_transfer[base + j].xyz;
             }
-            found = true;
-        }
-    }
-    let own = segments[segment].cell;
-    if (!found && cell_flags[own] != 0u) {
-        for (var j = 0u; j < n; j++) {
-            (*coeffs)[j] += cell_transfer[own * n + j].xyz;
         }
     }
 }
@@ -115,18 +107,16 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     if (shade.eye.w > 0.5) {
         to_eye = shade.eye.xyz - hit;
     }
-    let wo = normalize(vec3<f32>(dot(m[0].xyz, to_eye), dot(m[1].xyz, to_eye), h * dot(m[2].xyz, to_eye)));
+    let wo = to_fabric_frame(m, h, to_eye);
 
     var radiance = vec3<f32>(0.0);
     var c_in: array<vec3<f32>, 49>;
-    let order = fabric.sh_order;
     for (var j = 0u; j < 49u; j++) {
         c_in[j] = vec3<f32>(0.0);
     }
     for (var i = 0u; i < shade.counts.x; i++) {
         let light = lights[i];
-        let d = light.direction;
-        let dir = normalize(vec3<f32>(dot(m[0].xyz, d), dot(m[1].xyz, d), h * dot(m[2].xyz, d)));
+        let dir = to_fabric_frame(m, h, light.direction);
         var v_sharp = 1.0;
         var v_blurred = 1.0;
         if (ENABLE_GLOBAL_VISIBILITY && light.layer >= 0) {
@@ -150,11 +140,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             radiance += v_sharp * light.color * single;
         }
         if (ENABLE_MULTIPLE && !ENABLE_FRAME_TRANSFER && v_blurred > 0.0) {
-            var sharpness = -1.0;
-            if (light.kind == LIGHT_SG) {
-                sharpness = light.sharpness;
-            }
-            light_sh_accumulate(order, dir, sharpness, v_blurred * light.color, &c_in);
+            light_sh_add(light, dir, v_blurred * light.color, &c_in);
         }
     }
     if (ENABLE_MULTIPLE) {

@@ -39,13 +39,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     for (var i = 0u; i < transfer.counts.x; i++) {
         let light = lights[i];
-        let d = light.direction;
-        let dir = normalize(vec3<f32>(dot(m[0].xyz, d), dot(m[1].xyz, d), h * dot(m[2].xyz, d)));
-        var sharpness = -1.0;
-        if (light.kind == LIGHT_SG) {
-            sharpness = light.sharpness;
-        }
-        light_sh_accumulate(fabric.sh_order, dir, sharpness, light.color, &c_in);
+        light_sh_add(light, to_fabric_frame(m, h, light.direction), light.color, &c_in);
     }
     var c_t: array<vec3<f32>, 49>;
     for (var j = 0u; j < n; j++) {

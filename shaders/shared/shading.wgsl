@@ -27,6 +27,12 @@ struct LightGpu {
     _pad: f32,
 }
 
+// A world vector `v` in a tetrahedron's flat-fabric frame, normalized: rows `m` of its world ->
+// (u, v, w) map, `h` the fabric slab's thickness in cm (w spans it).
+fn to_fabric_frame(m: array<vec4<f32>, 3>, h: f32, v: vec3<f32>) -> vec3<f32> {
+    return normalize(vec3<f32>(dot(m[0].xyz, v), dot(m[1].xyz, v), h * dot(m[2].xyz, v)));
+}
+
 // |w - (w.t) t| at or below which w lies along +-t and has no azimuth: perpendicular(t) is used
 // (bake::cs_table::AZIMUTH_MIN_PERP; f32 rounding alone leaves up to ~2e-7).
 const AZIMUTH_MIN_PERP: f32 = 1e-6;
@@ -319,6 +325,13 @@ fn light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<
     }
 }
 
+// Adds `light`'s SH coefficients from direction `dir` (flat-fabric frame) times `weight` to `c`
+// (light_sh_accumulate for its kind).
+fn light_sh_add(light: LightGpu, dir: vec3<f32>, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+    let sharpness = select(-1.0, light.sharpness, light.kind == LIGHT_SG);
+    light_sh_accumulate(fabric.sh_order, dir, sharpness, weight, c);
+}
+
 // Adds weight * (A_cell c_in), channel by channel, to c_t (multiple.rs add_transferred).
 fn add_transferred(cell: u32, weight: f32, n: u32, c_in: ptr<function, array<vec3<f32>, 49>>, c_t: ptr<function, array<vec3<f32>, 49>>) {
     for (var j1 = 0u; j1 < n; j1++) {
@@ -335,19 +348,29 @@ fn add_transferred(cell: u32, weight: f32, n: u32, c_in: ptr<function, array<vec
 // CellGrid::interpolation), or the segment's own cell where all eight are empty, added to
 // `coeffs` (multiple.rs multiple_scattering, its first half).
 fn transferred_at(e: u32, segment: u32, p: vec3<f32>, c_in: ptr<function, array<vec3<f32>, 49>>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
-    let n = fabric.sh_count;
-    let around = cell_interpolation(e, p);
-    var found = false;
+    let around = transfer_cells(e, segment, p);
     for (var k = 0u; k < 8u; k++) {
         if (around.weights[k] > 0.0) {
-            add_transferred(around.cells[k], around.weights[k], n, c_in, coeffs);
-            found = true;
+            add_transferred(around.cells[k], around.weights[k], fabric.sh_count, c_in, coeffs);
         }
+    }
+}
+
+// The cells whose transfer is interpolated at the shaded point p (cell_interpolation), or,
+// where all eight are empty, the segment's own cell alone (weight 1) if it has a transfer;
+// every weight 0 if neither.
+fn transfer_cells(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
+    var around = cell_interpolation(e, p);
+    var found = false;
+    for (var k = 0u; k < 8u; k++) {
+        found = found || around.weights[k] > 0.0;
     }
     let own = segments[segment].cell;
     if (!found && cell_flags[own] != 0u) {
-        add_transferred(own, 1.0, n, c_in, coeffs);
+        around.cells[0] = own;
+        around.weights[0] = 1.0;
     }
+    return around;
 }
 
 // Multiple scattering from the transferred light c_T at the shaded point (multiple.rs
