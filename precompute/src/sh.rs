@@ -208,6 +208,218 @@ impl ShRotation {
     }
 }
 
+/// The highest order [`ShEulerRotation`] holds quarter-turn tables for (the GPU's
+/// `SH_MAX_ORDER`).
+pub const EULER_MAX_ORDER: usize = 6;
+
+/// Rotation of real SH coefficients as three turns about z and two fixed quarter turns about x
+/// (`R = Rz(alpha) Ry(beta) Rz(gamma)`, `Ry(beta) = Rx(-pi/2) Rz(beta) Rx(pi/2)`): the CPU
+/// twin of the GPU's `sh_rotate_rgb_f32`, and equal to [`ShRotation`] of the same matrix.
+///
+/// A turn about z mixes only the pairs `(l, m), (l, -m)` (2 multiplies each); the quarter turn
+/// about x is one constant band matrix per band, the same for every rotation, so nothing is
+/// built per rotation but three turns ([`zyz_turns`]). They come from the rotation's
+/// quaternion (Shepperd's branches), where `(alpha + gamma) / 2` is the angle of `(w, z)` and
+/// `(alpha - gamma) / 2` that of `(y, -x)`: each half-angle is only ever weighted by the
+/// length of the pair it comes from, so the turns are as accurate as the quaternion even at
+/// gimbal lock (`beta` near 0 or pi), where the sum or the difference is free.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShEulerRotation {
+    order: usize,
+    /// `(cos, sin)` of `alpha`, `beta`, `gamma`.
+    turns: [(f64, f64); 3],
+}
+
+impl ShEulerRotation {
+    /// The rotation `rotation` (orthonormal, determinant +1) for bands `0..=order`.
+    ///
+    /// # Panics
+    /// If `order > EULER_MAX_ORDER` or `rotation` is not a rotation (to 1e-6).
+    #[must_use]
+    pub fn new(order: usize, rotation: &DMat3) -> Self {
+        assert!(order <= EULER_MAX_ORDER, "ShEulerRotation::new: order {order} above {EULER_MAX_ORDER}");
+        let should_be_identity = *rotation * rotation.transpose();
+        assert!(
+            should_be_identity.abs_diff_eq(DMat3::IDENTITY, 1e-6)
+                && (rotation.determinant() - 1.0).abs() < 1e-6,
+            "ShEulerRotation::new: {rotation} is not a rotation matrix"
+        );
+        Self { order, turns: zyz_turns(rotation) }
+    }
+
+    /// `coeffs[..sh_count(order)]` rotated in place.
+    ///
+    /// # Panics
+    /// If `coeffs` is shorter than `sh_count(order)`.
+    pub fn apply_in_place(&self, coeffs: &mut [f64]) {
+        assert!(
+            coeffs.len() >= sh_count(self.order),
+            "ShEulerRotation: need {} coefficients",
+            sh_count(self.order)
+        );
+        let [alpha, beta, gamma] = self.turns;
+        rotate_z_in_place(self.order, gamma, coeffs);
+        quarter_turn_x_in_place(self.order, false, coeffs);
+        rotate_z_in_place(self.order, beta, coeffs);
+        quarter_turn_x_in_place(self.order, true, coeffs);
+        rotate_z_in_place(self.order, alpha, coeffs);
+    }
+}
+
+/// The ZYZ Euler turns of a rotation, `R = Rz(alpha) Ry(beta) Rz(gamma)` with `beta` in
+/// `[0, pi]`, as `(cos, sin)` pairs `[alpha, beta, gamma]`, through the quaternion and without
+/// a transcendental function: `(cos, sin)` of `S = (alpha + gamma) / 2` is `(w, z)` normalized,
+/// of `D = (alpha - gamma) / 2` is `(y, -x)` normalized, and alpha and gamma are their sum and
+/// difference; `cos beta = 1 - 2 (x^2 + y^2)`, `sin beta = 2 |(x, y)| |(z, w)|`. A pair shorter
+/// than 1e-15 (its half-angle is then free, or weighs nothing) counts as the angle 0. The GPU's
+/// `sh_zyz_turns` is its twin, branch for branch.
+#[must_use]
+pub fn zyz_turns(rotation: &DMat3) -> [(f64, f64); 3] {
+    let [x, y, z, w] = rotation_quaternion(rotation);
+    let unit = |c: f64, s: f64| {
+        let length = c.hypot(s);
+        if length > 1e-15 { (c / length, s / length) } else { (1.0, 0.0) }
+    };
+    let (cos_s, sin_s) = unit(w, z);
+    let (cos_d, sin_d) = unit(y, -x);
+    let alpha = (cos_s * cos_d - sin_s * sin_d, sin_s * cos_d + cos_s * sin_d);
+    let gamma = (cos_s * cos_d + sin_s * sin_d, sin_s * cos_d - cos_s * sin_d);
+    let beta = (1.0 - 2.0 * (x * x + y * y), 2.0 * x.hypot(y) * z.hypot(w));
+    [alpha, beta, gamma]
+}
+
+/// The unit quaternion `[x, y, z, w]` of a rotation matrix by Shepperd's four branches (the
+/// largest of `|x|, |y|, |z|, |w|` is found first and divided by, so no branch loses
+/// precision); the same arithmetic as glam's `DQuat::from_mat3`. `mCR` is column C, row R.
+fn rotation_quaternion(rotation: &DMat3) -> [f64; 4] {
+    let [m00, m01, m02] = rotation.x_axis.to_array();
+    let [m10, m11, m12] = rotation.y_axis.to_array();
+    let [m20, m21, m22] = rotation.z_axis.to_array();
+    if m22 <= 0.0 {
+        let dif10 = m11 - m00;
+        let omm22 = 1.0 - m22;
+        if dif10 <= 0.0 {
+            let four_xsq = omm22 - dif10;
+            let inv = 0.5 / four_xsq.sqrt();
+            [four_xsq * inv, (m01 + m10) * inv, (m02 + m20) * inv, (m12 - m21) * inv]
+        } else {
+            let four_ysq = omm22 + dif10;
+            let inv = 0.5 / four_ysq.sqrt();
+            [(m01 + m10) * inv, four_ysq * inv, (m12 + m21) * inv, (m20 - m02) * inv]
+        }
+    } else {
+        let sum10 = m11 + m00;
+        let opm22 = 1.0 + m22;
+        if sum10 <= 0.0 {
+            let four_zsq = opm22 - sum10;
+            let inv = 0.5 / four_zsq.sqrt();
+            [(m02 + m20) * inv, (m12 + m21) * inv, four_zsq * inv, (m01 - m10) * inv]
+        } else {
+            let four_wsq = opm22 + sum10;
+            let inv = 0.5 / four_wsq.sqrt();
+            [(m12 - m21) * inv, (m20 - m02) * inv, (m01 - m10) * inv, four_wsq * inv]
+        }
+    }
+}
+
+/// Turns the coefficients about z by the angle with `(cos, sin)` = `turn`: for `m > 0`,
+/// `(c_lm, c_l-m) <- (c_lm cos m a - c_l-m sin m a, c_lm sin m a + c_l-m cos m a)`, the
+/// multiples of the angle by the Chebyshev recurrence.
+fn rotate_z_in_place(order: usize, turn: (f64, f64), coeffs: &mut [f64]) {
+    let (cos_1, sin_1) = turn;
+    let (mut cos_m, mut sin_m) = turn;
+    for m in 1..=order {
+        for l in m..=order {
+            let (plus, minus) = (sh_index(l, m as isize), sh_index(l, -(m as isize)));
+            let (p, q) = (coeffs[plus], coeffs[minus]);
+            coeffs[plus] = p * cos_m - q * sin_m;
+            coeffs[minus] = p * sin_m + q * cos_m;
+        }
+        (cos_m, sin_m) = (cos_m * cos_1 - sin_m * sin_1, sin_m * cos_1 + cos_m * sin_1);
+    }
+}
+
+/// The band matrices of the quarter turn about +x, `Rx(pi/2)`, bands `0..=EULER_MAX_ORDER`,
+/// with the entries that are zero in exact arithmetic (below 1e-12 after the recurrence) made 0.
+fn quarter_turn_x() -> &'static ShRotation {
+    static TABLE: std::sync::OnceLock<ShRotation> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut rotation = ShRotation::new(EULER_MAX_ORDER, &DMat3::from_rotation_x(0.5 * PI));
+        for band in &mut rotation.bands {
+            for entry in band.iter_mut().filter(|entry| entry.abs() < 1e-12) {
+                *entry = 0.0;
+            }
+        }
+        rotation
+    })
+}
+
+/// Applies `Rx(pi/2)` (`inverse`: `Rx(-pi/2)`, the transposed bands) in place.
+fn quarter_turn_x_in_place(order: usize, inverse: bool, coeffs: &mut [f64]) {
+    let table = quarter_turn_x();
+    let mut input = [0.0; 2 * EULER_MAX_ORDER + 1];
+    for l in 1..=order {
+        let width = 2 * l + 1;
+        let start = l * l;
+        input[..width].copy_from_slice(&coeffs[start..start + width]);
+        let band = table.band(l);
+        for (row, out) in coeffs[start..start + width].iter_mut().enumerate() {
+            *out = (0..width)
+                .map(|k| if inverse { band[k * width + row] } else { band[row * width + k] } * input[k])
+                .sum();
+        }
+    }
+}
+
+/// WGSL for the GPU twin of the quarter turns: `sh_quarter_turn_x_rgb(top, coeffs, inverse)`
+/// with every nonzero entry of the band matrices written out as a constant, band by band up
+/// to `top` (no table reads, no loops). `shaders/shared/sh_quarter_turn.wgsl` is this text;
+/// the renderer's tests check that it is current.
+#[must_use]
+pub fn quarter_turn_x_wgsl() -> String {
+    use std::fmt::Write as _;
+    let table = quarter_turn_x();
+    let mut out = String::from(
+        "// GENERATED by twill_precompute::sh::quarter_turn_x_wgsl: do not edit. Regenerate with\n\
+         // TWILL_REGENERATE=1 cargo test -p twill-renderer generated_quarter_turn (a test fails while\n\
+         // this file and the generator differ).\n\
+         //\n\
+         // The quarter turn about +x on real SH coefficients (rotation convention of sh.wgsl): band\n\
+         // l's (2l + 1) x (2l + 1) matrix of ShRotation::new(6, Rx(pi / 2)), its nonzero entries\n\
+         // written out as constants; `inverse` applies the transpose, Rx(-pi / 2). Bands 1..=top\n\
+         // of three coefficient vectors (one per component) in place. Twin of\n\
+         // quarter_turn_x_in_place in precompute/src/sh.rs.\n",
+    );
+    for (inverse, name) in [(false, "sh_quarter_turn_x_rgb"), (true, "sh_quarter_turn_x_inverse_rgb")] {
+        let _ = writeln!(out, "\nfn {name}(top: u32, c: ptr<function, array<vec3<f32>, 49>>) {{");
+        for l in 1..=EULER_MAX_ORDER {
+            let width = 2 * l + 1;
+            let start = l * l;
+            let band = table.band(l);
+            let _ = writeln!(out, "    if (top < {l}u) {{\n        return;\n    }}");
+            let _ = writeln!(out, "    {{");
+            for k in 0..width {
+                let _ = writeln!(out, "        let a{k} = (*c)[{}];", start + k);
+            }
+            for row in 0..width {
+                let terms: Vec<String> = (0..width)
+                    .filter_map(|k| {
+                        let entry = if inverse { band[k * width + row] } else { band[row * width + k] };
+                        #[allow(clippy::cast_possible_truncation)]
+                        let entry = entry as f32;
+                        (entry != 0.0).then(|| format!("{entry:?} * a{k}"))
+                    })
+                    .collect();
+                let sum = if terms.is_empty() { "vec3<f32>(0.0)".to_owned() } else { terms.join(" + ") };
+                let _ = writeln!(out, "        (*c)[{}] = {sum};", start + row);
+            }
+            let _ = writeln!(out, "    }}");
+        }
+        let _ = writeln!(out, "}}");
+    }
+    out.replace("+ -", "- ")
+}
+
 /// Entry `(m, n)` of a band-`l` matrix stored row-major.
 fn centered(band: &[f64], l: usize, m: isize, n: isize) -> f64 {
     let li = l as isize;
@@ -446,5 +658,78 @@ mod tests {
             }
         }
         eprintln!("rotate vs project: worst coefficient error {worst:e}");
+    }
+
+    #[test]
+    fn euler_rotation_equals_the_band_matrices_for_every_order_and_hard_rotation() {
+        let mut rng = Pcg64::seed_from_u64(23);
+        let mut rotations = hard_rotations(&mut rng);
+        // Gimbal lock and its neighbourhood: beta at 0 and pi exactly, and 1e-9 and 1e-4 away.
+        for (name, tilt) in [("beta 0", 0.0), ("beta 1e-9", 1e-9), ("beta 1e-4", 1e-4)] {
+            let spin =
+                DMat3::from_rotation_z(1.1) * DMat3::from_rotation_y(tilt) * DMat3::from_rotation_z(-0.4);
+            rotations.push((name.to_owned(), spin));
+            let flipped =
+                DMat3::from_rotation_z(0.3) * DMat3::from_rotation_y(PI - tilt) * DMat3::from_rotation_z(2.0);
+            rotations.push((format!("pi - {name}"), flipped));
+        }
+        for i in 0..200 {
+            rotations.push((format!("random {i}"), random_rotation(&mut rng)));
+        }
+        let mut worst: f64 = 0.0;
+        for order in 0..=EULER_MAX_ORDER {
+            let n = sh_count(order);
+            for (name, r) in &rotations {
+                let input: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
+                let mut expected = vec![0.0; n];
+                ShRotation::new(order, r).apply(&input, &mut expected);
+                let mut rotated = input.clone();
+                ShEulerRotation::new(order, r).apply_in_place(&mut rotated);
+                let err = max_abs_diff(&rotated, &expected);
+                worst = worst.max(err);
+                assert!(err < 1e-12, "order {order}, {name}: max coefficient error {err:e}");
+            }
+        }
+        eprintln!("Euler vs band matrices: worst coefficient error {worst:e}");
+    }
+
+    #[test]
+    fn zyz_turns_are_unit_and_rebuild_the_rotation_with_beta_in_0_to_pi() {
+        let mut rng = Pcg64::seed_from_u64(29);
+        let mut rotations = hard_rotations(&mut rng);
+        for i in 0..500 {
+            rotations.push((format!("random {i}"), random_rotation(&mut rng)));
+        }
+        for (name, r) in rotations {
+            let turns = zyz_turns(&r);
+            for (c, s) in turns {
+                assert!((c.hypot(s) - 1.0).abs() < 1e-14, "{name}: ({c}, {s}) is not a unit pair");
+            }
+            let [alpha, beta, gamma] = turns.map(|(c, s)| s.atan2(c));
+            assert!(turns[1].1 >= 0.0, "{name}: beta {beta} outside [0, pi]");
+            let rebuilt =
+                DMat3::from_rotation_z(alpha) * DMat3::from_rotation_y(beta) * DMat3::from_rotation_z(gamma);
+            assert!(rebuilt.abs_diff_eq(r, 1e-13), "{name}: {rebuilt} vs {r}");
+        }
+    }
+
+    #[test]
+    fn quarter_turn_table_is_the_quarter_turn_and_its_transpose_the_inverse() {
+        let mut rng = Pcg64::seed_from_u64(31);
+        let n = sh_count(EULER_MAX_ORDER);
+        let input: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
+        let mut expected = vec![0.0; n];
+        ShRotation::new(EULER_MAX_ORDER, &DMat3::from_rotation_x(0.5 * PI)).apply(&input, &mut expected);
+        let mut turned = input.clone();
+        quarter_turn_x_in_place(EULER_MAX_ORDER, false, &mut turned);
+        assert!(max_abs_diff(&turned, &expected) < 1e-13);
+        quarter_turn_x_in_place(EULER_MAX_ORDER, true, &mut turned);
+        assert!(max_abs_diff(&turned, &input) < 1e-13);
+        // Parity makes about half of every band zero: what the generated WGSL leaves out.
+        let table = quarter_turn_x();
+        let nonzero: usize =
+            (0..=EULER_MAX_ORDER).map(|l| table.band(l).iter().filter(|e| **e != 0.0).count()).sum();
+        let total: usize = (0..=EULER_MAX_ORDER).map(|l| (2 * l + 1) * (2 * l + 1)).sum();
+        assert!(nonzero * 2 <= total + 2 * EULER_MAX_ORDER + 2, "{nonzero} of {total} entries nonzero");
     }
 }

@@ -117,7 +117,7 @@ fn sh_test_zonal(axis: vec3<f32>, packed: u32) -> vec4<f32> {
 ";
 
 fn library() -> String {
-    format!("{}\n{WRAPPERS}", shaders::SH)
+    format!("{}\n{}\n{WRAPPERS}", shaders::SH_QUARTER_TURN, shaders::SH)
 }
 
 /// Twin of `sh_test_hash`.

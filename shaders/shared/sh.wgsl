@@ -1,7 +1,7 @@
-// Real spherical harmonics for the GPU. Twins of precompute/src/sh.rs (sh_eval, ShRotation,
-// ivanic_band): keep them in sync; compared on the GPU with the f64 originals by
-// renderer/tests/gpu_sh_parity.rs. Self-contained (needs no other module); every name here
-// starts with sh_ / SH_.
+// Real spherical harmonics for the GPU. Twins of precompute/src/sh.rs (sh_eval,
+// ShEulerRotation, zyz_angles): keep them in sync; compared on the GPU with the f64 originals
+// (ShRotation's band matrices for rotations) by renderer/tests/gpu_sh_parity.rs. Needs only
+// sh_quarter_turn.wgsl (generated from sh.rs); every name here starts with sh_ / SH_.
 //
 // Conventions, as in sh.rs:
 // - Orthonormal real SH without the Condon-Shortley phase, coefficient (l, m) at
@@ -18,10 +18,6 @@
 
 const SH_MAX_ORDER: u32 = 6u;
 const SH_MAX_COUNT: u32 = 49u;
-// Band matrices are kept at a fixed row stride 2 SH_MAX_ORDER + 1: entry (m, n) of band l at
-// (m + l) SH_BAND_STRIDE + (n + l).
-const SH_BAND_STRIDE: i32 = 13;
-const SH_BAND_SIZE: u32 = 169u;
 // Y_00 = 1 / sqrt(4 pi).
 const SH_Y00: f32 = 0.28209479177387814;
 const SH_SQRT_2: f32 = 1.4142135623730951;
@@ -81,139 +77,96 @@ fn sh_eval_f32(order: u32, dir: vec3<f32>, out: ptr<function, array<f32, 49>>) {
     }
 }
 
-// Entry (i, j) of the band-1 matrix, i, j in -1..=1 (row-major 3 x 3).
-fn sh_band1_at(band1: ptr<function, array<f32, 9>>, i: i32, j: i32) -> f32 {
-    return (*band1)[u32((i + 1) * 3 + j + 1)];
-}
-
-// Entry (m, n) of the band-l matrix held at stride SH_BAND_STRIDE.
-fn sh_band_at(band: ptr<function, array<f32, 169>>, l: i32, m: i32, n: i32) -> f32 {
-    return (*band)[u32((m + l) * SH_BAND_STRIDE + n + l)];
-}
-
-// Ivanic's P^l_{i,a,b} (the closure `p` of ivanic_band): i in -1..=1, a in -(l-1)..=(l-1),
-// b in -l..=l; `prev` holds band l - 1.
-fn sh_ivanic_p(
-    l: i32,
-    i: i32,
-    a: i32,
-    b: i32,
-    band1: ptr<function, array<f32, 9>>,
-    prev: ptr<function, array<f32, 169>>,
-) -> f32 {
-    let lp = l - 1;
-    if (b == l) {
-        return sh_band1_at(band1, i, 1) * sh_band_at(prev, lp, a, lp)
-            - sh_band1_at(band1, i, -1) * sh_band_at(prev, lp, a, -lp);
-    } else if (b == -l) {
-        return sh_band1_at(band1, i, 1) * sh_band_at(prev, lp, a, -lp)
-            + sh_band1_at(band1, i, -1) * sh_band_at(prev, lp, a, lp);
-    }
-    return sh_band1_at(band1, i, 0) * sh_band_at(prev, lp, a, b);
-}
-
-// Band l >= 2 into `band` from band 1 and band l - 1 (Ivanic-Ruedenberg 1996, Tables 1 and 2
-// with the 1998 errata): twin of ivanic_band. The guards on u, v, w are ivanic_band's
-// `!= 0.0` tests written as the integer conditions they amount to (u = 0 iff |m| = l, w = 0
-// iff m = 0 or |m| >= l - 1, v never 0 for l >= 2), so P is only read inside its range.
-fn sh_ivanic_band(
-    l: i32,
-    band1: ptr<function, array<f32, 9>>,
-    prev: ptr<function, array<f32, 169>>,
-    band: ptr<function, array<f32, 169>>,
-) {
-    let lf = f32(l);
-    for (var m = -l; m <= l; m++) {
-        let am = abs(m);
-        let d = select(0.0, 1.0, m == 0);
-        for (var n = -l; n <= l; n++) {
-            let nf = f32(n);
-            var denom = (lf + nf) * (lf - nf);
-            if (abs(n) == l) {
-                denom = 2.0 * lf * (2.0 * lf - 1.0);
-            }
-            var value = 0.0;
-            if (am < l) {
-                let u = sqrt(f32((l + m) * (l - m)) / denom);
-                value += u * sh_ivanic_p(l, 0, m, n, band1, prev);
-            }
-            let v = 0.5 * sqrt((1.0 + d) * f32((l + am - 1) * (l + am)) / denom) * (1.0 - 2.0 * d);
-            var big_v: f32;
-            if (m == 0) {
-                big_v = sh_ivanic_p(l, 1, 1, n, band1, prev) + sh_ivanic_p(l, -1, -1, n, band1, prev);
-            } else if (m == 1) {
-                big_v = sh_ivanic_p(l, 1, 0, n, band1, prev) * SH_SQRT_2;
-            } else if (m > 1) {
-                big_v = sh_ivanic_p(l, 1, m - 1, n, band1, prev) - sh_ivanic_p(l, -1, -m + 1, n, band1, prev);
-            } else if (m == -1) {
-                big_v = sh_ivanic_p(l, -1, 0, n, band1, prev) * SH_SQRT_2;
-            } else {
-                big_v = sh_ivanic_p(l, 1, m + 1, n, band1, prev) + sh_ivanic_p(l, -1, -m - 1, n, band1, prev);
-            }
-            value += v * big_v;
-            if (m != 0 && am < l - 1) {
-                let w = -0.5 * sqrt(f32((l - am - 1) * (l - am)) / denom);
-                var big_w: f32;
-                if (m > 0) {
-                    big_w = sh_ivanic_p(l, 1, m + 1, n, band1, prev) + sh_ivanic_p(l, -1, -m - 1, n, band1, prev);
-                } else {
-                    big_w = sh_ivanic_p(l, 1, m - 1, n, band1, prev) - sh_ivanic_p(l, -1, -m + 1, n, band1, prev);
-                }
-                value += w * big_w;
-            }
-            (*band)[u32((m + l) * SH_BAND_STRIDE + n + l)] = value;
+// The ZYZ Euler turns of the rotation r (r = Rz(alpha) Ry(beta) Rz(gamma), beta in [0, pi])
+// as (cos, sin) pairs: columns alpha, beta, gamma of the result. Twin of zyz_turns in sh.rs:
+// the quaternion by Shepperd's branches (glam's from_mat3; mCR is r[C][R]); (w, z) normalized
+// is the turn by (alpha + gamma) / 2, (y, -x) normalized the turn by (alpha - gamma) / 2 (a
+// pair shorter than 1e-15 counts as no turn), alpha and gamma their sum and difference;
+// cos beta = 1 - 2 (x^2 + y^2), sin beta = 2 |(x, y)| |(z, w)|. No transcendental function:
+// as accurate at gimbal lock as anywhere.
+fn sh_zyz_turns(r: mat3x3<f32>) -> mat3x2<f32> {
+    var q: vec4<f32>;
+    if (r[2][2] <= 0.0) {
+        let dif10 = r[1][1] - r[0][0];
+        let omm22 = 1.0 - r[2][2];
+        if (dif10 <= 0.0) {
+            let four_xsq = omm22 - dif10;
+            let inv = 0.5 / sqrt(four_xsq);
+            q = vec4<f32>(four_xsq * inv, (r[0][1] + r[1][0]) * inv, (r[0][2] + r[2][0]) * inv, (r[1][2] - r[2][1]) * inv);
+        } else {
+            let four_ysq = omm22 + dif10;
+            let inv = 0.5 / sqrt(four_ysq);
+            q = vec4<f32>((r[0][1] + r[1][0]) * inv, four_ysq * inv, (r[1][2] + r[2][1]) * inv, (r[2][0] - r[0][2]) * inv);
+        }
+    } else {
+        let sum10 = r[1][1] + r[0][0];
+        let opm22 = 1.0 + r[2][2];
+        if (sum10 <= 0.0) {
+            let four_zsq = opm22 - sum10;
+            let inv = 0.5 / sqrt(four_zsq);
+            q = vec4<f32>((r[0][2] + r[2][0]) * inv, (r[1][2] + r[2][1]) * inv, four_zsq * inv, (r[0][1] - r[1][0]) * inv);
+        } else {
+            let four_wsq = opm22 + sum10;
+            let inv = 0.5 / sqrt(four_wsq);
+            q = vec4<f32>((r[1][2] - r[2][1]) * inv, (r[2][0] - r[0][2]) * inv, (r[0][1] - r[1][0]) * inv, four_wsq * inv);
         }
     }
+    let half_sum = sh_unit_turn(q.w, q.z);
+    let half_difference = sh_unit_turn(q.y, -q.x);
+    let alpha = vec2<f32>(
+        half_sum.x * half_difference.x - half_sum.y * half_difference.y,
+        half_sum.y * half_difference.x + half_sum.x * half_difference.y,
+    );
+    let gamma = vec2<f32>(
+        half_sum.x * half_difference.x + half_sum.y * half_difference.y,
+        half_sum.y * half_difference.x - half_sum.x * half_difference.y,
+    );
+    let beta = vec2<f32>(1.0 - 2.0 * dot(q.xy, q.xy), 2.0 * length(q.xy) * length(q.zw));
+    return mat3x2<f32>(alpha, beta, gamma);
 }
 
-// coeffs[l^2 .. (l + 1)^2] = band * coeffs[l^2 .. (l + 1)^2] (ShRotation::apply for one band),
-// for three functions at once (one per vector component).
-fn sh_apply_band(l: i32, band: ptr<function, array<f32, 169>>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
-    let width = 2 * l + 1;
-    let start = u32(l * l);
-    var input: array<vec3<f32>, 13>;
-    for (var k = 0; k < width; k++) {
-        input[k] = (*coeffs)[start + u32(k)];
+// (c, s) normalized, or (1, 0) where it is shorter than 1e-15.
+fn sh_unit_turn(c: f32, s: f32) -> vec2<f32> {
+    let length = length(vec2<f32>(c, s));
+    if (length > 1e-15) {
+        return vec2<f32>(c, s) / length;
     }
-    for (var row = 0; row < width; row++) {
-        var sum = vec3<f32>(0.0);
-        for (var k = 0; k < width; k++) {
-            sum += (*band)[u32(row * SH_BAND_STRIDE + k)] * input[k];
+    return vec2<f32>(1.0, 0.0);
+}
+
+// Turns three coefficient vectors in place about z by the angle with (cos, sin) = `turn`:
+// (c_lm, c_l-m) <- (c_lm cos m a - c_l-m sin m a, c_lm sin m a + c_l-m cos m a) for m > 0
+// (rotate_z_in_place in sh.rs).
+fn sh_turn_z_rgb(top: u32, turn: vec2<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+    var turn_m = turn;
+    for (var m = 1u; m <= top; m++) {
+        for (var l = m; l <= top; l++) {
+            let center = l * (l + 1u);
+            let p = (*c)[center + m];
+            let q = (*c)[center - m];
+            (*c)[center + m] = p * turn_m.x - q * turn_m.y;
+            (*c)[center - m] = p * turn_m.y + q * turn_m.x;
         }
-        (*coeffs)[start + u32(row)] = sum;
+        turn_m = vec2<f32>(turn_m.x * turn.x - turn_m.y * turn.y, turn_m.y * turn.x + turn_m.x * turn.y);
     }
 }
 
 // Rotates three coefficient vectors (one per component, e.g. RGB) in place by the rotation `r`
-// (the R of ShRotation::new, column-major: see the top of this file), building each band's
-// matrix once by the same Ivanic-Ruedenberg recurrence as ShRotation::new. Band 0 is left as it
-// is. Cost: about 10^4 flops for the bands and 1.6 KB of private memory per call at order 6
-// (for many directions under one rotation, rotate once, not per invocation).
+// (the R of ShRotation::new, column-major: see the top of this file), as ShEulerRotation does:
+// turns about z by gamma, the quarter turn about x, beta about z, the quarter turn back, alpha
+// about z (R = Rz(alpha) Rx(-pi/2) Rz(beta) Rx(pi/2) Rz(gamma)). Needs sh_quarter_turn.wgsl.
+// Cost at order 6: about 1,400 multiply-adds per component, no per-rotation tables.
 fn sh_rotate_rgb_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
-    let top = i32(min(order, SH_MAX_ORDER));
-    if (top == 0) {
+    let top = min(order, SH_MAX_ORDER);
+    if (top == 0u) {
         return;
     }
-    // Band 1 acts on (y, z, x): R with rows and columns permuted, entry (m, n) = R[a(m)][a(n)]
-    // for a(-1, 0, 1) = (y, z, x); r[c][k] is R's row k, column c.
-    var band1 = array<f32, 9>(
-        r[1][1], r[2][1], r[0][1],
-        r[1][2], r[2][2], r[0][2],
-        r[1][0], r[2][0], r[0][0],
-    );
-    var prev: array<f32, 169>;
-    var band: array<f32, 169>;
-    for (var i = 0; i < 3; i++) {
-        for (var j = 0; j < 3; j++) {
-            band[u32(i * SH_BAND_STRIDE + j)] = band1[u32(i * 3 + j)];
-        }
-    }
-    sh_apply_band(1, &band, coeffs);
-    for (var l = 2; l <= top; l++) {
-        prev = band;
-        sh_ivanic_band(l, &band1, &prev, &band);
-        sh_apply_band(l, &band, coeffs);
-    }
+    let turns = sh_zyz_turns(r);
+    sh_turn_z_rgb(top, turns[2], coeffs);
+    sh_quarter_turn_x_rgb(top, coeffs);
+    sh_turn_z_rgb(top, turns[1], coeffs);
+    sh_quarter_turn_x_inverse_rgb(top, coeffs);
+    sh_turn_z_rgb(top, turns[0], coeffs);
 }
 
 // Rotates one coefficient vector in place (sh_rotate_rgb_f32 on its first component).

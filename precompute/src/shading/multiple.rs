@@ -14,7 +14,8 @@
 //!   `c_T[j1].ch = Σ_j0 A[j1·n + j0].ch · c_light[j0].ch` (the IIRTF's RGB entry multiplies the
 //!   same channel of the light; `bake::iirtf` stores `matrix[j1 · n + j0] = a_C[j0, j1]`). Then
 //!   each channel of c_T is rotated into the ωo-space of `bake::cs_table::OmegaOSpace::new(t,
-//!   ωo)` with `ShRotation::new(order, &world_to_local)` and dotted with the same channel of
+//!   ωo)` with `ShEulerRotation::new(order, &world_to_local)` (three turns about z around two
+//!   constant quarter turns about x, the GPU's algorithm) and dotted with the same channel of
 //!   `CsTable::lookup(θo)` (linear in θo between its rows). A cell that holds no segment has a
 //!   zero matrix (no paths were traced) and gives zero.
 //! - [`multiple_scattering`] looks up the segment's tangent and material in a bake, and its
@@ -35,7 +36,7 @@ use crate::bake::iirtf::CellTransfer;
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
-use crate::sh::{ShRotation, sh_count, sh_eval};
+use crate::sh::{ShEulerRotation, sh_count, sh_eval};
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
 /// docs.
@@ -111,15 +112,15 @@ pub fn scatter_transferred(cs: &CsTable, transferred: &[Rgb], t: DVec3, wo: DVec
     let order = cs.sh_order();
     let n = sh_count(order);
     let space = OmegaOSpace::new(t, wo);
-    let rotation = ShRotation::new(order, &space.world_to_local);
+    let rotation = ShEulerRotation::new(order, &space.world_to_local);
     let c_s = cs.lookup(space.theta_o);
-    let (mut world, mut local) = (vec![0.0; n], vec![0.0; n]);
+    let mut local = vec![0.0; n];
     let mut out = Rgb::ZERO;
     for ch in 0..3 {
-        for (w, c) in world.iter_mut().zip(transferred) {
-            *w = c[ch];
+        for (l, c) in local.iter_mut().zip(transferred) {
+            *l = c[ch];
         }
-        rotation.apply(&world, &mut local);
+        rotation.apply_in_place(&mut local);
         out[ch] = local.iter().zip(&c_s).map(|(x, s)| x * s[ch]).sum();
     }
     out
