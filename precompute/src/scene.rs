@@ -27,6 +27,7 @@ use crate::bake::pattern::{PatternError, PatternMap};
 use crate::bake::pipeline::BakeInputs;
 use crate::bake::settings::BakeSettings;
 use crate::bcsdf::{Material, MaterialDesc};
+use crate::fabric::colour_order::ColourOrder;
 use crate::fabric::presets::{FabricSpec, WeaveSource, WovenSpec, fabric_preset, fabric_presets};
 use crate::fabric::weave::{WeaveDraft, WeavePreset};
 use crate::fabric::wif::{WifError, read_wif};
@@ -34,6 +35,9 @@ use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
 use crate::raycast::{Extent, FiberScene};
+
+/// The material of a slot nothing gives (no `[materials]` entry, no preset).
+const FALLBACK_MATERIAL: MaterialDesc = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
 
 /// The built-in default scene (its text).
 pub const DEFAULT_SCENE_TOML: &str = include_str!("../../assets/scenes/default.toml");
@@ -101,14 +105,59 @@ pub struct FabricSection {
     pub spec: Option<FabricSpec>,
 }
 
-/// `[materials]`: material of warp and weft yarns (defaults: the preset's).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+/// `[materials]`: material of warp and weft yarns (defaults: the preset's), and optionally a
+/// palette of yarn colours with warp and weft colour orders (a colourway).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialsSection {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub warp: Option<MaterialDesc>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub weft: Option<MaterialDesc>,
+    /// `warp_order = "2 navy, 2 cream, 1 red"`: the warp's colour order over the palette.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warp_order: Option<String>,
+    /// The weft's colour order over the palette.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub weft_order: Option<String>,
+    /// `[materials.palette]`: named yarn colours, each a recolouring of the warp or weft yarn;
+    /// palette colour `k` (names in alphabetical order) is material `k`.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub palette: std::collections::BTreeMap<String, PaletteColour>,
+}
+
+/// The most colours a palette holds.
+pub const MAX_PALETTE_COLOURS: usize = 16;
+
+/// Which yarn's material a palette colour recolours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum YarnSlot {
+    Warp,
+    Weft,
+}
+
+/// One palette colour: the `base` yarn's material (as `[materials]` or the preset give it) with
+/// its colours replaced: `c_r` and `c_tt` for the fiber model, `albedo` for Lambert.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PaletteColour {
+    pub base: YarnSlot,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c_r: Option<Rgb>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c_tt: Option<Rgb>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub albedo: Option<Rgb>,
+}
+
+/// The colourway of a scene: the palette's materials in order, its names, and the parsed orders.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Colourway {
+    pub names: Vec<String>,
+    pub materials: Vec<MaterialDesc>,
+    pub warp: ColourOrder,
+    pub weft: ColourOrder,
 }
 
 /// Most weaves `[pattern]` may add to `[fabric]`'s (map indices go up to `z` = 35).
@@ -562,22 +611,35 @@ impl SceneFile {
             _ => return Err(invalid("[fabric]: give exactly one of `preset` or `[fabric.spec]`".into())),
         };
         let base_dir = path.parent().unwrap_or(Path::new("."));
-        let (exemplar, pattern) = match &self.pattern {
-            None => {
-                let exemplar = spec
-                    .build(base_dir)
-                    .map_err(|source| SceneError::Fabric { path: path.clone(), source })?;
-                (exemplar, None)
+        let colourway = self.colourway().map_err(|message| invalid(format!("[materials]: {message}")))?;
+        let fabric_error = |source| SceneError::Fabric { path: path.clone(), source };
+        let (exemplar, pattern) = match (&self.pattern, &colourway, &spec) {
+            (None, None, _) => (spec.build(base_dir).map_err(fabric_error)?, None),
+            (None, Some(colourway), FabricSpec::Woven(woven)) => {
+                let mut fabric = woven.woven_fabric();
+                fabric.warp_colours = Some(colourway.warp.clone());
+                fabric.weft_colours = Some(colourway.weft.clone());
+                (fabric.build().map_err(|e| fabric_error(e.into()))?, None)
             }
-            Some(section) => {
+            (_, Some(_), _) => {
+                return Err(invalid(
+                    "[materials]: colour orders need a woven [fabric] without [pattern] (imported \
+                     fibers have no threads to colour, and patterned cloth does not take them yet)"
+                        .into(),
+                ));
+            }
+            (Some(section), None, _) => {
                 let pattern = self.build_pattern(section, &spec, base_dir)?;
                 (pattern.exemplars[0].clone(), Some(pattern))
             }
         };
 
-        // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft.
-        let fallback = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
-        let material_descs = self.material_slots().map(|m| m.unwrap_or(fallback)).to_vec();
+        // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft; with
+        // a colourway, material k is palette colour k.
+        let material_descs = match colourway {
+            Some(colourway) => colourway.materials,
+            None => self.material_slots().map(|m| m.unwrap_or(FALLBACK_MATERIAL)).to_vec(),
+        };
         let materials: Vec<Material> =
             material_descs.iter().map(Material::from_desc).collect::<Result<_, _>>().map_err(param)?;
         let yarn_materials = exemplar
@@ -724,6 +786,64 @@ impl SceneFile {
         [warp.or(weft), weft.or(warp)]
     }
 
+    /// The colourway of `[materials]`: `None` without a palette; the palette's materials (in
+    /// name order) and both colour orders parsed against it otherwise.
+    ///
+    /// # Errors
+    /// A message naming the key and value: orders without a palette or a palette without both
+    /// orders, too many colours, a colour that does not fit its base material, a bad order.
+    pub fn colourway(&self) -> Result<Option<Colourway>, String> {
+        let m = &self.materials;
+        if m.palette.is_empty() {
+            if m.warp_order.is_some() || m.weft_order.is_some() {
+                return Err("warp_order and weft_order name colours of [materials.palette], which is missing".into());
+            }
+            return Ok(None);
+        }
+        if m.palette.len() > MAX_PALETTE_COLOURS {
+            return Err(format!("the palette has {} colours; at most {MAX_PALETTE_COLOURS}", m.palette.len()));
+        }
+        let (Some(warp_order), Some(weft_order)) = (&m.warp_order, &m.weft_order) else {
+            return Err("a palette needs both warp_order and weft_order (e.g. warp_order = \"2 navy, 1 cream\")".into());
+        };
+        let slots = self.material_slots().map(|m| m.unwrap_or(FALLBACK_MATERIAL));
+        let mut materials = Vec::with_capacity(m.palette.len());
+        for (name, colour) in &m.palette {
+            let base = slots[colour.base as usize];
+            let recoloured = match (base, colour.albedo, colour.c_r.or(colour.c_tt)) {
+                (MaterialDesc::Fiber(p), None, _) => MaterialDesc::Fiber(crate::bcsdf::FiberParams {
+                    c_r: colour.c_r.unwrap_or(p.c_r),
+                    c_tt: colour.c_tt.unwrap_or(p.c_tt),
+                    ..p
+                }),
+                (MaterialDesc::Lambert { albedo }, _, None) => {
+                    MaterialDesc::Lambert { albedo: colour.albedo.unwrap_or(albedo) }
+                }
+                (MaterialDesc::Fiber(_), Some(_), _) => {
+                    return Err(format!(
+                        "palette.{name}: `albedo` recolours a Lambert yarn, but its base ({:?}) is a fiber \
+                         material: give c_r and c_tt",
+                        colour.base
+                    ));
+                }
+                (MaterialDesc::Lambert { .. }, _, Some(_)) => {
+                    return Err(format!(
+                        "palette.{name}: c_r and c_tt recolour a fiber yarn, but its base ({:?}) is Lambert: \
+                         give albedo",
+                        colour.base
+                    ));
+                }
+            };
+            Material::from_desc(&recoloured).map_err(|e| format!("palette.{name}: {e}"))?;
+            materials.push(recoloured);
+        }
+        let names: Vec<String> = m.palette.keys().cloned().collect();
+        let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let warp = ColourOrder::parse("warp_order", warp_order, &name_refs).map_err(|e| e.to_string())?;
+        let weft = ColourOrder::parse("weft_order", weft_order, &name_refs).map_err(|e| e.to_string())?;
+        Ok(Some(Colourway { names, materials, warp, weft }))
+    }
+
     /// The camera for a film of `width` x `height`.
     pub fn camera(&self, width: usize, height: usize) -> Result<Camera, ParamError> {
         camera_from(&self.camera, width, height)
@@ -753,6 +873,7 @@ pub fn camera_from(c: &CameraSection, width: usize, height: usize) -> Result<Cam
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fabric::YarnRole;
 
     #[test]
     fn the_default_scene_parses_and_builds() {
@@ -760,6 +881,80 @@ mod tests {
         assert!(scene.exemplar.segment_count() > 1000);
         assert!(!scene.path_scene.lights.is_empty());
         assert_eq!(scene.path_scene.yarn_materials.len(), scene.exemplar.yarns.len());
+    }
+
+    /// The default scene with a three-colour palette: a 2/2 twill (4 x 4) with a warp order
+    /// of 5 threads repeats every 20 ends.
+    const COLOURWAY: &str = "[materials]\n\
+        warp_order = \"2 navy, 2 cream, 1 red\"\n\
+        weft_order = \"4 cream\"\n\
+        [materials.palette]\n\
+        navy = { base = \"warp\", c_tt = [0.05, 0.07, 0.3] }\n\
+        cream = { base = \"weft\" }\n\
+        red = { base = \"warp\", c_r = [0.05, 0.03, 0.03], c_tt = [0.8, 0.1, 0.08] }\n";
+
+    fn with_colourway(extra: &str) -> String {
+        DEFAULT_SCENE_TOML.replace("[swatch]", &format!("{extra}\n[swatch]"))
+    }
+
+    #[test]
+    fn colour_orders_set_each_yarns_material_and_the_exemplar_repeat() {
+        let file = SceneFile::parse(&with_colourway(COLOURWAY), Path::new("colourway.toml")).unwrap();
+        let plain = SceneFile::default_scene().build().unwrap();
+        let scene = file.build().unwrap();
+        // Palette colours in name order: cream 0, navy 1, red 2.
+        assert_eq!(scene.material_descs.len(), 3);
+        let MaterialDesc::Fiber(navy) = scene.material_descs[1] else { panic!("navy is a fiber material") };
+        assert_eq!(navy.c_tt, Rgb::new(0.05, 0.07, 0.3));
+        let MaterialDesc::Fiber(preset_warp) = plain.material_descs[0] else { panic!("fiber warp") };
+        assert_eq!(navy.c_r, preset_warp.c_r, "colours not given keep the base yarn's");
+        assert_eq!(navy.beta_r_deg, preset_warp.beta_r_deg);
+        assert_eq!(scene.material_descs[0], plain.material_descs[1], "cream is the weft unchanged");
+
+        let warp: Vec<u32> = scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Warp).map(|y| y.material).collect();
+        let weft: Vec<u32> = scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Weft).map(|y| y.material).collect();
+        let plain_warp = plain.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Warp).count();
+        assert_eq!(plain_warp, 4, "the default fabric is a 4-end twill");
+        assert_eq!(warp.len(), 20, "lcm(4 ends, 5 colours)");
+        assert_eq!(&warp[..10], &[1, 1, 0, 0, 2, 1, 1, 0, 0, 2]);
+        assert_eq!(weft, vec![0; 4]);
+        let (Tiling::Periodic { period }, Tiling::Periodic { period: plain_period }) =
+            (scene.exemplar.tiling, plain.exemplar.tiling)
+        else {
+            panic!("woven exemplars are periodic")
+        };
+        assert!((period.x - 5.0 * plain_period.x).abs() < 1e-6 && period.y == plain_period.y);
+        // The path tracer shades every yarn with its own palette colour.
+        assert_eq!(scene.path_scene.yarn_materials.len(), scene.exemplar.yarns.len());
+        // And the scene writes back out as it was read.
+        let again = SceneFile::parse(&file.to_toml().unwrap(), Path::new("again.toml")).unwrap();
+        assert_eq!(again.materials, file.materials);
+    }
+
+    #[test]
+    fn the_colourway_example_is_the_tested_colourway() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/colourway.toml");
+        let example = SceneFile::load(&path).unwrap();
+        let tested = SceneFile::parse(&with_colourway(COLOURWAY), Path::new("colourway.toml")).unwrap();
+        assert_eq!(example.materials, tested.materials);
+        assert_eq!(example.build().unwrap().exemplar.yarns.len(), 24);
+    }
+
+    #[test]
+    fn bad_colourways_are_refused_naming_the_key_and_what_is_valid() {
+        for (extra, expect) in [
+            ("[materials]\nwarp_order = \"2 navy\"\n", "[materials.palette], which is missing"),
+            (&COLOURWAY.replace("weft_order = \"4 cream\"\n", ""), "needs both warp_order and weft_order"),
+            (&COLOURWAY.replace("2 cream, 1 red", "2 teal"), "one of cream, navy, red"),
+            (&COLOURWAY.replace("\"4 cream\"", "\"17 cream\""), "weft_order"),
+            (&COLOURWAY.replace("cream = { base = \"weft\" }", "cream = { base = \"weft\", albedo = [0.5, 0.5, 0.5] }"), "palette.cream: `albedo` recolours a Lambert yarn"),
+            (&COLOURWAY.replace("c_tt = [0.05, 0.07, 0.3]", "c_tt = [0.05, 0.07, 1.3]"), "palette.navy"),
+            (&COLOURWAY.replace("base = \"weft\"", "base = \"selvedge\""), "selvedge"),
+        ] {
+            let message = parse_err(&with_colourway(extra));
+            assert!(message.contains(expect), "{extra}: {message}");
+            assert!(message.contains("bad.toml"), "{message}");
+        }
     }
 
     fn parse_err(text: &str) -> String {

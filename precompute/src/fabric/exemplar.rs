@@ -10,11 +10,19 @@
 //! tiles seamlessly with period `(cols * spacing_warp, rows * spacing_weft)`; fibers stick out
 //! of the period rectangle by up to half a yarn width, which tiling expects.
 //!
-//! Yarn indices: warp end `j` is yarn `j`, weft pick `i` is yarn `cols + i`.
+//! Colour orders: with a warp or weft [`ColourOrder`], end `j` takes the order's colour of
+//! thread `j` (weft likewise), and the exemplar repeat grows to the least common multiple of
+//! the weave's repeat and the colour repeat in that direction (the draft tiled to it), so the
+//! cloth still tiles seamlessly; without one every warp end takes `warp_material` (weft
+//! likewise).
+//!
+//! Yarn indices: warp end `j` is yarn `j`, weft pick `i` is yarn `cols + i` (`cols` and `rows`
+//! of the exemplar repeat).
 
 use glam::{DVec2, DVec3, Vec2};
 use rayon::prelude::*;
 
+use super::colour_order::{ColourOrder, exemplar_repeat};
 use super::weave::WeaveDraft;
 use super::yarn::{YarnParams, YarnPath, yarn_fibers};
 use super::{BlockGrid, Exemplar, Tiling, Yarn, YarnRole};
@@ -39,6 +47,11 @@ pub struct WovenFabric {
     pub warp_material: u32,
     /// Material index given to weft yarns (default 1).
     pub weft_material: u32,
+    /// The warp's colour order (material index per end of the colour repeat); `None`: every
+    /// end is `warp_material`.
+    pub warp_colours: Option<ColourOrder>,
+    /// The weft's colour order; `None`: every pick is `weft_material`.
+    pub weft_colours: Option<ColourOrder>,
 }
 
 impl WovenFabric {
@@ -62,7 +75,45 @@ impl WovenFabric {
             seed: 0,
             warp_material: 0,
             weft_material: 1,
+            warp_colours: None,
+            weft_colours: None,
         }
+    }
+
+    /// The fabric over its exemplar repeat: the draft tiled to the least common multiple of the
+    /// weave repeat and the colour repeats (itself when there are no colour orders or they
+    /// divide the weave repeat).
+    ///
+    /// # Errors
+    /// When the joint repeat exceeds [`super::colour_order::MAX_REPEAT_THREADS`] threads.
+    pub fn over_colour_repeat(&self) -> Result<Self, ParamError> {
+        let (rows, cols) = (self.draft.rows(), self.draft.cols());
+        let repeat_cols =
+            self.warp_colours.as_ref().map_or(Ok(cols), |o| exemplar_repeat("warp_order", cols, o.threads().len()))?;
+        let repeat_rows =
+            self.weft_colours.as_ref().map_or(Ok(rows), |o| exemplar_repeat("weft_order", rows, o.threads().len()))?;
+        let mut fabric = self.clone();
+        if (repeat_rows, repeat_cols) != (rows, cols) {
+            let cells = (0..repeat_rows)
+                .flat_map(|i| (0..repeat_cols).map(move |j| (i, j)))
+                .map(|(i, j)| self.draft.warp_over(i % rows, j % cols))
+                .collect();
+            fabric.draft = WeaveDraft::new(repeat_rows, repeat_cols, cells)
+                .expect("a tiled valid draft within the size limit is valid");
+        }
+        Ok(fabric)
+    }
+
+    /// The material of warp end `j`.
+    #[must_use]
+    pub fn warp_material_of(&self, j: usize) -> u32 {
+        self.warp_colours.as_ref().map_or(self.warp_material, |o| o.colour_of(j))
+    }
+
+    /// The material of weft pick `i`.
+    #[must_use]
+    pub fn weft_material_of(&self, i: usize) -> u32 {
+        self.weft_colours.as_ref().map_or(self.weft_material, |o| o.colour_of(i))
     }
 
     /// The crimp at which warp and weft sections just touch at a crossing: `2 crimp` equals the
@@ -122,9 +173,16 @@ impl WovenFabric {
         z0 + (z1 - z0) * 0.5 * (1.0 - (std::f64::consts::PI * f).cos())
     }
 
-    /// Builds the exemplar (yarns in parallel; the result does not depend on thread count).
+    /// Builds the exemplar over the repeat of [`Self::over_colour_repeat`] (yarns in parallel;
+    /// the result does not depend on thread count).
     pub fn build(&self) -> Result<Exemplar, ParamError> {
         self.validate()?;
+        let fabric = self.over_colour_repeat()?;
+        fabric.build_repeat()
+    }
+
+    /// Builds the exemplar of exactly this draft.
+    fn build_repeat(&self) -> Result<Exemplar, ParamError> {
         let (rows, cols) = (self.draft.rows(), self.draft.cols());
         let period = self.period();
         let per_yarn: Vec<Result<Vec<super::Fiber>, ParamError>> = (0..cols + rows)
@@ -147,8 +205,8 @@ impl WovenFabric {
             fibers.extend(yarn?);
         }
         let yarns = (0..cols)
-            .map(|_| Yarn { role: YarnRole::Warp, material: self.warp_material })
-            .chain((0..rows).map(|_| Yarn { role: YarnRole::Weft, material: self.weft_material }))
+            .map(|j| Yarn { role: YarnRole::Warp, material: self.warp_material_of(j) })
+            .chain((0..rows).map(|i| Yarn { role: YarnRole::Weft, material: self.weft_material_of(i) }))
             .collect();
         Ok(Exemplar {
             fibers,

@@ -10,6 +10,7 @@
 //! fabric lies in the xy plane, warp yarns run along +y, weft yarns along +x, and the top face
 //! (the side seen from the default camera) faces +z.
 
+pub mod colour_order;
 pub mod exemplar;
 pub mod fiber_io;
 pub mod presets;
