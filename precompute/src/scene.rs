@@ -796,15 +796,23 @@ impl SceneFile {
         let m = &self.materials;
         if m.palette.is_empty() {
             if m.warp_order.is_some() || m.weft_order.is_some() {
-                return Err("warp_order and weft_order name colours of [materials.palette], which is missing".into());
+                return Err(
+                    "warp_order and weft_order name colours of [materials.palette], which is missing".into(),
+                );
             }
             return Ok(None);
         }
         if m.palette.len() > MAX_PALETTE_COLOURS {
-            return Err(format!("the palette has {} colours; at most {MAX_PALETTE_COLOURS}", m.palette.len()));
+            return Err(format!(
+                "the palette has {} colours; at most {MAX_PALETTE_COLOURS}",
+                m.palette.len()
+            ));
         }
         let (Some(warp_order), Some(weft_order)) = (&m.warp_order, &m.weft_order) else {
-            return Err("a palette needs both warp_order and weft_order (e.g. warp_order = \"2 navy, 1 cream\")".into());
+            return Err(
+                "a palette needs both warp_order and weft_order (e.g. warp_order = \"2 navy, 1 cream\")"
+                    .into(),
+            );
         };
         let slots = self.material_slots().map(|m| m.unwrap_or(FALLBACK_MATERIAL));
         let mut materials = Vec::with_capacity(m.palette.len());
@@ -908,11 +916,13 @@ mod tests {
         assert_eq!(navy.c_tt, Rgb::new(0.05, 0.07, 0.3));
         let MaterialDesc::Fiber(preset_warp) = plain.material_descs[0] else { panic!("fiber warp") };
         assert_eq!(navy.c_r, preset_warp.c_r, "colours not given keep the base yarn's");
-        assert_eq!(navy.beta_r_deg, preset_warp.beta_r_deg);
+        assert_eq!(navy.beta_r_deg.to_bits(), preset_warp.beta_r_deg.to_bits());
         assert_eq!(scene.material_descs[0], plain.material_descs[1], "cream is the weft unchanged");
 
-        let warp: Vec<u32> = scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Warp).map(|y| y.material).collect();
-        let weft: Vec<u32> = scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Weft).map(|y| y.material).collect();
+        let warp: Vec<u32> =
+            scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Warp).map(|y| y.material).collect();
+        let weft: Vec<u32> =
+            scene.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Weft).map(|y| y.material).collect();
         let plain_warp = plain.exemplar.yarns.iter().filter(|y| y.role == YarnRole::Warp).count();
         assert_eq!(plain_warp, 4, "the default fabric is a 4-end twill");
         assert_eq!(warp.len(), 20, "lcm(4 ends, 5 colours)");
@@ -923,7 +933,7 @@ mod tests {
         else {
             panic!("woven exemplars are periodic")
         };
-        assert!((period.x - 5.0 * plain_period.x).abs() < 1e-6 && period.y == plain_period.y);
+        assert!((period.x - 5.0 * plain_period.x).abs() < 1e-6 && period.y.to_bits() == plain_period.y.to_bits());
         // The path tracer shades every yarn with its own palette colour.
         assert_eq!(scene.path_scene.yarn_materials.len(), scene.exemplar.yarns.len());
         // And the scene writes back out as it was read.
@@ -947,7 +957,13 @@ mod tests {
             (&COLOURWAY.replace("weft_order = \"4 cream\"\n", ""), "needs both warp_order and weft_order"),
             (&COLOURWAY.replace("2 cream, 1 red", "2 teal"), "one of cream, navy, red"),
             (&COLOURWAY.replace("\"4 cream\"", "\"17 cream\""), "weft_order"),
-            (&COLOURWAY.replace("cream = { base = \"weft\" }", "cream = { base = \"weft\", albedo = [0.5, 0.5, 0.5] }"), "palette.cream: `albedo` recolours a Lambert yarn"),
+            (
+                &COLOURWAY.replace(
+                    "cream = { base = \"weft\" }",
+                    "cream = { base = \"weft\", albedo = [0.5, 0.5, 0.5] }",
+                ),
+                "palette.cream: `albedo` recolours a Lambert yarn",
+            ),
             (&COLOURWAY.replace("c_tt = [0.05, 0.07, 0.3]", "c_tt = [0.05, 0.07, 1.3]"), "palette.navy"),
             (&COLOURWAY.replace("base = \"weft\"", "base = \"selvedge\""), "selvedge"),
         ] {

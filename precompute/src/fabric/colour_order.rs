@@ -32,13 +32,15 @@ impl ColourOrder {
         let mut threads = Vec::new();
         for (k, run) in text.split(',').enumerate() {
             let run = run.trim();
-            let bad = |reason: String| ParamError::new(format!("{what} run {}", k + 1), format!("{run:?}"), reason);
+            let bad =
+                |reason: String| ParamError::new(format!("{what} run {}", k + 1), format!("{run:?}"), reason);
             if run.is_empty() {
                 return Err(bad("a run `COUNT NAME`, e.g. \"2 navy\" (runs are separated by commas)".into()));
             }
             let (count, name) = match run.split_once(char::is_whitespace) {
                 Some((count, name)) if count.chars().all(|c| c.is_ascii_digit()) => {
-                    let count: usize = count.parse().map_err(|_| bad(format!("1 <= count <= {MAX_REPEAT_THREADS}")))?;
+                    let count: usize =
+                        count.parse().map_err(|_| bad(format!("1 <= count <= {MAX_REPEAT_THREADS}")))?;
                     (count, name.trim())
                 }
                 _ => (1, run),
@@ -169,6 +171,9 @@ mod tests {
         assert_eq!(exemplar_repeat("warp_order", 3, 1).unwrap(), 3);
         assert_eq!(exemplar_repeat("warp_order", 8, 64).unwrap(), 64);
         let message = exemplar_repeat("weft_order", 4, 17).unwrap_err().to_string();
-        assert!(message.contains("weft_order") && message.contains("every 68") && message.contains("64"), "{message}");
+        assert!(
+            message.contains("weft_order") && message.contains("every 68") && message.contains("64"),
+            "{message}"
+        );
     }
 }

@@ -88,10 +88,14 @@ impl WovenFabric {
     /// When the joint repeat exceeds [`super::colour_order::MAX_REPEAT_THREADS`] threads.
     pub fn over_colour_repeat(&self) -> Result<Self, ParamError> {
         let (rows, cols) = (self.draft.rows(), self.draft.cols());
-        let repeat_cols =
-            self.warp_colours.as_ref().map_or(Ok(cols), |o| exemplar_repeat("warp_order", cols, o.threads().len()))?;
-        let repeat_rows =
-            self.weft_colours.as_ref().map_or(Ok(rows), |o| exemplar_repeat("weft_order", rows, o.threads().len()))?;
+        let repeat_cols = self
+            .warp_colours
+            .as_ref()
+            .map_or(Ok(cols), |o| exemplar_repeat("warp_order", cols, o.threads().len()))?;
+        let repeat_rows = self
+            .weft_colours
+            .as_ref()
+            .map_or(Ok(rows), |o| exemplar_repeat("weft_order", rows, o.threads().len()))?;
         let mut fabric = self.clone();
         if (repeat_rows, repeat_cols) != (rows, cols) {
             let cells = (0..repeat_rows)
