@@ -933,7 +933,9 @@ mod tests {
         else {
             panic!("woven exemplars are periodic")
         };
-        assert!((period.x - 5.0 * plain_period.x).abs() < 1e-6 && period.y.to_bits() == plain_period.y.to_bits());
+        assert!(
+            (period.x - 5.0 * plain_period.x).abs() < 1e-6 && period.y.to_bits() == plain_period.y.to_bits()
+        );
         // The path tracer shades every yarn with its own palette colour.
         assert_eq!(scene.path_scene.yarn_materials.len(), scene.exemplar.yarns.len());
         // And the scene writes back out as it was read.
