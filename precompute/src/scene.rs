@@ -27,14 +27,19 @@ use crate::bake::pattern::{PatternError, PatternMap};
 use crate::bake::pipeline::BakeInputs;
 use crate::bake::settings::BakeSettings;
 use crate::bcsdf::{Material, MaterialDesc};
-use crate::fabric::colour_order::ColourOrder;
+use crate::fabric::colour_order::{ColourOrder, exemplar_repeat};
 use crate::fabric::presets::{FabricSpec, WeaveSource, WovenSpec, fabric_preset, fabric_presets};
 use crate::fabric::weave::{WeaveDraft, WeavePreset};
-use crate::fabric::wif::{WifError, read_wif};
+use crate::fabric::wif::{WifColours, WifError, read_wif};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
 use crate::raycast::{Extent, FiberScene};
+
+/// sRGB-encoded display value (0..1) to linear.
+fn srgb_to_linear(v: f64) -> f64 {
+    if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
 
 /// The material of a slot nothing gives (no `[materials]` entry, no preset).
 const FALLBACK_MATERIAL: MaterialDesc = MaterialDesc::Lambert { albedo: Rgb::splat(0.5) };
@@ -852,6 +857,69 @@ impl SceneFile {
         Ok(Some(Colourway { names, materials, warp, weft }))
     }
 
+    /// Checks `[materials]`' colourway as [`SceneFile::build`] would, without building the
+    /// fabric: the palette and orders ([`SceneFile::colourway`]), and the joint repeat of the
+    /// weave and the colour orders.
+    ///
+    /// # Errors
+    /// The message `build` would give.
+    pub fn check_colourway(&self) -> Result<(), String> {
+        let Some(colourway) = self.colourway()? else { return Ok(()) };
+        let spec = match (&self.fabric.preset, &self.fabric.spec) {
+            (Some(name), None) => fabric_preset(name).map(|p| p.fabric),
+            (None, Some(spec)) => Some(spec.clone()),
+            _ => None,
+        };
+        if let Some(FabricSpec::Woven(woven)) = spec {
+            let draft = woven.weave.draft();
+            exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
+                .map_err(|e| e.to_string())?;
+            exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
+                .map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    }
+
+    /// Takes a WIF file's colours as this scene's colourway: palette colour `wifK` for each
+    /// table colour `K` a thread uses (recolouring the warp yarn if a warp end uses it, else
+    /// the weft yarn: `c_tt` for fiber yarns, `albedo` for Lambert ones, the display colour
+    /// decoded from sRGB to linear), and the warp and weft orders from the threads' colours. A
+    /// direction the file gives no colours keeps its yarn as it is (palette colour `warp` or
+    /// `weft`).
+    pub fn apply_wif_colours(&mut self, colours: &WifColours) {
+        let slots = self.material_slots();
+        let mut palette = std::collections::BTreeMap::new();
+        let mut order = |threads: &[u32], base: YarnSlot, plain: &str| -> String {
+            if threads.is_empty() {
+                palette.insert(plain.to_owned(), PaletteColour { base, c_r: None, c_tt: None, albedo: None });
+                return format!("1 {plain}");
+            }
+            let names: Vec<String> = threads.iter().map(|k| format!("wif{}", k + 1)).collect();
+            for (k, name) in threads.iter().zip(&names) {
+                let display = colours.table[*k as usize].unwrap_or([0.5; 3]);
+                let linear = Rgb::from_array(display.map(srgb_to_linear));
+                let lambert = matches!(slots[base as usize], Some(MaterialDesc::Lambert { .. }));
+                palette.entry(name.clone()).or_insert(PaletteColour {
+                    base,
+                    c_r: None,
+                    c_tt: (!lambert).then_some(linear),
+                    albedo: lambert.then_some(linear),
+                });
+            }
+            names
+                .chunk_by(|a, b| a == b)
+                .map(|run| format!("{} {}", run.len(), run[0]))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let warp_order = order(&colours.warp, YarnSlot::Warp, "warp");
+        let weft_order = order(&colours.weft, YarnSlot::Weft, "weft");
+        [self.materials.warp, self.materials.weft] = slots;
+        self.materials.palette = palette;
+        self.materials.warp_order = Some(warp_order);
+        self.materials.weft_order = Some(weft_order);
+    }
+
     /// The camera for a film of `width` x `height`.
     pub fn camera(&self, width: usize, height: usize) -> Result<Camera, ParamError> {
         camera_from(&self.camera, width, height)
@@ -950,6 +1018,63 @@ mod tests {
         let tested = SceneFile::parse(&with_colourway(COLOURWAY), Path::new("colourway.toml")).unwrap();
         assert_eq!(example.materials, tested.materials);
         assert_eq!(example.build().unwrap().exemplar.yarns.len(), 24);
+    }
+
+    #[test]
+    fn wif_colours_become_the_palette_and_colour_orders() {
+        let weaves = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/weaves");
+        // One colour per direction: warp all wif1, weft all wif2.
+        let mut file = SceneFile::default_scene();
+        let colours = crate::fabric::wif::read_wif_colours(&weaves.join("twill_2_2.wif")).unwrap().unwrap();
+        file.apply_wif_colours(&colours);
+        assert_eq!(file.materials.warp_order.as_deref(), Some("1 wif1"));
+        assert_eq!(file.materials.weft_order.as_deref(), Some("1 wif2"));
+        let navy = file.materials.palette["wif1"];
+        assert_eq!(navy.base, YarnSlot::Warp);
+        let c_tt = navy.c_tt.expect("the preset's yarns are fiber materials");
+        assert!(
+            (c_tt.x - srgb_to_linear(20.0 / 255.0)).abs() < 1e-12
+                && (c_tt.z - srgb_to_linear(90.0 / 255.0)).abs() < 1e-12
+        );
+        let scene = file.build().unwrap();
+        assert_eq!(scene.material_descs.len(), 2);
+        assert_eq!(scene.exemplar.yarns.len(), 8, "the weave's own 4 x 4 repeat");
+
+        // Stripes: the draft and the colours of an 8-end file.
+        let stripes = weaves.join("twill_2_2_stripes.wif");
+        let draft = read_wif(&stripes).unwrap();
+        assert_eq!((draft.rows(), draft.cols()), (4, 8));
+        let mut file = SceneFile::default_scene();
+        file.fabric = FabricSection {
+            preset: None,
+            spec: Some(FabricSpec::Woven(Box::new(WovenSpec {
+                weave: WeaveSource::Draft(draft),
+                ..match fabric_preset("default").unwrap().fabric {
+                    FabricSpec::Woven(w) => *w,
+                    FabricSpec::Imported(_) => unreachable!("the default fabric is woven"),
+                }
+            }))),
+        };
+        file.materials = MaterialsSection {
+            warp: SceneFile::default_scene().material_slots()[0],
+            weft: SceneFile::default_scene().material_slots()[1],
+            ..MaterialsSection::default()
+        };
+        file.apply_wif_colours(&read_wif_colours_of(&stripes));
+        assert_eq!(file.materials.warp_order.as_deref(), Some("4 wif1, 4 wif3"));
+        assert_eq!(file.materials.weft_order.as_deref(), Some("3 wif2, 1 wif3"));
+        assert_eq!(file.materials.palette["wif3"].base, YarnSlot::Warp, "red is first used by the warp");
+        let scene = file.build().unwrap();
+        assert_eq!(scene.material_descs.len(), 3);
+        let warp: Vec<u32> = scene.exemplar.yarns.iter().take(8).map(|y| y.material).collect();
+        assert_eq!(warp, [0, 0, 0, 0, 2, 2, 2, 2], "palette: wif1 0, wif2 1, wif3 2");
+        // And it survives a save and a load.
+        let again = SceneFile::parse(&file.to_toml().unwrap(), Path::new("again.toml")).unwrap();
+        assert_eq!(again.materials, file.materials);
+    }
+
+    fn read_wif_colours_of(path: &Path) -> WifColours {
+        crate::fabric::wif::read_wif_colours(path).unwrap().expect("a colour table")
     }
 
     #[test]

@@ -41,6 +41,7 @@ use super::ViewerOptions;
 use super::accumulate::{Accumulation, Added};
 use super::bake::{BakeEvent, BakedSet, Baker};
 use super::camera::OrbitCamera;
+use super::colourway::{ColourwayForm, colourway_panel};
 use super::export::{ExportAction, ExportForm, ExportFormat, ExportStatus, export_panel, export_toml};
 use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_panel};
 use super::history::History;
@@ -198,6 +199,7 @@ pub struct ViewerApp {
 
     history: History<Snapshot>,
     weave_form: WeaveForm,
+    colourway_form: ColourwayForm,
     mesh_form: MeshForm,
     scene_path_field: String,
     ui_timing: super::timing::UiTiming,
@@ -309,6 +311,7 @@ impl ViewerApp {
             shell_id: 0,
             history: History::default(),
             weave_form: WeaveForm::default(),
+            colourway_form: ColourwayForm::default(),
             mesh_form: MeshForm::default(),
             scene_path_field,
             ui_timing: super::timing::UiTiming::default(),
@@ -844,6 +847,10 @@ impl ViewerApp {
                 egui::CollapsingHeader::new("Fibers").default_open(true).show(ui, |ui| {
                     fibers_panel(ui, scene);
                 });
+                let has_palette = !scene.materials.palette.is_empty();
+                egui::CollapsingHeader::new("Colourway").default_open(has_palette).show(ui, |ui| {
+                    colourway_panel(ui, scene, &mut self.colourway_form);
+                });
                 egui::CollapsingHeader::new("Weave").default_open(true).show(ui, |ui| {
                     match weave_panel(ui, scene, &mut self.weave_form) {
                         Some(WeaveAction::ImportWif(path)) => {
@@ -1312,6 +1319,8 @@ impl ViewerApp {
             | Step::Weave(_)
             | Step::Repeat { .. }
             | Step::ImportWif(_)
+            | Step::Palette { .. }
+            | Step::Order { .. }
             | Step::Fiber { .. }
             | Step::Mesh(_) => {
                 let scene = self.scene_file.as_mut().ok_or("no scene is loaded")?;
@@ -1394,6 +1403,8 @@ fn edit_scene(scene: &mut SceneFile, step: &Step) -> Result<(), String> {
         }
         Step::Repeat { rows, cols } => resize_draft(scene, *rows, *cols),
         Step::ImportWif(path) => import_wif(scene, path),
+        Step::Palette { name, base, rgb } => super::colourway::set_palette_colour(scene, name, *base, *rgb),
+        Step::Order { slot, text } => super::colourway::set_order(scene, *slot, text),
         Step::Fiber { slot, field } => set_fiber_field(scene, *slot, *field),
         Step::Mesh(MeshEdit::Builtin(name)) => set_builtin(&mut scene.mesh, name),
         Step::Mesh(MeshEdit::File(path)) => {
@@ -1450,10 +1461,21 @@ fn read_scene(path: &Path) -> Result<SceneFile, String> {
 }
 
 /// What differs between the scene last baked and `scene` in what a bake depends on:
-/// (geometry: `[fabric]` or `[pattern]`, materials: `[materials]`); everything without a bake.
+/// (geometry: `[fabric]` or `[pattern]`, or the colour orders and palette names, which say which
+/// yarn carries which material and set the exemplar repeat; materials: `[materials]`);
+/// everything without a bake.
 fn bake_changes(baked: Option<&SceneFile>, scene: &SceneFile) -> (bool, bool) {
+    let colour_layout = |s: &SceneFile| {
+        let m = &s.materials;
+        (m.warp_order.clone(), m.weft_order.clone(), m.palette.keys().cloned().collect::<Vec<_>>())
+    };
     baked.map_or((true, true), |b| {
-        (b.fabric != scene.fabric || b.pattern != scene.pattern, b.materials != scene.materials)
+        (
+            b.fabric != scene.fabric
+                || b.pattern != scene.pattern
+                || colour_layout(b) != colour_layout(scene),
+            b.materials != scene.materials,
+        )
     })
 }
 
@@ -1583,5 +1605,26 @@ impl eframe::App for ViewerApp {
         self.schedule(&ctx);
         self.run_script(&ctx);
         self.ui_timing.frame(frame_started, self.baker.progress().is_some());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use twill_precompute::scene::YarnSlot;
+
+    use super::super::colourway::{set_order, set_palette_colour, start_colourway};
+    use super::*;
+
+    #[test]
+    fn a_colour_order_edit_rebakes_geometry_and_a_recolouring_only_materials() {
+        let mut baked = SceneFile::default_scene();
+        start_colourway(&mut baked).unwrap();
+        let mut recoloured = baked.clone();
+        set_palette_colour(&mut recoloured, "warp", YarnSlot::Warp, [0.2, 0.1, 0.6]).unwrap();
+        assert_eq!(bake_changes(Some(&baked), &recoloured), (false, true));
+        let mut striped = baked.clone();
+        set_order(&mut striped, YarnSlot::Warp, "1 warp, 1 weft").unwrap();
+        assert_eq!(bake_changes(Some(&baked), &striped), (true, true));
+        assert_eq!(bake_changes(Some(&baked), &baked), (false, false));
     }
 }

@@ -50,7 +50,7 @@ pub fn woven_spec(scene: &SceneFile) -> Option<WovenSpec> {
 }
 
 /// Writes both slots' materials into `[materials]` (a preset's would otherwise be lost with it).
-fn pin_materials(scene: &mut SceneFile) {
+pub(super) fn pin_materials(scene: &mut SceneFile) {
     [scene.materials.warp, scene.materials.weft] = scene.material_slots();
 }
 
@@ -114,10 +114,19 @@ pub fn resize_draft(scene: &mut SceneFile, rows: usize, cols: usize) -> Result<(
     Ok(())
 }
 
-/// Reads a WIF file into the scene's weave.
+/// Reads a WIF file into the scene's weave, and its colours, when it has a colour table, into
+/// the scene's colourway (palette `wif1`, `wif2`, ... and the warp and weft orders).
 pub fn import_wif(scene: &mut SceneFile, path: &Path) -> Result<(), String> {
     let draft = twill_precompute::fabric::wif::read_wif(path).map_err(|e| e.to_string())?;
-    set_draft(scene, draft)
+    let colours = twill_precompute::fabric::wif::read_wif_colours(path).map_err(|e| e.to_string())?;
+    let mut candidate = scene.clone();
+    set_draft(&mut candidate, draft)?;
+    if let Some(colours) = colours {
+        candidate.apply_wif_colours(&colours);
+        candidate.check_colourway().map_err(|e| format!("{}: its colours: {e}", path.display()))?;
+    }
+    *scene = candidate;
+    Ok(())
 }
 
 /// A fiber parameter a script or slider sets.
@@ -395,7 +404,7 @@ fn yarn_colours(scene: &SceneFile) -> [egui::Color32; 2] {
     [colour(0, 0.45, 60), colour(1, 1.0, 200)]
 }
 
-fn srgb(linear: [f64; 3]) -> egui::Color32 {
+pub(super) fn srgb(linear: [f64; 3]) -> egui::Color32 {
     let [r, g, b] = linear.map(|c| egui::ecolor::gamma_u8_from_linear_f32(c.clamp(0.0, 1.0) as f32));
     egui::Color32::from_rgb(r, g, b)
 }

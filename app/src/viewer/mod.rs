@@ -11,7 +11,8 @@
 //! - orbits, pans, zooms and fits the camera ([`camera`]);
 //! - edits lights ([`lights`]) and render settings ([`quality`]), which only restart the picture;
 //! - edits the fabric ([`fabric`]: fiber scattering parameters, the weave draft, WIF import,
-//!   yarns) and the base mesh ([`mesh`]); a material edit shows new single scattering at once
+//!   yarns; [`colourway`]: a palette and warp and weft colour orders) and the base mesh
+//!   ([`mesh`]); a material edit shows new single scattering at once
 //!   and rebakes multiple scattering in the background, a weave edit rebakes what depends on
 //!   geometry, a mesh edit only swaps the shell; undo and redo cover every edit ([`history`]);
 //! - saves and opens scenes in the CLI's format;
@@ -27,6 +28,7 @@ mod accumulate;
 mod app;
 mod bake;
 mod camera;
+mod colourway;
 mod export;
 mod fabric;
 mod history;

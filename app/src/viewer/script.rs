@@ -34,7 +34,9 @@
 //! flip ROW COL                          # flip a crossing of the weave draft (pick, end)
 //! weave PRESET                          # a weave preset, e.g. weave twill_2_2
 //! repeat PICKS ENDS                     # the draft's repeat size
-//! import-wif PATH                       # the draft of a WIF file
+//! import-wif PATH                       # the draft (and colours, if any) of a WIF file
+//! palette NAME warp|weft R G B          # add or recolour a palette colour (linear RGB)
+//! order warp|weft RUNS...               # a colour order, e.g. order warp 2 navy, 1 red
 //! fiber warp|weft beta_r|beta_tt|gamma_tt DEGREES
 //! fiber warp|weft c_r|c_tt R G B
 //! mesh builtin swatch|drape|cushion
@@ -57,7 +59,18 @@ use std::time::Duration;
 
 use twill_precompute::bake::settings::Quality;
 
+use twill_precompute::scene::YarnSlot;
+
 use super::fabric::FiberField;
+
+/// `warp` or `weft`.
+fn yarn_slot(word: Option<&str>) -> Result<YarnSlot, String> {
+    match word {
+        Some("warp") => Ok(YarnSlot::Warp),
+        Some("weft") => Ok(YarnSlot::Weft),
+        other => Err(format!("expected warp or weft, not {other:?}")),
+    }
+}
 use super::lights::LightKind;
 
 /// Longest a waiting step may wait.
@@ -106,6 +119,8 @@ pub enum Step {
     Weave(String),
     Repeat { rows: usize, cols: usize },
     ImportWif(PathBuf),
+    Palette { name: String, base: YarnSlot, rgb: [f64; 3] },
+    Order { slot: YarnSlot, text: String },
     Fiber { slot: usize, field: FiberField },
     Mesh(MeshEdit),
     Undo,
@@ -239,6 +254,21 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
             Step::Repeat { rows: number(args.next(), "pick count")?, cols: number(args.next(), "end count")? }
         }
         "import-wif" => Step::ImportWif(PathBuf::from(args.next().ok_or("missing WIF file")?)),
+        "palette" => {
+            let name = args.next().ok_or("missing colour name")?.to_owned();
+            let base = yarn_slot(args.next())?;
+            let rgb =
+                [number(args.next(), "red")?, number(args.next(), "green")?, number(args.next(), "blue")?];
+            Step::Palette { name, base, rgb }
+        }
+        "order" => {
+            let slot = yarn_slot(args.next())?;
+            let text = args.by_ref().collect::<Vec<_>>().join(" ");
+            if text.is_empty() {
+                return Err("missing colour order, e.g. order warp 2 navy, 1 red".into());
+            }
+            Step::Order { slot, text }
+        }
         "fiber" => {
             let slot = match args.next() {
                 Some("warp") => 0,
@@ -338,7 +368,7 @@ mod tests {
         let text = "flip 1 2\nweave satin_4_1\nrepeat 4 6\nimport-wif a.wif\nfiber weft beta_tt 12.5\n\
                     fiber warp c_r 0.1 0.2 0.3\nmesh builtin cushion\nmesh file m.obj\nmesh thickness 2\n\
                     undo\nredo\nsave s.toml\nopen s.toml\nwait-idle\nspin 2.5\nframe-times t.txt\nlose-device\n\
-                    expect-baking interactive\n";
+                    expect-baking interactive\npalette navy warp 0.05 0.07 0.3\norder weft 2 cream, 1 navy\n";
         let steps: Vec<Step> =
             parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
         assert_eq!(steps[0], Step::Flip { row: 1, col: 2 });
@@ -349,7 +379,12 @@ mod tests {
         assert_eq!(steps[14], Step::Spin(2.5));
         assert_eq!(steps[16], Step::LoseDevice);
         assert_eq!(steps[17], Step::ExpectBaking(Quality::Interactive));
-        assert_eq!(steps.len(), 18);
+        assert_eq!(
+            steps[18],
+            Step::Palette { name: "navy".into(), base: YarnSlot::Warp, rgb: [0.05, 0.07, 0.3] }
+        );
+        assert_eq!(steps[19], Step::Order { slot: YarnSlot::Weft, text: "2 cream, 1 navy".into() });
+        assert_eq!(steps.len(), 20);
     }
 
     #[test]
@@ -364,6 +399,8 @@ mod tests {
             ("zoom -1\n", "positive"),
             ("fit now\n", "unexpected \"now\""),
             ("export a.png 0x5 4\n", "WIDTHxHEIGHT"),
+            ("order warp\n", "missing colour order"),
+            ("palette navy selvedge 0 0 0\n", "warp or weft"),
         ] {
             let err = parse_script(text, Path::new("s.txt")).unwrap_err();
             assert!(err.contains(needle), "{err}");

@@ -16,6 +16,12 @@
 //!   `[TIEUP]`: `treadle=shaft,shaft,...` with `[TREADLING]`: `pick=treadle[,treadle...]`, the
 //!   shafts lifted on a pick being those tied to any of its treadles.
 //!
+//! Colours ([`parse_wif_colours`], read separately so that a colour section a draft import does
+//! not need can never break it): `[COLOR TABLE]` `k=r,g,b` scaled by `[COLOR PALETTE]`
+//! `Range=lo,hi` (default 0,255) to 0..1; `[WARP COLORS]` / `[WEFT COLORS]` `thread=k`, threads
+//! not listed taking `[WARP]` / `[WEFT]` `Color=k`. Each direction's sequence is cut to its
+//! shortest period (files list every thread of several colour repeats).
+//!
 //! Ends and picks not listed are unthreaded and unlifted. Warp end `e` passes over pick `p`
 //! when one of its shafts is lifted on that pick (with a rising shed; a sinking shed inverts
 //! this, its tie-up naming the shafts that sink). End `e` becomes draft column `e - 1` (the
@@ -68,6 +74,23 @@ pub enum WifError {
     TooLarge { file: PathBuf, rows: usize, cols: usize, repeat: String },
     #[error("{}: {source} (draft rows are picks and columns ends, both counted from 0)", file.display())]
     Weave { file: PathBuf, source: WeaveError },
+    #[error("{at}: colour {colour} is not in [COLOR TABLE]")]
+    UnknownColour { at: Box<WifLine>, colour: u32 },
+    #[error(
+        "{}: {what} {thread} has no colour: [{listing}] does not list it and [{default}] has no `Color=`",
+        file.display()
+    )]
+    NoColour {
+        file: PathBuf,
+        what: &'static str,
+        thread: usize,
+        listing: &'static str,
+        default: &'static str,
+    },
+    #[error("{at}: expected {expected}")]
+    BadColourValue { at: Box<WifLine>, expected: String },
+    #[error("{}: the {what} colour sequence repeats every {period} threads: at most {max} are supported", file.display())]
+    ColourRepeat { file: PathBuf, what: &'static str, period: usize, max: usize },
 }
 
 /// The line a [`WifError`] is about: the file, the 1-based line number, the section and the
@@ -106,6 +129,13 @@ struct Section {
 /// The sections this module reads (upper case, as the WIF specification spells them).
 const READ_SECTIONS: [&str; 8] =
     ["CONTENTS", "WEAVING", "WARP", "WEFT", "THREADING", "TIEUP", "TREADLING", "LIFTPLAN"];
+
+/// The sections the colour import reads.
+const COLOUR_SECTIONS: [&str; 7] =
+    ["CONTENTS", "WARP", "WEFT", "COLOR PALETTE", "COLOR TABLE", "WARP COLORS", "WEFT COLORS"];
+
+/// Most entries a `[COLOR TABLE]` may have.
+pub const MAX_TABLE_COLOURS: usize = 4096;
 
 /// The parsed file: the sections this module reads, with `[CONTENTS]` applied.
 struct WifFile {
@@ -148,7 +178,7 @@ pub fn read_wif(path: &Path) -> Result<WeaveDraft, WifError> {
 
 /// Imports WIF text; `file` names it in errors.
 pub fn parse_wif(text: &str, file: &Path) -> Result<WeaveDraft, WifError> {
-    let wif = split_sections(text, file)?;
+    let wif = split_sections(text, file, &READ_SECTIONS)?;
 
     // [WEAVING]
     let weaving = wif.section("WEAVING").ok_or_else(|| WifError::MissingSection {
@@ -272,14 +302,149 @@ pub fn parse_wif(text: &str, file: &Path) -> Result<WeaveDraft, WifError> {
     WeaveDraft::new(rows, cols, cells).map_err(weave)
 }
 
+/// A WIF file's colours: its colour table and the colour of every end and pick.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WifColours {
+    /// `[COLOR TABLE]` entry `k + 1` as display RGB in 0..=1 (`None` where the table skips `k + 1`).
+    pub table: Vec<Option<[f64; 3]>>,
+    /// The table index (0-based) of each warp end's colour over the warp's colour repeat; empty
+    /// when the file gives the warp no colour at all.
+    pub warp: Vec<u32>,
+    /// The same for the weft's picks.
+    pub weft: Vec<u32>,
+}
+
+/// Reads a WIF file's colours (`None`: it has no `[COLOR TABLE]`).
+pub fn read_wif_colours(path: &Path) -> Result<Option<WifColours>, WifError> {
+    let bytes = std::fs::read(path).map_err(|source| WifError::Read { file: path.to_owned(), source })?;
+    parse_wif_colours(&String::from_utf8_lossy(&bytes), path)
+}
+
+/// The colours of WIF text (`None`: no `[COLOR TABLE]`); `file` names it in errors. Every
+/// thread up to `[WARP]` / `[WEFT]` `Threads=` (or the last one listed) needs a colour, its own
+/// or the default `Color=`; a sequence longer than [`WeaveDraft::MAX_SIZE`] must repeat within
+/// it.
+pub fn parse_wif_colours(text: &str, file: &Path) -> Result<Option<WifColours>, WifError> {
+    let wif = split_sections(text, file, &COLOUR_SECTIONS)?;
+    let Some(table_section) = wif.section("COLOR TABLE") else { return Ok(None) };
+    let range = match wif.section("COLOR PALETTE").and_then(|s| s.get("Range").map(|e| (s, e))) {
+        None => (0.0, 255.0),
+        Some((section, entry)) => {
+            let place = Place::new(file, section, entry);
+            let bad = || WifError::BadColourValue {
+                at: Box::new(place.at()),
+                expected: "`lo,hi`, two numbers with lo < hi (e.g. 0,255)".into(),
+            };
+            let numbers: Vec<f64> = entry
+                .value
+                .split(',')
+                .map(|v| v.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| bad())?;
+            match numbers[..] {
+                [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => (lo, hi),
+                _ => return Err(bad()),
+            }
+        }
+    };
+    let table_limit = (MAX_TABLE_COLOURS, "colours a table may hold".to_owned());
+    let mut table: Vec<Option<[f64; 3]>> = Vec::new();
+    for entry in &table_section.entries {
+        let place = Place::new(file, table_section, entry);
+        let k = place.number(&entry.key, "colour", &table_limit)? as usize;
+        let bad = || WifError::BadColourValue {
+            at: Box::new(place.at()),
+            expected: format!("`r,g,b`, three numbers in {}..={} ([COLOR PALETTE] Range)", range.0, range.1),
+        };
+        let values: Vec<f64> = entry
+            .value
+            .split(',')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| bad())?;
+        let [r, g, b] = values[..] else { return Err(bad()) };
+        let rgb = [r, g, b];
+        if !rgb.iter().all(|v| (range.0..=range.1).contains(v)) {
+            return Err(bad());
+        }
+        if table.len() < k {
+            table.resize(k, None);
+        }
+        table[k - 1] = Some(rgb.map(|v| (v - range.0) / (range.1 - range.0)));
+    }
+    let colour_number = |place: &Place, item: &str| -> Result<u32, WifError> {
+        let k = place.number(item, "colour", &table_limit)?;
+        if table.get(k as usize - 1).copied().flatten().is_none() {
+            return Err(WifError::UnknownColour { at: Box::new(place.at()), colour: k });
+        }
+        Ok(k - 1)
+    };
+    let sequence = |direction: &'static str, listing: &'static str, what: &'static str| {
+        let section = wif.section(direction);
+        let default = section
+            .and_then(|s| s.get("Color").map(|e| (s, e)))
+            .map(|(s, e)| colour_number(&Place::new(file, s, e), e.value.split(',').next().unwrap_or("")))
+            .transpose()?;
+        let declared = section
+            .and_then(|s| s.get("Threads").map(|e| (s, e)))
+            .map(|(s, e)| Place::new(file, s, e).count("the number of threads", MAX_THREADS))
+            .transpose()?;
+        let thread_limit = (MAX_THREADS, "threads a file may have".to_owned());
+        let mut listed: Vec<(usize, u32)> = Vec::new();
+        if let Some(s) = wif.section(listing) {
+            for entry in &s.entries {
+                let place = Place::new(file, s, entry);
+                let thread = place.number(&entry.key, "thread", &thread_limit)? as usize;
+                listed.push((thread, colour_number(&place, &entry.value)?));
+            }
+        }
+        let n = declared.unwrap_or_else(|| listed.iter().map(|&(t, _)| t).max().unwrap_or(0));
+        if n == 0 || (listed.is_empty() && default.is_none()) {
+            return Ok(Vec::new());
+        }
+        let mut colours = vec![default; n];
+        for (thread, colour) in listed {
+            if thread <= n {
+                colours[thread - 1] = Some(colour);
+            }
+        }
+        let colours = colours
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| {
+                c.ok_or(WifError::NoColour {
+                    file: file.to_owned(),
+                    what,
+                    thread: i + 1,
+                    listing,
+                    default: direction,
+                })
+            })
+            .collect::<Result<Vec<u32>, _>>()?;
+        let period = smallest_repeat(&colours);
+        if period > WeaveDraft::MAX_SIZE {
+            return Err(WifError::ColourRepeat {
+                file: file.to_owned(),
+                what,
+                period,
+                max: WeaveDraft::MAX_SIZE,
+            });
+        }
+        Ok(colours[..period].to_vec())
+    };
+    let warp = sequence("WARP", "WARP COLORS", "warp end")?;
+    let weft = sequence("WEFT", "WEFT COLORS", "weft pick")?;
+    Ok(Some(WifColours { table, warp, weft }))
+}
+
 /// The length of the shortest prefix whose repetition is `items` (`items.len()` if none).
-fn smallest_repeat(items: &[Vec<u32>]) -> usize {
+fn smallest_repeat<T: PartialEq>(items: &[T]) -> usize {
     let n = items.len();
     (1..=n).find(|&p| n.is_multiple_of(p) && (p..n).all(|k| items[k] == items[k - p])).unwrap_or(n)
 }
 
 /// Splits the text into the sections this module reads, and reads `[CONTENTS]`.
-fn split_sections(text: &str, file: &Path) -> Result<WifFile, WifError> {
+fn split_sections(text: &str, file: &Path, read: &[&str]) -> Result<WifFile, WifError> {
     let mut sections: Vec<Section> = Vec::new();
     // Index into `sections` of the current section, if it is one this module reads.
     let mut current: Option<usize> = None;
@@ -295,7 +460,7 @@ fn split_sections(text: &str, file: &Path) -> Result<WifFile, WifError> {
                 return Err(WifError::BadHeader { file: file.to_owned(), line, text: content.to_owned() });
             };
             let name = name.trim();
-            current = READ_SECTIONS.iter().any(|s| s.eq_ignore_ascii_case(name)).then(|| {
+            current = read.iter().any(|s| s.eq_ignore_ascii_case(name)).then(|| {
                 sections.iter().position(|s| s.name.eq_ignore_ascii_case(name)).unwrap_or_else(|| {
                     sections.push(Section { name: name.to_owned(), line, entries: Vec::new() });
                     sections.len() - 1
@@ -655,5 +820,70 @@ mod tests {
     fn a_missing_file_is_named() {
         let msg = read_wif(Path::new("/no/such/draft.wif")).unwrap_err().to_string();
         assert!(msg.starts_with("/no/such/draft.wif:"), "{msg}");
+    }
+
+    /// The 2/2 twill with colours: warp ends default to colour 1 (`Color=1`), the weft all
+    /// `Color=2`; `warp_colours` lists ends of [WARP COLORS].
+    fn coloured_wif(extra_table: &str, warp_colours: &str) -> String {
+        twill_wif("true")
+            .replace("[CONTENTS]\n", "[CONTENTS]\nCOLOR PALETTE=true\nCOLOR TABLE=true\nWARP COLORS=true\n")
+            .replace("[WARP]\nThreads=4\n", "[WARP]\nThreads=4\nColor=1\n")
+            .replace("[WEFT]\nThreads=4\n", "[WEFT]\nThreads=4\nColor=2\n")
+            + &format!(
+                "[COLOR PALETTE]\nEntries=3\nForm=RGB\nRange=0,255\n\
+             [COLOR TABLE]\n1=0,0,128\n2=255,255,204\n3=204,0,0\n{extra_table}\
+             [WARP COLORS]\n{warp_colours}"
+            )
+    }
+
+    #[test]
+    fn colours_come_from_the_table_and_each_thread_cut_to_the_colour_repeat() {
+        let text = coloured_wif("", "2=3\n4=3\n");
+        let colours = parse_wif_colours(&text, Path::new("c.wif")).unwrap().expect("a colour table");
+        assert_eq!(colours.table.len(), 3);
+        assert_eq!(colours.table[0], Some([0.0, 0.0, 128.0 / 255.0]));
+        assert_eq!(colours.table[1], Some([1.0, 1.0, 0.8]));
+        // Ends 1 and 3 take [WARP] Color=1; the sequence 1,3,1,3 repeats every 2.
+        assert_eq!(colours.warp, [0, 2]);
+        assert_eq!(colours.weft, [1]);
+        // The draft import reads the same file as without colours.
+        assert!(parse_wif(&text, Path::new("c.wif")).is_ok());
+        // No table: no colours.
+        assert_eq!(parse_wif_colours(&twill_wif("true"), Path::new("t.wif")).unwrap(), None);
+    }
+
+    #[test]
+    fn colour_errors_name_the_line_and_what_is_expected() {
+        let cases = [
+            (coloured_wif("", "2=4\n"), "[WARP COLORS] 2=4: colour 4 is not in [COLOR TABLE]"),
+            (coloured_wif("4=1,2\n", ""), "[COLOR TABLE] 4=1,2: expected `r,g,b`"),
+            (coloured_wif("4=1,2,300\n", ""), "three numbers in 0..=255"),
+            (
+                coloured_wif("", "")
+                    .replace("Threads=4\nColor=1\n", "Threads=4\n")
+                    .replace("[WARP COLORS]\n", "[WARP COLORS]\n1=1\n"),
+                "warp end 2 has no colour",
+            ),
+            (coloured_wif("", "").replace("Range=0,255", "Range=255,0"), "Range=255,0: expected `lo,hi`"),
+        ];
+        for (text, expect) in cases {
+            let message = parse_wif_colours(&text, Path::new("c.wif")).unwrap_err().to_string();
+            assert!(message.contains(expect) && message.starts_with("c.wif"), "{expect}: {message}");
+        }
+        // A broken colour section never breaks the draft import.
+        let broken = coloured_wif("this line has no equals sign\n", "");
+        assert!(parse_wif(&broken, Path::new("c.wif")).is_ok());
+        assert!(parse_wif_colours(&broken, Path::new("c.wif")).is_err());
+    }
+
+    #[test]
+    fn a_colour_sequence_that_never_repeats_within_the_limit_is_refused() {
+        let mut listed = String::new();
+        for t in 1..=70 {
+            writeln!(listed, "{t}={}", 1 + u32::from(t % 7 == 0 || t == 69)).unwrap();
+        }
+        let text = coloured_wif("", &listed).replace("[WARP]\nThreads=4", "[WARP]\nThreads=70");
+        let message = parse_wif_colours(&text, Path::new("c.wif")).unwrap_err().to_string();
+        assert!(message.contains("repeats every 70 threads") && message.contains("at most 64"), "{message}");
     }
 }
