@@ -8,8 +8,10 @@
 // tetrahedra, found by one fragment per shell layer instead of one per tetrahedron crossed.
 // The fragment writes the hit's world position and ids to the G-buffer and its true depth, so
 // the depth test keeps the nearest hit where the ray enters the shell more than once (folded
-// cloth). Needs shared/fabric_data.wgsl before it.
-// Twin structs: renderer/src/frame.rs (FrameUniformsGpu, TetraGpu).
+// cloth).
+// Twin structs: renderer/src/frame.rs (FrameUniformsGpu).
+#import shared/fabric_data.wgsl
+#import shared/shell.wgsl
 
 struct FrameUniforms {
     clip_from_world: mat4x4<f32>,
@@ -24,16 +26,6 @@ struct FrameUniforms {
     film: vec4<f32>,
 }
 
-// One tetrahedron: rows of its world -> (u, v, w) affine map, its four face planes in (u, v, w)
-// space (n . x + d >= 0 inside; plane k is the face opposite corner k), and the tetrahedron
-// across each face (NO_NEIGHBOR on the shell's surface).
-struct TetraGpu {
-    uvw_from_world: array<vec4<f32>, 3>,
-    planes: array<vec4<f32>, 4>,
-    neighbors: vec4<u32>,
-}
-
-const NO_NEIGHBOR: u32 = 0xffffffffu;
 // Most tetrahedra one eye ray walks through (a guard against a cycle on a malformed shell).
 const MAX_RAY_TETRAS: u32 = 4096u;
 // Tetrahedra in a row an eye ray may cross without moving on (through an edge or a corner).

@@ -2,9 +2,10 @@
 // view and light directions into the hit tetrahedron's flat-fabric frame, and adds single and
 // multiple scattering from every light to the accumulation buffer. Which terms and which
 // local-visibility paths exist is fixed by override constants from the frame plan, so a path
-// the scene does not need is not even compiled. Needs shared/fabric_data.wgsl, shared/sh.wgsl
-// and shared/shading.wgsl before it, and the TetraGpu struct of gbuffer.wgsl (repeated here).
+// the scene does not need is not even compiled.
 // Twin structs: renderer/src/frame.rs (ShadeUniformsGpu, LightGpu).
+#import shared/shading.wgsl
+#import shared/shell.wgsl
 
 override ENABLE_SINGLE: bool = true;
 override ENABLE_MULTIPLE: bool = true;
@@ -27,12 +28,6 @@ struct ShadeUniforms {
     uv_rect: vec4<f32>,
     // x: fabric slab thickness in cm.
     fabric: vec4<f32>,
-}
-
-struct TetraGpu {
-    uvw_from_world: array<vec4<f32>, 3>,
-    planes: array<vec4<f32>, 4>,
-    neighbors: vec4<u32>,
 }
 
 @group(0) @binding(0) var<uniform> shade: ShadeUniforms;

@@ -12,7 +12,7 @@ struct SurfaceVertex {
 
 struct SurfaceUniforms {
     // One orthographic clip-from-world matrix per shadow-map layer (at most 8 lights).
-    light_clip_from_world: array<mat4x4<f32>, 8>,
+    light_clip_from_world: array<mat4x4<f32>, MAX_SHADOWED_LIGHTS>,
     // (u_min, v_min, u_max - u_min, v_max - v_min) of the shell, cm.
     uv_rect: vec4<f32>,
 }

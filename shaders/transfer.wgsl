@@ -3,8 +3,9 @@
 // tetrahedra share one flat-fabric frame, lit without shadow maps), every pixel would multiply
 // the same eight transfer matrices by the same vector. One invocation per cell computes c_in
 // (shared/shading.wgsl light_sh_accumulate, as the shading pass does) and A c_in; the shading
-// pass then interpolates the results (shade.wgsl frame_transferred_at). Needs the shared
-// library before it. Twin structs: renderer/src/frame.rs (TransferUniformsGpu, LightGpu).
+// pass then interpolates the results (shade.wgsl frame_transferred_at).
+// Twin structs: renderer/src/frame.rs (TransferUniformsGpu, LightGpu).
+#import shared/shading.wgsl
 
 struct TransferUniforms {
     // x: lights, y: cells, zw: unused.

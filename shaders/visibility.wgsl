@@ -5,11 +5,11 @@
 // Twin structs: renderer/src/frame.rs (VisibilityUniformsGpu).
 
 struct VisibilityUniforms {
-    light_clip_from_world: array<mat4x4<f32>, 8>,
+    light_clip_from_world: array<mat4x4<f32>, MAX_SHADOWED_LIGHTS>,
     // Per layer: x = filter (1 PCF, 2 PCSS), y = kernel radius in texels (PCF),
     // z = penumbra width in texels per cm of blocker-to-receiver distance (PCSS),
     // w = depth bias in depth units.
-    filters: array<vec4<f32>, 8>,
+    filters: array<vec4<f32>, MAX_SHADOWED_LIGHTS>,
     // x = layers, y = shadow-map size, z = depth range of the light frusta in cm.
     info: vec4<f32>,
 }

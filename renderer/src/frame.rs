@@ -337,15 +337,9 @@ fn texture_entry(
     }
 }
 
-/// The WGSL of a pass: the shared modules it needs, then its own file.
-fn pass_source(needs_fabric: bool, pass: &str) -> String {
-    let mut source = String::new();
-    if needs_fabric {
-        source.push_str(&shaders::shared_library());
-        source.push('\n');
-    }
-    source.push_str(pass);
-    source
+/// The WGSL of a pass: its file under `shaders/` with its imports resolved.
+fn pass_source(file: &str) -> String {
+    shaders::compose(file).unwrap_or_else(|e| panic!("twill's own shaders compose: {e}"))
 }
 
 fn shader_module(device: &wgpu::Device, label: &str, source: String) -> wgpu::ShaderModule {
@@ -534,8 +528,7 @@ impl Renderer {
             bind_group_layouts: &[Some(&gbuffer_layout), Some(&fabric.layout)],
             immediate_size: 0,
         });
-        let gbuffer_module =
-            shader_module(&device, "twill.gbuffer.shader", pass_source(true, shaders::GBUFFER));
+        let gbuffer_module = shader_module(&device, "twill.gbuffer.shader", pass_source("gbuffer.wgsl"));
         let gbuffer_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("twill.gbuffer.pipeline"),
             layout: Some(&gbuffer_pipeline_layout),
@@ -573,7 +566,7 @@ impl Renderer {
         });
 
         let surface_module =
-            shader_module(&device, "twill.shell_surface.shader", pass_source(false, shaders::SHELL_SURFACE));
+            shader_module(&device, "twill.shell_surface.shader", pass_source("shell_surface.wgsl"));
         let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("twill.shadow.pipeline"),
             layout: None,
@@ -618,13 +611,12 @@ impl Renderer {
             cache: None,
         });
         let visibility_module =
-            shader_module(&device, "twill.visibility.shader", pass_source(false, shaders::VISIBILITY));
+            shader_module(&device, "twill.visibility.shader", pass_source("visibility.wgsl"));
         let visibility_pipeline =
             compute_pipeline(&device, "twill.visibility.pipeline", &visibility_module, None, &[]);
-        let blur_module = shader_module(&device, "twill.blur.shader", pass_source(false, shaders::BLUR));
+        let blur_module = shader_module(&device, "twill.blur.shader", pass_source("blur.wgsl"));
         let blur_pipeline = compute_pipeline(&device, "twill.blur.pipeline", &blur_module, None, &[]);
-        let tonemap_module =
-            shader_module(&device, "twill.tonemap.shader", pass_source(false, shaders::TONEMAP));
+        let tonemap_module = shader_module(&device, "twill.tonemap.shader", pass_source("tonemap.wgsl"));
         let tonemap_pipeline =
             compute_pipeline(&device, "twill.tonemap.pipeline", &tonemap_module, None, &[]);
 
@@ -660,8 +652,7 @@ impl Renderer {
                 bind_group_layouts: &[Some(&transfer_layout), Some(&fabric.layout)],
                 immediate_size: 0,
             });
-            let module =
-                shader_module(&device, "twill.transfer.shader", pass_source(true, shaders::TRANSFER));
+            let module = shader_module(&device, "twill.transfer.shader", pass_source("transfer.wgsl"));
             compute_pipeline(&device, "twill.transfer.pipeline", &module, Some(&layout), &[])
         };
         if let Some(error) = pollster::block_on(scope.pop()) {
@@ -735,7 +726,7 @@ impl Renderer {
                 bind_group_layouts: &[Some(shade_layout), Some(fabric_layout)],
                 immediate_size: 0,
             });
-            let module = shader_module(device, "twill.shade.shader", pass_source(true, shaders::SHADE));
+            let module = shader_module(device, "twill.shade.shader", pass_source("shade.wgsl"));
             let flag = |b: bool| if b { 1.0 } else { 0.0 };
             let constants = [
                 ("ENABLE_SINGLE", flag(variant.single)),
@@ -1775,10 +1766,10 @@ mod tests {
 
     #[test]
     fn every_gpu_struct_matches_its_wgsl_twin_in_size_and_field_offsets() {
-        let gbuffer = pass_source(true, shaders::GBUFFER);
-        let shade = pass_source(true, shaders::SHADE);
-        let transfer = pass_source(true, shaders::TRANSFER);
-        let shared = pass_source(true, "");
+        let gbuffer = pass_source("gbuffer.wgsl");
+        let shade = pass_source("shade.wgsl");
+        let transfer = pass_source("transfer.wgsl");
+        let shared = shaders::shared_library();
         let cases = [
             (
                 "FrameUniforms",
@@ -1790,27 +1781,27 @@ mod tests {
             ("TransferUniforms", &transfer, rust_struct!(TransferUniformsGpu; counts, uvw_from_world)),
             (
                 "SurfaceVertex",
-                &shaders::SHELL_SURFACE.to_owned(),
+                &pass_source("shell_surface.wgsl"),
                 rust_struct!(SurfaceVertexGpu; position, uvw),
             ),
             (
                 "SurfaceUniforms",
-                &shaders::SHELL_SURFACE.to_owned(),
+                &pass_source("shell_surface.wgsl"),
                 rust_struct!(SurfaceUniformsGpu; light_clip_from_world, uv_rect),
             ),
             (
                 "VisibilityUniforms",
-                &shaders::VISIBILITY.to_owned(),
+                &pass_source("visibility.wgsl"),
                 rust_struct!(VisibilityUniformsGpu; light_clip_from_world, filters, info),
             ),
-            ("BlurUniforms", &shaders::BLUR.to_owned(), rust_struct!(BlurUniformsGpu; axis)),
+            ("BlurUniforms", &pass_source("blur.wgsl"), rust_struct!(BlurUniformsGpu; axis)),
             (
                 "LightGpu",
                 &shade,
                 rust_struct!(LightGpu; direction, kind, color, sharpness, layer, w_sum_of_sg, w_ssdf_erf),
             ),
             ("ShadeUniforms", &shade, rust_struct!(ShadeUniformsGpu; counts, eye, uv_rect, fabric)),
-            ("ToneMapUniforms", &shaders::TONEMAP.to_owned(), rust_struct!(ToneMapUniformsGpu; size, scale)),
+            ("ToneMapUniforms", &pass_source("tonemap.wgsl"), rust_struct!(ToneMapUniformsGpu; size, scale)),
             (
                 "FabricHeader",
                 &shared,

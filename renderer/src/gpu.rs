@@ -112,7 +112,8 @@ impl Gpu {
     }
 
     /// As [`Gpu::evaluate`], with a baked fabric bound as group 1 (for functions that read
-    /// bake data: `library` must then include `shaders::FABRIC_DATA`).
+    /// bake data: `library` must then include `shared/fabric_data.wgsl`, e.g.
+    /// `shaders::shared_library()`).
     pub fn evaluate_with_fabric(
         &self,
         library: &str,

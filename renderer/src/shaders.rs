@@ -1,6 +1,14 @@
-//! WGSL sources, compiled into the binary. Shared modules (`shaders/shared/*.wgsl`) hold
-//! functions only; a pass's shader is its own file concatenated after the shared modules it
-//! uses (WGSL has no includes).
+//! WGSL sources, compiled into the binary, and their composition with `#import`.
+//!
+//! How it works: a file names the shared modules it uses with `#import shared/NAME.wgsl` lines
+//! (at its top, one per line). [`compose`] resolves them depth-first, each module once, so every
+//! module comes after the modules it imports; it strips the directives, separates the files with
+//! a `// ---- FILE ----` comment (naga's messages quote the line, which finds the file), and puts
+//! the [`prelude`] first: the constants both sides use, written from their Rust definitions
+//! (`MAX_SHADOWED_LIGHTS`, `NO_NEIGHBOR`, `VOXEL_START_NUDGE`), so the WGSL never repeats a
+//! number the Rust side owns. Every struct and constant is defined in one file.
+
+use std::fmt::Write as _;
 
 /// `erf_f32`, `erfc_f32`, `i0e_f32`: twins of `twill_precompute::special`.
 pub const SPECIAL: &str = include_str!("../../shaders/shared/special.wgsl");
@@ -40,25 +48,143 @@ pub const SH: &str = include_str!("../../shaders/shared/sh.wgsl");
 /// the file current). Needs no other module.
 pub const SH_QUARTER_TURN: &str = include_str!("../../shaders/shared/sh_quarter_turn.wgsl");
 
-/// Every shared module, with its file name (for validation and error messages), in an order
-/// where each needs only those before it.
-pub const SHARED: &[(&str, &str)] = &[
+/// `TetraGpu` (the shell's tetrahedra) for the passes that walk or shade the shell.
+pub const SHELL: &str = include_str!("../../shaders/shared/shell.wgsl");
+
+/// Every WGSL file by its path under `shaders/` (what `#import` names).
+pub const FILES: &[(&str, &str)] = &[
     ("shared/special.wgsl", SPECIAL),
     ("shared/sg.wgsl", SG),
     ("shared/sh_quarter_turn.wgsl", SH_QUARTER_TURN),
     ("shared/sh.wgsl", SH),
     ("shared/fabric_data.wgsl", FABRIC_DATA),
     ("shared/shading.wgsl", SHADING),
+    ("shared/shell.wgsl", SHELL),
+    ("gbuffer.wgsl", GBUFFER),
+    ("shell_surface.wgsl", SHELL_SURFACE),
+    ("visibility.wgsl", VISIBILITY),
+    ("blur.wgsl", BLUR),
+    ("shade.wgsl", SHADE),
+    ("transfer.wgsl", TRANSFER),
+    ("tonemap.wgsl", TONEMAP),
 ];
 
-/// The shared modules concatenated in dependency order (what a pass shader is appended to).
-#[must_use]
-pub fn shared_library() -> String {
-    SHARED.iter().map(|(_, source)| *source).collect::<Vec<_>>().join("\n")
+/// A file that cannot be composed.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum ComposeError {
+    #[error("{file}: imports {import:?}, which is not one of twill's WGSL files")]
+    Unknown { file: String, import: String },
+    #[error("{0:?} is not one of twill's WGSL files")]
+    UnknownFile(String),
+    #[error("import cycle: {}", .0.join(" -> "))]
+    Cycle(Vec<String>),
 }
 
+/// The constants the Rust side owns, as WGSL.
+#[must_use]
+pub fn prelude() -> String {
+    let mut out = String::from("// ---- prelude: constants written from their Rust definitions ----\n");
+    let _ = writeln!(out, "const MAX_SHADOWED_LIGHTS: u32 = {}u;", crate::frame::MAX_SHADOWED_LIGHTS);
+    let _ = writeln!(out, "const NO_NEIGHBOR: u32 = {}u;", crate::shell::NO_NEIGHBOR);
+    #[allow(clippy::cast_possible_truncation)]
+    let nudge = twill_precompute::bake::volume::VOXEL_START_NUDGE as f32;
+    let _ = writeln!(out, "const VOXEL_START_NUDGE: f32 = {nudge:?};");
+    out
+}
+
+/// The `#import`s of `source`, in order.
+fn imports(source: &str) -> impl Iterator<Item = &str> {
+    source.lines().filter_map(|line| line.trim().strip_prefix("#import")).map(str::trim)
+}
+
+fn source_of(name: &str) -> Option<&'static str> {
+    FILES.iter().find(|(file, _)| *file == name).map(|(_, source)| *source)
+}
+
+/// `name` (a path under `shaders/`) with its imports resolved: the prelude, then every module
+/// it needs (each once, after its own imports), then the file itself.
+///
+/// # Errors
+/// An unknown file or import, or an import cycle.
+pub fn compose(name: &str) -> Result<String, ComposeError> {
+    compose_all(&[name])
+}
+
+/// Several files composed into one source (each module once), in the order given.
+///
+/// # Errors
+/// As [`compose`].
+pub fn compose_all(names: &[&str]) -> Result<String, ComposeError> {
+    fn visit(
+        name: &str,
+        stack: &mut Vec<String>,
+        done: &mut Vec<String>,
+        out: &mut String,
+    ) -> Result<(), ComposeError> {
+        if done.iter().any(|d| d == name) {
+            return Ok(());
+        }
+        if stack.iter().any(|s| s == name) {
+            let mut chain = stack.clone();
+            chain.push(name.to_owned());
+            return Err(ComposeError::Cycle(chain));
+        }
+        let source = source_of(name).ok_or_else(|| match stack.last() {
+            Some(file) => ComposeError::Unknown { file: file.clone(), import: name.to_owned() },
+            None => ComposeError::UnknownFile(name.to_owned()),
+        })?;
+        stack.push(name.to_owned());
+        for import in imports(source) {
+            visit(import, stack, done, out)?;
+        }
+        stack.pop();
+        let _ = writeln!(out, "// ---- {name} ----");
+        for line in source.lines().filter(|line| !line.trim_start().starts_with("#import")) {
+            out.push_str(line);
+            out.push('\n');
+        }
+        done.push(name.to_owned());
+        Ok(())
+    }
+    let mut out = prelude();
+    let mut done = Vec::new();
+    for name in names {
+        visit(name, &mut Vec::new(), &mut done, &mut out)?;
+    }
+    Ok(out)
+}
+
+/// Every shared module (shading and all it imports), for tests that append their own entry
+/// points to the library.
+#[must_use]
+pub fn shared_library() -> String {
+    compose_all(&["shared/shading.wgsl", "shared/shell.wgsl"]).expect("the shared modules compose")
+}
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    #[test]
+    fn every_file_composes_and_each_module_comes_once_after_its_imports() {
+        for (name, _) in FILES {
+            let composed = compose(name).unwrap();
+            let markers: Vec<&str> =
+                composed.lines().filter_map(|l| l.strip_prefix("// ---- ")?.strip_suffix(" ----")).collect();
+            for (k, marker) in markers.iter().enumerate() {
+                assert!(!markers[k + 1..].contains(marker), "{name}: {marker} twice");
+                if let Some(source) = source_of(marker) {
+                    for import in imports(source) {
+                        let at = markers.iter().position(|m| *m == import);
+                        assert!(at.is_some_and(|i| i < k), "{name}: {import} must come before {marker}");
+                    }
+                }
+            }
+            assert!(!composed.lines().any(|l| l.trim_start().starts_with("#import")), "{name}");
+            assert!(composed.starts_with("// ---- prelude"), "{name}");
+        }
+        assert_eq!(compose("nope.wgsl"), Err(ComposeError::UnknownFile("nope.wgsl".into())));
+    }
+
     /// `shaders/shared/sh_quarter_turn.wgsl` is what its generator writes today. With
     /// `TWILL_REGENERATE=1` the test writes the file (atomically) instead of failing.
     #[test]

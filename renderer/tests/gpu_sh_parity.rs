@@ -28,7 +28,7 @@ const SENTINEL: f32 = 1234.5;
 /// Four coefficients per invocation: 13 chunks cover the 49 of order 6.
 const CHUNKS: usize = 13;
 
-/// Test wrappers appended to `shaders::SH`. The input's `w` packs integers exactly
+/// Test wrappers appended to `shared/sh.wgsl` (composed). The input's `w` packs integers exactly
 /// (`seed * 91 + order * 13 + chunk`, below 2^24); each call returns coefficients
 /// `4 chunk .. 4 chunk + 4` (0 past 49).
 const WRAPPERS: &str = r"
@@ -117,7 +117,7 @@ fn sh_test_zonal(axis: vec3<f32>, packed: u32) -> vec4<f32> {
 ";
 
 fn library() -> String {
-    format!("{}\n{}\n{WRAPPERS}", shaders::SH_QUARTER_TURN, shaders::SH)
+    format!("{}\n{WRAPPERS}", shaders::compose("shared/sh.wgsl").expect("sh.wgsl composes"))
 }
 
 /// Twin of `sh_test_hash`.

@@ -1,4 +1,5 @@
-//! Every WGSL file under `shaders/` parses and validates with naga, without a GPU.
+//! Every WGSL file under `shaders/` composes (its `#import`s resolved), parses and validates
+//! with naga, without a GPU; and every file on disk is one the renderer compiles in.
 
 use std::path::{Path, PathBuf};
 
@@ -13,20 +14,10 @@ fn wgsl_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// Shared modules may call functions of the modules before them (WGSL has no includes), so
-/// each file is validated after everything `shaders::SHARED` lists before it.
-fn with_prerequisites(file: &Path, source: &str) -> String {
-    let name = file.to_string_lossy().replace('\\', "/");
-    let mut text = String::new();
-    for (shared, shared_source) in twill_renderer::shaders::SHARED {
-        if name.ends_with(shared) {
-            break;
-        }
-        text.push_str(shared_source);
-        text.push('\n');
-    }
-    text.push_str(source);
-    text
+/// A file as the renderer compiles it: its `#import`s resolved (`shaders::compose`).
+fn composed(file: &Path, root: &Path) -> Result<String, String> {
+    let name = file.strip_prefix(root).unwrap().to_string_lossy().replace('\\', "/");
+    twill_renderer::shaders::compose(&name).map_err(|e| e.to_string())
 }
 
 #[test]
@@ -38,7 +29,13 @@ fn every_wgsl_file_validates() {
     assert!(!files.is_empty(), "no WGSL files found under {}", root.display());
     let mut failures = Vec::new();
     for file in &files {
-        let source = with_prerequisites(file, &std::fs::read_to_string(file).unwrap());
+        let source = match composed(file, &root) {
+            Ok(source) => source,
+            Err(e) => {
+                failures.push(format!("{}: {e}", file.display()));
+                continue;
+            }
+        };
         let module = match naga::front::wgsl::parse_str(&source) {
             Ok(m) => m,
             Err(e) => {
@@ -59,8 +56,22 @@ fn every_wgsl_file_validates() {
 
 #[test]
 fn compiled_in_sources_are_the_files_on_disk() {
-    for (name, source) in twill_renderer::shaders::SHARED {
+    for (name, source) in twill_renderer::shaders::FILES {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders").join(name);
         assert_eq!(&std::fs::read_to_string(&path).unwrap(), source, "{name}");
+    }
+}
+
+#[test]
+fn every_file_on_disk_is_compiled_in() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders");
+    let mut files = Vec::new();
+    wgsl_files(&root, &mut files);
+    for file in files {
+        let name = file.strip_prefix(&root).unwrap().to_string_lossy().replace('\\', "/");
+        assert!(
+            twill_renderer::shaders::FILES.iter().any(|(n, _)| *n == name),
+            "{name} is not in shaders::FILES"
+        );
     }
 }

@@ -116,9 +116,8 @@ fn exemplar_at(uv: vec2<f32>) -> u32 {
 // Most voxels one eye ray visits (a guard: an 89-degree ray across the whole default fabric
 // without meeting a fiber would visit about 2,700).
 const MAX_RAY_VOXELS: u32 = 8192u;
-// Twin of precompute's VOXEL_START_NUDGE: the voxel a ray starts in is that of a point this
-// fraction of the smallest voxel side past its start.
-const VOXEL_START_NUDGE: f32 = 1.0e-3;
+// VOXEL_START_NUDGE (the prelude, from precompute's): the voxel a ray starts in is that of a
+// point this fraction of the smallest voxel side past its start.
 const NO_HIT: f32 = 3.0e38;
 
 struct VoxelHit {

@@ -1,6 +1,7 @@
 // Spherical Gaussian helpers for the GPU. Twins of precompute/src/special.rs (expm1_f32) and
 // precompute/src/sg.rs (sg_mass_f32, sg_azimuthal_average_f32): keep them in sync; compared
-// on the GPU by renderer/tests/gpu_parity.rs. Uses i0e_f32 from shared/special.wgsl.
+// on the GPU by renderer/tests/gpu_parity.rs.
+#import shared/special.wgsl
 
 const PI: f32 = 3.14159265358979;
 

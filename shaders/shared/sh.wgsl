@@ -1,7 +1,8 @@
 // Real spherical harmonics for the GPU. Twins of precompute/src/sh.rs (sh_eval,
 // ShEulerRotation, zyz_angles): keep them in sync; compared on the GPU with the f64 originals
-// (ShRotation's band matrices for rotations) by renderer/tests/gpu_sh_parity.rs. Needs only
-// sh_quarter_turn.wgsl (generated from sh.rs); every name here starts with sh_ / SH_.
+// (ShRotation's band matrices for rotations) by renderer/tests/gpu_sh_parity.rs. The quarter
+// turns are generated from sh.rs; every name here starts with sh_ / SH_.
+#import shared/sh_quarter_turn.wgsl
 //
 // Conventions, as in sh.rs:
 // - Orthonormal real SH without the Condon-Shortley phase, coefficient (l, m) at
@@ -154,7 +155,7 @@ fn sh_turn_z_rgb(top: u32, turn: vec2<f32>, c: ptr<function, array<vec3<f32>, 49
 // Rotates three coefficient vectors (one per component, e.g. RGB) in place by the rotation `r`
 // (the R of ShRotation::new, column-major: see the top of this file), as ShEulerRotation does:
 // turns about z by gamma, the quarter turn about x, beta about z, the quarter turn back, alpha
-// about z (R = Rz(alpha) Rx(-pi/2) Rz(beta) Rx(pi/2) Rz(gamma)). Needs sh_quarter_turn.wgsl.
+// about z (R = Rz(alpha) Rx(-pi/2) Rz(beta) Rx(pi/2) Rz(gamma)).
 // Cost at order 6: about 1,400 multiply-adds per component, no per-rotation tables.
 fn sh_rotate_rgb_f32(order: u32, r: mat3x3<f32>, coeffs: ptr<function, array<vec3<f32>, 49>>) {
     let top = min(order, SH_MAX_ORDER);

@@ -3,7 +3,11 @@
 // ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs: light_sh,
 // multiple_scattering_in_cell), compared on the GPU by renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
-// global segment id. Needs special.wgsl, sg.wgsl, sh.wgsl and fabric_data.wgsl before it.
+// global segment id.
+#import shared/special.wgsl
+#import shared/sg.wgsl
+#import shared/sh.wgsl
+#import shared/fabric_data.wgsl
 
 const LOBE_R: u32 = 0u;
 const LOBE_TT: u32 = 1u;
