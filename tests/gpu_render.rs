@@ -734,3 +734,69 @@ fn colour_orders_reach_the_gpu_renderer_channel_by_channel() {
     );
     assert!(red_shift > 0.2, "the red warp ends should carry much of the red: {red_shift:.3}");
 }
+
+/// A material rebake reaches the GPU without a new renderer: `Renderer::update_fabric` writes
+/// the new bake into the fabric's buffers in place (no new buffers, bind groups, pipelines or
+/// shell), only the buffers whose bytes changed, and the frame equals that of a renderer built
+/// on the new bake bit for bit. A bake of another geometry is refused (`None`) and changes
+/// nothing. Prints both times (lavapipe, 2026-11-25: see docs/BENCHMARKS.md).
+#[test]
+fn a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would() {
+    let Some(gpu) =
+        Gpu::for_test("a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would")
+    else {
+        return;
+    };
+    let recoloured = scene(
+        &format!(
+            "{FABRIC}[materials]\nwarp = {{ model = \"fiber\", c_r = [0.05, 0.03, 0.03], beta_r_deg = 5.0, \
+             c_tt = [0.8, 0.1, 0.08], beta_tt_deg = 10.0, gamma_tt_deg = 25.0 }}\n{}",
+            camera_above(0.3)
+        ),
+        &[SUN],
+    );
+    let inputs = &recoloured.bake_inputs(Quality::Draft.settings())[0];
+    let new_bake = bake(inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake, recoloured").baked;
+    let mut settings = frame_settings(&recoloured, Components::All);
+    (settings.width, settings.height, settings.spp) = (48, 48, 2);
+    let pattern = PatternMap::uniform(0);
+
+    let started = std::time::Instant::now();
+    let mut fresh = SceneRenderer::with_gpu(gpu, &recoloured, &[&new_bake], &pattern).expect("uploads");
+    let rebuild_seconds = started.elapsed().as_secs_f64();
+    let expected = fresh.render(&recoloured, &settings).expect("renders").radiance;
+    let rebuild_first_frame = started.elapsed().as_secs_f64();
+
+    let mut session =
+        SceneRenderer::with_gpu(fresh.gpu, &recoloured, &[default_bake()], &pattern).expect("uploads");
+    let before = session.render(&recoloured, &settings).expect("renders").radiance;
+    let started = std::time::Instant::now();
+    let written =
+        session.renderer.update_fabric(&[&new_bake], &pattern).expect("packs").expect("same layout");
+    let in_place_seconds = started.elapsed().as_secs_f64();
+    let after = session.render(&recoloured, &settings).expect("renders").radiance;
+    let in_place_first_frame = started.elapsed().as_secs_f64();
+    eprintln!(
+        "in place: {:.1} ms ({:.1} ms to the first frame), buffers written {written:?}; new renderer: {:.1} ms \
+         ({:.1} ms to the first frame)",
+        1e3 * in_place_seconds,
+        1e3 * in_place_first_frame,
+        1e3 * rebuild_seconds,
+        1e3 * rebuild_first_frame
+    );
+    assert!(written.contains(&"materials") && written.contains(&"iirtf"), "{written:?}");
+    assert!(
+        !written.contains(&"voxels") && !written.contains(&"segments"),
+        "geometry is unchanged: {written:?}"
+    );
+    assert_ne!(before, after, "the picture changes with the materials");
+    assert_eq!(after, expected, "in place equals a renderer built on the new bake");
+
+    // Another fabric (a silk satin) does not fit the buffers: refused, nothing written.
+    let satin = scene(&format!("[fabric]\npreset = \"silk_satin\"\n{}", camera_above(0.3)), &[SUN]);
+    let satin_inputs = &satin.bake_inputs(Quality::Draft.settings())[0];
+    let satin_bake = bake(satin_inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake, satin").baked;
+    assert_eq!(session.renderer.update_fabric(&[&satin_bake], &pattern).expect("packs"), None);
+    let unchanged = session.render(&recoloured, &settings).expect("renders").radiance;
+    assert_eq!(unchanged, after);
+}

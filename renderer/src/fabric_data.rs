@@ -460,6 +460,9 @@ pub struct FabricData {
     pub bind_group: wgpu::BindGroup,
     /// Bytes of GPU memory the buffers take.
     pub gpu_bytes: u64,
+    header_buffer: wgpu::Buffer,
+    /// The storage buffers, in the order of [`FabricArrays::storage_buffers`].
+    buffers: Vec<wgpu::Buffer>,
 }
 
 /// The layout of bind group 1 (a uniform and thirteen read-only storage buffers, visible to
@@ -522,7 +525,48 @@ impl FabricData {
             entries: &entries,
         });
         let gpu_bytes = header.size() + buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
-        Ok(Self { arrays, layout, bind_group, gpu_bytes })
+        Ok(Self { arrays, layout, bind_group, gpu_bytes, header_buffer: header, buffers })
+    }
+
+    /// Writes a bake set of the same layout into these buffers in place (`queue.write_buffer`),
+    /// only the buffers whose bytes changed, keeping the bind group (and so every pipeline and
+    /// bind group built on it). Same layout: every buffer as long as before and the same fabric
+    /// slab (`z_range`, which the shell was built around); a material rebake, a recolouring or
+    /// a colourway that moves no yarn has it. Returns the names of the buffers written, or
+    /// `None` (nothing written) when the layout differs: then upload anew.
+    ///
+    /// # Errors
+    /// As [`FabricArrays::pack`].
+    pub fn update_in_place(
+        &mut self,
+        queue: &wgpu::Queue,
+        exemplars: &[&Baked],
+        pattern: &PatternMap,
+    ) -> Result<Option<Vec<&'static str>>, FabricDataError> {
+        let arrays = FabricArrays::pack(exemplars, pattern)?;
+        let old = self.arrays.storage_buffers();
+        let new = arrays.storage_buffers();
+        let same_layout = arrays.header.z_range.map(f32::to_bits)
+            == self.arrays.header.z_range.map(f32::to_bits)
+            && old.iter().zip(&new).all(|((_, a), (_, b))| a.len() == b.len());
+        if !same_layout {
+            return Ok(None);
+        }
+        let mut written = Vec::new();
+        if bytemuck::bytes_of(&arrays.header) != bytemuck::bytes_of(&self.arrays.header) {
+            queue.write_buffer(&self.header_buffer, 0, bytemuck::bytes_of(&arrays.header));
+            written.push("header");
+        }
+        for ((buffer, (name, before)), (_, after)) in self.buffers.iter().zip(&old).zip(&new) {
+            if before != after && !after.is_empty() {
+                let mut padded = after.to_vec();
+                padded.resize(after.len().next_multiple_of(4), 0);
+                queue.write_buffer(buffer, 0, &padded);
+                written.push(*name);
+            }
+        }
+        self.arrays = arrays;
+        Ok(Some(written))
     }
 }
 

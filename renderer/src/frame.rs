@@ -69,6 +69,8 @@ pub enum RenderError {
     Gpu { label: String, message: String },
     #[error(transparent)]
     Readback(#[from] crate::gpu::GpuError),
+    #[error(transparent)]
+    Fabric(#[from] crate::fabric_data::FabricDataError),
 }
 
 /// Per-frame settings.
@@ -841,6 +843,22 @@ impl Renderer {
         );
         described.hash(&mut hasher);
         hasher.finish()
+    }
+
+    /// A new bake set written into the fabric's GPU buffers in place when its layout is the
+    /// same ([`FabricData::update_in_place`]): no new buffers, bind groups, pipelines or shell,
+    /// and shell-space visibility stays cached (it depends on the shell and lights only). What a
+    /// material edit needs, in a fraction of a rebuild. Returns the buffers written, or `None`
+    /// when the layout differs (build a new renderer).
+    ///
+    /// # Errors
+    /// When the bake set cannot be packed.
+    pub fn update_fabric(
+        &mut self,
+        exemplars: &[&twill_precompute::bake::pipeline::Baked],
+        pattern: &twill_precompute::bake::pattern::PatternMap,
+    ) -> Result<Option<Vec<&'static str>>, RenderError> {
+        Ok(self.fabric.update_in_place(&self.queue, exemplars, pattern)?)
     }
 
     /// The baked fabric slab's depth range (cm), which a shell must span.

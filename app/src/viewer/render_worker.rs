@@ -410,26 +410,57 @@ fn worker_loop(
                         }
                     }
                 }
-                let built = upload_with_mesh(&device, &fabric, &mut edited_mesh, &send);
-                if is_lost(&device, &loss) {
-                    // The failure (if any) was the loss: the recovery below uploads this fabric.
+                // Same shell, same buffer layout (a material rebake or preview): written into the
+                // uploaded fabric's buffers in place, keeping the pipelines and cached passes.
+                let same_surface = current.as_ref().is_some_and(|c| {
+                    c.scene.mesh == fabric.scene.mesh
+                        && c.scene.swatch == fabric.scene.swatch
+                        && c.scene.base_dir == fabric.scene.base_dir
+                });
+                let mut written_in_place = false;
+                if let (Some(r), true) = (renderer.as_mut(), same_surface) {
+                    let exemplars: Vec<&Baked> = fabric.baked.exemplars.iter().collect();
+                    let updated = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                        r.update_fabric(&exemplars, &fabric.baked.pattern)
+                    }));
+                    if let Ok(Ok(Some(written))) = updated {
+                        log::info!("fabric written in place ({written:?})");
+                        send(WorkerEvent::FabricReady {
+                            fabric_id: fabric.fabric_id,
+                            quality: fabric.quality,
+                            preview: fabric.preview,
+                            adapter: r.adapter().to_owned(),
+                            resident_bytes: r.resident_bytes(),
+                            bounds: r.bounds(),
+                            seconds: started.elapsed().as_secs_f64(),
+                        });
+                        written_in_place = true;
+                    }
+                }
+                if written_in_place {
                     current = Some(fabric);
                 } else {
-                    match built {
-                        Ok(r) => {
-                            send(WorkerEvent::FabricReady {
-                                fabric_id: fabric.fabric_id,
-                                quality: fabric.quality,
-                                preview: fabric.preview,
-                                adapter: r.adapter().to_owned(),
-                                resident_bytes: r.resident_bytes(),
-                                bounds: r.bounds(),
-                                seconds: started.elapsed().as_secs_f64(),
-                            });
-                            renderer = Some(r);
-                            current = Some(fabric);
+                    let built = upload_with_mesh(&device, &fabric, &mut edited_mesh, &send);
+                    if is_lost(&device, &loss) {
+                        // The failure (if any) was the loss: the recovery below uploads this fabric.
+                        current = Some(fabric);
+                    } else {
+                        match built {
+                            Ok(r) => {
+                                send(WorkerEvent::FabricReady {
+                                    fabric_id: fabric.fabric_id,
+                                    quality: fabric.quality,
+                                    preview: fabric.preview,
+                                    adapter: r.adapter().to_owned(),
+                                    resident_bytes: r.resident_bytes(),
+                                    bounds: r.bounds(),
+                                    seconds: started.elapsed().as_secs_f64(),
+                                });
+                                renderer = Some(r);
+                                current = Some(fabric);
+                            }
+                            Err(message) => send(WorkerEvent::FabricFailed { message }),
                         }
-                        Err(message) => send(WorkerEvent::FabricFailed { message }),
                     }
                 }
             }
