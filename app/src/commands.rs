@@ -452,7 +452,7 @@ fn report_bake(outcome: &BakeOutcome) {
 
 /// Bakes every exemplar of `scene` (one, or a patterned cloth's) with `settings` through
 /// `cache` (no progress bar); returns them in pattern order with the pattern map.
-fn bake_scene(
+pub(crate) fn bake_scene(
     scene: &twill_precompute::scene::Scene,
     settings: BakeSettings,
     cache: Option<&Cache>,

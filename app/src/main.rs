@@ -5,6 +5,7 @@
 //! caused them. Long work shows a progress bar on stderr. The viewer is in `viewer/`.
 
 mod accuracy_report;
+mod colorways;
 mod commands;
 mod viewer;
 
@@ -39,6 +40,9 @@ enum Command {
     Reference(ReferenceArgs),
     /// Render a scene on the GPU (headless: any Vulkan adapter, lavapipe included).
     Render(RenderArgs),
+    /// Render a set of named colourways of a scene (from a TOML file of `[[colorway]]`s) to
+    /// PNG (and EXR) and a contact sheet with their names (docs/COLOURWAYS.md).
+    Colorways(ColorwaysArgs),
     /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
     Bake(BakeArgs),
     /// What accuracy costs in time: every knob swept on hard light/view configurations of
@@ -334,6 +338,41 @@ struct RenderArgs {
     timings: bool,
 }
 
+#[derive(Debug, clap::Args)]
+struct ColorwaysArgs {
+    /// Scene file (default: the built-in default scene); its `warp` and `weft` yarns are the
+    /// palette's bases.
+    scene: Option<PathBuf>,
+    /// The colourways: `[[colorway]]` entries with `name`, `warp_order`, `weft_order` and a
+    /// `[colorway.palette]` (as a scene's `[materials]`).
+    #[arg(long)]
+    from: PathBuf,
+    /// Output folder (made if missing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long, value_parser = commands::parse_size)]
+    size: Option<(usize, usize)>,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Bake quality for the GPU renders.
+    #[arg(long, value_enum, default_value = "interactive", conflicts_with = "reference")]
+    quality: QualityArg,
+    /// Path-trace each colourway instead of rendering it on the GPU.
+    #[arg(long)]
+    reference: bool,
+    /// Write each colourway as linear EXR too.
+    #[arg(long)]
+    exr: bool,
+    /// Stage cache folder for baking (default as for `twill bake`).
+    #[arg(long, conflicts_with = "no_cache")]
+    cache: Option<PathBuf>,
+    /// Bake without the stage cache.
+    #[arg(long)]
+    no_cache: bool,
+}
+
 fn quality_of(q: QualityArg) -> twill_precompute::bake::settings::Quality {
     match q {
         QualityArg::Draft => twill_precompute::bake::settings::Quality::Draft,
@@ -380,6 +419,18 @@ fn run(cli: Cli) -> Result<()> {
             overrides: args.overrides,
             cache_info: args.cache_info,
             cache_clear: args.cache_clear,
+        }),
+        Command::Colorways(args) => colorways::colorways(&colorways::ColorwaysOptions {
+            scene: args.scene,
+            from: args.from,
+            output_dir: args.output,
+            size: args.size,
+            spp: args.spp,
+            quality: quality_of(args.quality),
+            reference: args.reference,
+            exr: args.exr,
+            cache: args.cache,
+            no_cache: args.no_cache,
         }),
         Command::Render(args) => commands::render(&commands::RenderOptions {
             image: args.image,
