@@ -105,10 +105,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let wo = to_fabric_frame(m, h, to_eye);
 
     var radiance = vec3<f32>(0.0);
+    // Zero, as every WGSL var starts (no loop: unused when the frame's cell transfer is read).
     var c_in: array<vec3<f32>, 49>;
-    for (var j = 0u; j < 49u; j++) {
-        c_in[j] = vec3<f32>(0.0);
-    }
     for (var i = 0u; i < shade.counts.x; i++) {
         let light = lights[i];
         let dir = to_fabric_frame(m, h, light.direction);
