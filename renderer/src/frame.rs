@@ -270,6 +270,68 @@ struct ShellVisibility {
     blurred: wgpu::Texture,
 }
 
+/// The textures and buffers a frame of one size renders into and reads back from: the
+/// G-buffer, the display image, the accumulation buffer and the two readback buffers. The
+/// renderer keeps one set and makes a new one only when the size changes (the accumulation
+/// buffer is cleared by every frame; the readback buffers are unmapped after every read).
+#[derive(Clone)]
+struct FrameTargets {
+    size: (u32, u32),
+    position: wgpu::Texture,
+    ids: wgpu::Texture,
+    depth: wgpu::Texture,
+    display: wgpu::Texture,
+    accumulation: wgpu::Buffer,
+    radiance_readback: wgpu::Buffer,
+    display_readback: wgpu::Buffer,
+}
+
+/// Bytes per row of the display image's readback (rows padded to wgpu's copy alignment).
+fn display_row_bytes(width: u32) -> u32 {
+    (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+}
+
+impl FrameTargets {
+    fn new(device: &wgpu::Device, width: u32, height: u32) -> Self {
+        let target = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
+            texture_2d(device, label, [width, height, 1], format, usage)
+        };
+        let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let pixels = u64::from(width) * u64::from(height);
+        Self {
+            size: (width, height),
+            position: target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach),
+            ids: target("twill.gbuffer.ids", wgpu::TextureFormat::Rgba32Uint, attach),
+            depth: target(
+                "twill.gbuffer.depth",
+                wgpu::TextureFormat::Depth32Float,
+                wgpu::TextureUsages::RENDER_ATTACHMENT,
+            ),
+            display: target(
+                "twill.display",
+                wgpu::TextureFormat::Rgba8Unorm,
+                wgpu::TextureUsages::STORAGE_BINDING
+                    | wgpu::TextureUsages::COPY_SRC
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
+            ),
+            accumulation: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("twill.accumulation"),
+                size: pixels * 16,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            radiance_readback: readback_buffer(device, "twill.readback.radiance", pixels * 16),
+            display_readback: readback_buffer(
+                device,
+                "twill.readback.display",
+                u64::from(display_row_bytes(width)) * u64::from(height),
+            ),
+        }
+    }
+}
+
 /// Shell-mapped fabric renderer on one device.
 pub struct Renderer {
     device: wgpu::Device,
@@ -293,6 +355,8 @@ pub struct Renderer {
     /// The last frame's shell-space visibility, reused while what it depends on is unchanged.
     shell_visibility: Option<ShellVisibility>,
     shade_pipelines: HashMap<ShadeVariant, wgpu::ComputePipeline>,
+    /// The last frame's targets, reused by the next frame of the same size.
+    frame_targets: Option<FrameTargets>,
     timestamps: bool,
 }
 
@@ -681,6 +745,7 @@ impl Renderer {
             shell_generation: 0,
             shell_visibility: None,
             shade_pipelines: HashMap::new(),
+            frame_targets: None,
             timestamps,
         })
     }
@@ -986,32 +1051,26 @@ impl Renderer {
             (t.clone(), t)
         };
 
-        // Frame targets.
-        let target = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
-            texture_2d(&device, label, [width, height, 1], format, usage)
+        // Frame targets, kept while the size stays (a progressive batch, a camera move).
+        let targets = match &self.frame_targets {
+            Some(kept) if kept.size == (width, height) => kept.clone(),
+            _ => {
+                let made = FrameTargets::new(&device, width, height);
+                self.frame_targets = Some(made.clone());
+                made
+            }
         };
-        let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
-        let position = target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach);
-        let ids = target("twill.gbuffer.ids", wgpu::TextureFormat::Rgba32Uint, attach);
-        let depth = target(
-            "twill.gbuffer.depth",
-            wgpu::TextureFormat::Depth32Float,
-            wgpu::TextureUsages::RENDER_ATTACHMENT,
-        );
-        let display = target(
-            "twill.display",
-            wgpu::TextureFormat::Rgba8Unorm,
-            wgpu::TextureUsages::STORAGE_BINDING
-                | wgpu::TextureUsages::COPY_SRC
-                | wgpu::TextureUsages::TEXTURE_BINDING,
-        );
+        let FrameTargets {
+            position,
+            ids,
+            depth,
+            display,
+            accumulation,
+            radiance_readback,
+            display_readback,
+            ..
+        } = targets;
         let pixels = u64::from(width) * u64::from(height);
-        let accumulation = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("twill.accumulation"),
-            size: pixels * 16,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         encoder.clear_buffer(&accumulation, 0, None);
 
         // Camera and lights.
@@ -1212,11 +1271,8 @@ impl Renderer {
         }
 
         // Readback.
-        let radiance_readback = readback_buffer(&device, "twill.readback.radiance", pixels * 16);
         encoder.copy_buffer_to_buffer(&accumulation, 0, &radiance_readback, 0, pixels * 16);
-        let row_bytes = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-        let display_readback =
-            readback_buffer(&device, "twill.readback.display", u64::from(row_bytes) * u64::from(height));
+        let row_bytes = display_row_bytes(width);
         encoder.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
                 texture: &display,
