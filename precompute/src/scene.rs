@@ -36,6 +36,10 @@ use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
 use crate::raycast::{Extent, FiberScene};
 
+/// Why colour orders are refused on imported fibers and patterned cloth.
+const COLOUR_ORDERS_NEED_WOVEN: &str = "colour orders need a woven [fabric] without [pattern] (imported \
+     fibers have no threads to colour, and patterned cloth does not take them yet)";
+
 /// sRGB-encoded display value (0..1) to linear.
 fn srgb_to_linear(v: f64) -> f64 {
     if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
@@ -627,11 +631,7 @@ impl SceneFile {
                 (fabric.build().map_err(|e| fabric_error(e.into()))?, None)
             }
             (_, Some(_), _) => {
-                return Err(invalid(
-                    "[materials]: colour orders need a woven [fabric] without [pattern] (imported \
-                     fibers have no threads to colour, and patterned cloth does not take them yet)"
-                        .into(),
-                ));
+                return Err(invalid(format!("[materials]: {COLOUR_ORDERS_NEED_WOVEN}")));
             }
             (Some(section), None, _) => {
                 let pattern = self.build_pattern(section, &spec, base_dir)?;
@@ -870,14 +870,19 @@ impl SceneFile {
             (None, Some(spec)) => Some(spec.clone()),
             _ => None,
         };
-        if let Some(FabricSpec::Woven(woven)) = spec {
-            let draft = woven.weave.draft();
-            exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
-                .map_err(|e| e.to_string())?;
-            exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
-                .map_err(|e| e.to_string())?;
+        match spec {
+            Some(FabricSpec::Woven(woven)) if self.pattern.is_none() => {
+                let draft = woven.weave.draft();
+                exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
+                    .map_err(|e| e.to_string())?;
+                exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
+                    .map_err(|e| e.to_string())?;
+                Ok(())
+            }
+            // An unknown preset or a missing fabric is build's to report.
+            None => Ok(()),
+            Some(_) => Err(COLOUR_ORDERS_NEED_WOVEN.into()),
         }
-        Ok(())
     }
 
     /// Takes a WIF file's colours as this scene's colourway: palette colour `wifK` for each
@@ -1098,6 +1103,14 @@ mod tests {
             assert!(message.contains(expect), "{extra}: {message}");
             assert!(message.contains("bad.toml"), "{message}");
         }
+        // Patterned cloth: build and the check that edits use say the same.
+        let patterned = with_colourway(&format!(
+            "{COLOURWAY}[pattern]\nweaves = [{{ weave = \"plain\" }}]\nrows = [\"01\"]\n"
+        ));
+        let message = parse_err(&patterned);
+        assert!(message.contains(COLOUR_ORDERS_NEED_WOVEN), "{message}");
+        let file = SceneFile::parse(&patterned, Path::new("p.toml")).unwrap();
+        assert_eq!(file.check_colourway(), Err(COLOUR_ORDERS_NEED_WOVEN.to_owned()));
     }
 
     fn parse_err(text: &str) -> String {
