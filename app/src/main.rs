@@ -149,6 +149,25 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         frames: usize,
     },
+    /// The time from a colour edit to its full picture over random recolourings of the
+    /// scene's yarns (near-black and near-white included): material rebake, upload, one frame.
+    Recolor {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Image size as WIDTHxHEIGHT.
+        #[arg(long, value_parser = commands::parse_size, default_value = "512x512")]
+        size: (usize, usize),
+        #[arg(long, default_value_t = 1)]
+        spp: u32,
+        /// Bake quality.
+        #[arg(long, value_enum, default_value = "interactive")]
+        quality: QualityArg,
+        /// How many random colourways.
+        #[arg(long, default_value_t = 20)]
+        colourways: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// The viewer's own frame times while a bake runs in the background (needs a display:
     /// run under `xvfb-run -a` without one). The bake starts from an empty stage cache.
     Ui {
@@ -488,6 +507,9 @@ fn run(cli: Cli) -> Result<()> {
                 let report = viewer::bench_ui(scene, quality_of(quality), seconds, size)?;
                 println!("UI frame times (orbiting every frame; bake: {quality:?}, {seconds} s):\n{report}");
                 Ok(())
+            }
+            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed } => {
+                commands::bench_recolor(scene.as_deref(), size, spp, quality_of(quality), colourways, seed)
             }
             BenchCommand::Passes { scene, size, spp, quality, frames } => {
                 commands::bench_passes(scene.as_deref(), size, spp, quality_of(quality), frames)
