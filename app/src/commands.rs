@@ -688,13 +688,12 @@ pub fn bench_recolor(
         let (exemplars, pattern) = bake_scene(&scene, quality.settings(), cache.as_ref())?;
         let t_bake = t0.elapsed().as_secs_f64();
         let refs: Vec<&Baked> = exemplars.iter().collect();
-        let path = match session.renderer.update_fabric(&refs, &pattern)? {
-            Some(_) => "in place",
-            None => {
-                let gpu = session.gpu;
-                session = SceneRenderer::with_gpu(gpu, &scene, &refs, &pattern)?;
-                "new renderer"
-            }
+        let path = if session.renderer.update_fabric(&refs, &pattern)?.is_some() {
+            "in place"
+        } else {
+            let gpu = session.gpu;
+            session = SceneRenderer::with_gpu(gpu, &scene, &refs, &pattern)?;
+            "new renderer"
         };
         let t_upload = t0.elapsed().as_secs_f64();
         session.render(&scene, &settings)?;
