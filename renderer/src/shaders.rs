@@ -115,8 +115,17 @@ pub fn compose(name: &str) -> Result<String, ComposeError> {
 /// # Errors
 /// As [`compose`].
 pub fn compose_all(names: &[&str]) -> Result<String, ComposeError> {
+    compose_from(names, &source_of)
+}
+
+/// [`compose_all`] over the files `lookup` knows.
+fn compose_from(
+    names: &[&str],
+    lookup: &dyn Fn(&str) -> Option<&'static str>,
+) -> Result<String, ComposeError> {
     fn visit(
         name: &str,
+        lookup: &dyn Fn(&str) -> Option<&'static str>,
         stack: &mut Vec<String>,
         done: &mut Vec<String>,
         out: &mut String,
@@ -129,13 +138,13 @@ pub fn compose_all(names: &[&str]) -> Result<String, ComposeError> {
             chain.push(name.to_owned());
             return Err(ComposeError::Cycle(chain));
         }
-        let source = source_of(name).ok_or_else(|| match stack.last() {
+        let source = lookup(name).ok_or_else(|| match stack.last() {
             Some(file) => ComposeError::Unknown { file: file.clone(), import: name.to_owned() },
             None => ComposeError::UnknownFile(name.to_owned()),
         })?;
         stack.push(name.to_owned());
         for import in imports(source) {
-            visit(import, stack, done, out)?;
+            visit(import, lookup, stack, done, out)?;
         }
         stack.pop();
         let _ = writeln!(out, "// ---- {name} ----");
@@ -149,7 +158,7 @@ pub fn compose_all(names: &[&str]) -> Result<String, ComposeError> {
     let mut out = prelude();
     let mut done = Vec::new();
     for name in names {
-        visit(name, &mut Vec::new(), &mut done, &mut out)?;
+        visit(name, lookup, &mut Vec::new(), &mut done, &mut out)?;
     }
     Ok(out)
 }
@@ -183,6 +192,29 @@ mod tests {
             assert!(composed.starts_with("// ---- prelude"), "{name}");
         }
         assert_eq!(compose("nope.wgsl"), Err(ComposeError::UnknownFile("nope.wgsl".into())));
+    }
+
+    #[test]
+    fn unknown_imports_and_cycles_are_errors_naming_the_files() {
+        let files = |name: &str| match name {
+            "a.wgsl" => Some("#import b.wgsl\nfn a() {}\n"),
+            "b.wgsl" => Some("#import a.wgsl\nfn b() {}\n"),
+            "c.wgsl" => Some("#import shared/missing.wgsl\n"),
+            "d.wgsl" => Some("#import e.wgsl\n#import e.wgsl\nfn d() {}\n"),
+            "e.wgsl" => Some("fn e() {}\n"),
+            _ => None,
+        };
+        assert_eq!(
+            compose_from(&["a.wgsl"], &files),
+            Err(ComposeError::Cycle(vec!["a.wgsl".into(), "b.wgsl".into(), "a.wgsl".into()]))
+        );
+        assert_eq!(
+            compose_from(&["c.wgsl"], &files),
+            Err(ComposeError::Unknown { file: "c.wgsl".into(), import: "shared/missing.wgsl".into() })
+        );
+        let once = compose_from(&["d.wgsl"], &files).unwrap();
+        assert_eq!(once.matches("fn e()").count(), 1, "{once}");
+        assert!(once.find("fn e()") < once.find("fn d()"));
     }
 
     /// `shaders/shared/sh_quarter_turn.wgsl` is what its generator writes today. With
