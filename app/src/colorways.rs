@@ -6,7 +6,8 @@
 //! docs/SCENE_FORMAT.md). Each replaces the scene's colourway (the scene's `warp` and `weft`
 //! yarns stay the palette's bases), is checked as a scene would be (an error names the file and
 //! the colourway), and is rendered: on the GPU after a bake through the stage cache (colourways
-//! of one weave share every geometry stage, so only the material stages rebake), or path traced
+//! of one weave share every geometry stage, so only the material stages rebake, and the bake is
+//! written into the one renderer in place where its layout allows), or path traced
 //! with `--reference`. Every image is written as PNG (and EXR with `--exr`) under the output
 //! folder, named by its position and name; `contact-sheet.png` sets them side by side with
 //! their names beneath (egui's Ubuntu Light, drawn with ab_glyph). Writes are atomic.
@@ -24,7 +25,6 @@ use twill_precompute::image::Image;
 use twill_precompute::pathtrace::{self, Component, RenderSettings};
 use twill_precompute::scene::{PaletteColour, SceneFile};
 use twill_renderer::export::{Display, display_srgb8, write_display_png, write_image};
-use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::{SceneRenderer, frame_settings};
 use twill_renderer::plan::Components;
 
@@ -132,7 +132,8 @@ pub fn colorways(options: &ColorwaysOptions) -> Result<()> {
     std::fs::create_dir_all(&options.output_dir)
         .with_context(|| format!("{}: the output folder cannot be made", options.output_dir.display()))?;
     let cache = crate::commands::open_cache(options.cache.as_deref(), options.no_cache)?;
-    let mut gpu: Option<Gpu> = None;
+    // One renderer for every colourway: a recolouring is written into it in place.
+    let mut session: Option<SceneRenderer> = None;
     let mut rendered = Vec::with_capacity(entries.len());
     for (index, (name, file)) in entries.iter().enumerate() {
         let started = Instant::now();
@@ -155,13 +156,9 @@ pub fn colorways(options: &ColorwaysOptions) -> Result<()> {
             let (exemplars, pattern) =
                 crate::commands::bake_scene(&scene, options.quality.settings(), cache.as_ref())?;
             let refs: Vec<&Baked> = exemplars.iter().collect();
-            let device = match gpu.take() {
-                Some(device) => device,
-                None => Gpu::headless()?,
-            };
-            let mut session = SceneRenderer::with_gpu(device, &scene, &refs, &pattern)?;
-            let frame = session.render(&scene, &frame_settings(&scene, Components::All))?;
-            gpu = Some(session.gpu);
+            let (mut uploaded, _) = crate::commands::upload_to(session.take(), &scene, &refs, &pattern)?;
+            let frame = uploaded.render(&scene, &frame_settings(&scene, Components::All))?;
+            session = Some(uploaded);
             let image = Image {
                 width,
                 height,

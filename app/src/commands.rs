@@ -688,13 +688,9 @@ pub fn bench_recolor(
         let (exemplars, pattern) = bake_scene(&scene, quality.settings(), cache.as_ref())?;
         let t_bake = t0.elapsed().as_secs_f64();
         let refs: Vec<&Baked> = exemplars.iter().collect();
-        let path = if session.renderer.update_fabric(&refs, &pattern)?.is_some() {
-            "in place"
-        } else {
-            let gpu = session.gpu;
-            session = SceneRenderer::with_gpu(gpu, &scene, &refs, &pattern)?;
-            "new renderer"
-        };
+        let in_place;
+        (session, in_place) = upload_to(Some(session), &scene, &refs, &pattern)?;
+        let path = if in_place { "in place" } else { "new renderer" };
         let t_upload = t0.elapsed().as_secs_f64();
         session.render(&scene, &settings)?;
         let t_total = t0.elapsed().as_secs_f64();
@@ -716,4 +712,26 @@ pub fn bench_recolor(
         totals[totals.len() - 1]
     );
     Ok(())
+}
+
+/// `exemplars` on the GPU for `scene`: written into `session`'s fabric in place when the bake
+/// has the layout it holds (another colouring of the same cloth, whose shell is the same), else
+/// a new renderer on the session's device (a new device without a session). Returns whether it
+/// went in place.
+pub(crate) fn upload_to(
+    session: Option<SceneRenderer>,
+    scene: &twill_precompute::scene::Scene,
+    exemplars: &[&Baked],
+    pattern: &PatternMap,
+) -> Result<(SceneRenderer, bool)> {
+    let gpu = match session {
+        Some(mut session) => {
+            if session.renderer.update_fabric(exemplars, pattern)?.is_some() {
+                return Ok((session, true));
+            }
+            session.gpu
+        }
+        None => twill_renderer::gpu::Gpu::headless()?,
+    };
+    Ok((SceneRenderer::with_gpu(gpu, scene, exemplars, pattern)?, false))
 }

@@ -275,7 +275,9 @@ impl ShEulerRotation {
 /// `sh_zyz_turns` is its twin, branch for branch.
 #[must_use]
 pub fn zyz_turns(rotation: &DMat3) -> [(f64, f64); 3] {
-    let [x, y, z, w] = rotation_quaternion(rotation);
+    // Shepperd's branches (DirectXMath's XMQuaternionRotationMatrix): the largest of |x|, |y|,
+    // |z|, |w| is found first and divided by, so no branch loses precision.
+    let [x, y, z, w] = glam::DQuat::from_mat3(rotation).to_array();
     let unit = |c: f64, s: f64| {
         let length = c.hypot(s);
         if length > 1e-15 { (c / length, s / length) } else { (1.0, 0.0) }
@@ -286,40 +288,6 @@ pub fn zyz_turns(rotation: &DMat3) -> [(f64, f64); 3] {
     let gamma = (cos_s * cos_d + sin_s * sin_d, sin_s * cos_d - cos_s * sin_d);
     let beta = (1.0 - 2.0 * (x * x + y * y), 2.0 * x.hypot(y) * z.hypot(w));
     [alpha, beta, gamma]
-}
-
-/// The unit quaternion `[x, y, z, w]` of a rotation matrix by Shepperd's four branches (the
-/// largest of `|x|, |y|, |z|, |w|` is found first and divided by, so no branch loses
-/// precision); the same arithmetic as glam's `DQuat::from_mat3`. `mCR` is column C, row R.
-fn rotation_quaternion(rotation: &DMat3) -> [f64; 4] {
-    let [m00, m01, m02] = rotation.x_axis.to_array();
-    let [m10, m11, m12] = rotation.y_axis.to_array();
-    let [m20, m21, m22] = rotation.z_axis.to_array();
-    if m22 <= 0.0 {
-        let dif10 = m11 - m00;
-        let omm22 = 1.0 - m22;
-        if dif10 <= 0.0 {
-            let four_xsq = omm22 - dif10;
-            let inv = 0.5 / four_xsq.sqrt();
-            [four_xsq * inv, (m01 + m10) * inv, (m02 + m20) * inv, (m12 - m21) * inv]
-        } else {
-            let four_ysq = omm22 + dif10;
-            let inv = 0.5 / four_ysq.sqrt();
-            [(m01 + m10) * inv, four_ysq * inv, (m12 + m21) * inv, (m20 - m02) * inv]
-        }
-    } else {
-        let sum10 = m11 + m00;
-        let opm22 = 1.0 + m22;
-        if sum10 <= 0.0 {
-            let four_zsq = opm22 - sum10;
-            let inv = 0.5 / four_zsq.sqrt();
-            [(m02 + m20) * inv, (m12 + m21) * inv, four_zsq * inv, (m01 - m10) * inv]
-        } else {
-            let four_wsq = opm22 + sum10;
-            let inv = 0.5 / four_wsq.sqrt();
-            [(m12 - m21) * inv, (m20 - m02) * inv, (m01 - m10) * inv, four_wsq * inv]
-        }
-    }
 }
 
 /// Turns the coefficients about z by the angle with `(cos, sin)` = `turn`: for `m > 0`,

@@ -425,15 +425,7 @@ fn worker_loop(
                     }));
                     if let Ok(Ok(Some(written))) = updated {
                         log::info!("fabric written in place ({written:?})");
-                        send(WorkerEvent::FabricReady {
-                            fabric_id: fabric.fabric_id,
-                            quality: fabric.quality,
-                            preview: fabric.preview,
-                            adapter: r.adapter().to_owned(),
-                            resident_bytes: r.resident_bytes(),
-                            bounds: r.bounds(),
-                            seconds: started.elapsed().as_secs_f64(),
-                        });
+                        send(fabric_ready(&fabric, r, started));
                         written_in_place = true;
                     }
                 }
@@ -447,15 +439,7 @@ fn worker_loop(
                     } else {
                         match built {
                             Ok(r) => {
-                                send(WorkerEvent::FabricReady {
-                                    fabric_id: fabric.fabric_id,
-                                    quality: fabric.quality,
-                                    preview: fabric.preview,
-                                    adapter: r.adapter().to_owned(),
-                                    resident_bytes: r.resident_bytes(),
-                                    bounds: r.bounds(),
-                                    seconds: started.elapsed().as_secs_f64(),
-                                });
+                                send(fabric_ready(&fabric, &r, started));
                                 renderer = Some(r);
                                 current = Some(fabric);
                             }
@@ -555,6 +539,19 @@ fn worker_loop(
                 }
             }
         }
+    }
+}
+
+/// The event saying `fabric` is on screen through `r`, uploaded since `started`.
+fn fabric_ready(fabric: &NewFabric, r: &Renderer, started: Instant) -> WorkerEvent {
+    WorkerEvent::FabricReady {
+        fabric_id: fabric.fabric_id,
+        quality: fabric.quality,
+        preview: fabric.preview,
+        adapter: r.adapter().to_owned(),
+        resident_bytes: r.resident_bytes(),
+        bounds: r.bounds(),
+        seconds: started.elapsed().as_secs_f64(),
     }
 }
 

@@ -335,12 +335,7 @@ pub fn parse_wif_colours(text: &str, file: &Path) -> Result<Option<WifColours>, 
                 at: Box::new(place.at()),
                 expected: "`lo,hi`, two numbers with lo < hi (e.g. 0,255)".into(),
             };
-            let numbers: Vec<f64> = entry
-                .value
-                .split(',')
-                .map(|v| v.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|_| bad())?;
+            let numbers = place.numbers().ok_or_else(bad)?;
             match numbers[..] {
                 [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => (lo, hi),
                 _ => return Err(bad()),
@@ -356,12 +351,7 @@ pub fn parse_wif_colours(text: &str, file: &Path) -> Result<Option<WifColours>, 
             at: Box::new(place.at()),
             expected: format!("`r,g,b`, three numbers in {}..={} ([COLOR PALETTE] Range)", range.0, range.1),
         };
-        let values: Vec<f64> = entry
-            .value
-            .split(',')
-            .map(|v| v.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .map_err(|_| bad())?;
+        let values = place.numbers().ok_or_else(bad)?;
         let [r, g, b] = values[..] else { return Err(bad()) };
         let rgb = [r, g, b];
         if !rgb.iter().all(|v| (range.0..=range.1).contains(v)) {
@@ -551,6 +541,11 @@ impl<'a> Place<'a> {
             });
         }
         Ok(n as u32)
+    }
+
+    /// The value as comma-separated numbers (`None` if any is not one).
+    fn numbers(&self) -> Option<Vec<f64>> {
+        self.entry.value.split(',').map(|v| v.trim().parse::<f64>().ok()).collect()
     }
 
     /// The value as a count `1..=max`.
