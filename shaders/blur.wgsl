@@ -2,7 +2,7 @@
 // standard deviation sigma_glo in flat-fabric cm. Each texel holds (V * coverage, coverage), and
 // both channels are blurred alike, so V-bar = x / y averages V over the fabric's own area (the
 // paper's normalization by the integral of K over A). Run once along u, once along v.
-// Twin struct: renderer/src/frame.rs (BlurUniformsGpu).
+// Twin struct: renderer/src/passes/blur.rs (BlurUniformsGpu).
 
 struct BlurUniforms {
     // xy: step between taps in texels ((1, 0) or (0, 1)); z: sigma in texels; w: radius in taps.

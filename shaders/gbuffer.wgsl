@@ -9,7 +9,7 @@
 // The fragment writes the hit's world position and ids to the G-buffer and its true depth, so
 // the depth test keeps the nearest hit where the ray enters the shell more than once (folded
 // cloth).
-// Twin structs: renderer/src/frame.rs (FrameUniformsGpu).
+// Twin struct: renderer/src/passes/gbuffer.rs (FrameUniformsGpu).
 #import shared/fabric_data.wgsl
 #import shared/shell.wgsl
 

@@ -3,7 +3,7 @@
 // multiple scattering from every light to the accumulation buffer. Which terms and which
 // local-visibility paths exist is fixed by override constants from the frame plan, so a path
 // the scene does not need is not even compiled.
-// Twin structs: renderer/src/frame.rs (ShadeUniformsGpu, LightGpu).
+// Twin structs: renderer/src/passes/shade.rs (ShadeUniformsGpu, LightGpu).
 #import shared/shading.wgsl
 #import shared/shell.wgsl
 

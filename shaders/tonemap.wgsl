@@ -1,6 +1,6 @@
 // Final pass: the accumulated radiance divided by the sample count, scaled by 2^exposure, tone
 // mapped and sRGB-encoded into an 8-bit image. Twin of renderer/src/export.rs (display_srgb8);
-// compared by renderer/tests/gpu_frame.rs. Twin struct: renderer/src/frame.rs (ToneMapUniformsGpu).
+// compared by renderer/tests/gpu_frame.rs. Twin struct: renderer/src/passes/tone_map.rs (ToneMapUniformsGpu).
 
 struct ToneMapUniforms {
     // x: width, y: height, z: curve (0 clamp, 1 filmic).

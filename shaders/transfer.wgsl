@@ -4,7 +4,8 @@
 // the same eight transfer matrices by the same vector. One invocation per cell computes c_in
 // (shared/shading.wgsl light_sh_accumulate, as the shading pass does) and A c_in; the shading
 // pass then interpolates the results (shade.wgsl frame_transferred_at).
-// Twin structs: renderer/src/frame.rs (TransferUniformsGpu, LightGpu).
+// Twin structs: renderer/src/passes/cell_transfer.rs (TransferUniformsGpu) and
+// renderer/src/passes/shade.rs (LightGpu).
 #import shared/shading.wgsl
 
 struct TransferUniforms {

@@ -2,7 +2,7 @@
 // top-surface position texture X[u, v] and every shadowing light, look the shadow map up at
 // the top-surface point: PCF for directional lights, PCSS (Fernando 2005) for SG lights. Writes
 // (V * coverage, coverage) so the blur can renormalize over the fabric's own area.
-// Twin structs: renderer/src/frame.rs (VisibilityUniformsGpu).
+// Twin struct: renderer/src/passes/visibility.rs (VisibilityUniformsGpu).
 
 struct VisibilityUniforms {
     light_clip_from_world: array<mat4x4<f32>, MAX_SHADOWED_LIGHTS>,

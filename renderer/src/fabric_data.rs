@@ -17,7 +17,7 @@ use glam::Vec3;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 
-use crate::frame::{storage_entry, uniform_entry};
+use crate::passes::{storage_entry, uniform_entry};
 use twill_precompute::bcsdf::MaterialDesc;
 
 /// Why a bake could not be placed on the GPU.

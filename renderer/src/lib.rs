@@ -14,6 +14,7 @@ pub mod fabric_data;
 pub mod frame;
 pub mod gpu;
 pub mod headless;
+pub mod passes;
 pub mod plan;
 pub mod shaders;
 pub mod shell;

@@ -90,12 +90,15 @@ pub struct PlanInputs {
     pub uniform_frame: bool,
 }
 
-/// One pass of a frame.
+/// One pass of a frame, with everything that decides how it runs (the frame executes these:
+/// `renderer/src/passes/` has one module per variant).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Pass {
+    /// The shell's surfaces, depth only, from light `light` into shadow-map layer `layer`.
     ShadowMap {
         light: usize,
         filter: GlobalVisibility,
+        layer: u32,
     },
     TopSurface,
     Visibility {
@@ -108,10 +111,15 @@ pub enum Pass {
     /// every pixel: one flat-fabric frame, no shadow maps).
     CellTransfer,
     GBuffer,
+    /// Deferred shading, compiled with exactly these terms: single scattering by the listed
+    /// local-visibility paths, multiple scattering, the shadow maps' visibility, and the cells'
+    /// once-per-frame transfer in place of the per-pixel one.
     Shade {
         single: bool,
         multiple: bool,
         paths: Vec<LocalVisibility>,
+        global_visibility: bool,
+        cell_transfer: bool,
     },
     ToneMap,
 }
@@ -130,6 +138,24 @@ impl Pass {
             Self::Shade { .. } => "shading".into(),
             Self::ToneMap => "tone map".into(),
         }
+    }
+
+    /// Whether the pass runs once per sample (the eye rays and the shading depend on the
+    /// sub-pixel jitter); every other pass runs once per frame.
+    #[must_use]
+    pub fn per_sample(&self) -> bool {
+        matches!(self, Self::GBuffer | Self::Shade { .. })
+    }
+
+    /// Whether the pass's result depends on neither the camera nor the sample (shell-space
+    /// visibility: shadow maps, X, V and its blur): a frame reuses it from an earlier frame
+    /// with the same lights, shell and settings.
+    #[must_use]
+    pub fn view_independent(&self) -> bool {
+        matches!(
+            self,
+            Self::ShadowMap { .. } | Self::TopSurface | Self::Visibility { .. } | Self::Blur { .. }
+        )
     }
 }
 
@@ -232,13 +258,14 @@ impl FramePlan {
         self.lights.iter().filter(|l| l.shadow_layer.is_some()).count() as u32
     }
 
-    /// The passes, in the order they run (the G-buffer and shading passes run once per sample).
+    /// The passes, in the order they run: what the frame executes (the G-buffer and shading
+    /// passes, [`Pass::per_sample`], run once per sample).
     #[must_use]
     pub fn passes(&self) -> Vec<Pass> {
         let mut passes = Vec::new();
         for l in &self.lights {
-            if l.shadow_layer.is_some() {
-                passes.push(Pass::ShadowMap { light: l.light, filter: l.global });
+            if let Some(layer) = l.shadow_layer {
+                passes.push(Pass::ShadowMap { light: l.light, filter: l.global, layer });
             }
         }
         if self.shadow_maps {
@@ -263,7 +290,13 @@ impl FramePlan {
                 paths.push(p);
             }
         }
-        passes.push(Pass::Shade { single: self.single, multiple: self.multiple, paths });
+        passes.push(Pass::Shade {
+            single: self.single,
+            multiple: self.multiple,
+            paths,
+            global_visibility: self.shadow_maps,
+            cell_transfer: self.cell_transfer,
+        });
         passes.push(Pass::ToneMap);
         passes
     }
@@ -280,11 +313,11 @@ impl fmt::Display for FramePlan {
                 }
                 Pass::Visibility { lights } => writeln!(f, "  {} ({lights} light layer(s))", pass.name())?,
                 Pass::Blur { sigma_glo_cm } => writeln!(f, "  {} ({sigma_glo_cm} cm)", pass.name())?,
-                Pass::GBuffer => writeln!(f, "  {} (to the first occupied voxel)", pass.name())?,
+                Pass::GBuffer => writeln!(f, "  {} (to the first occupied voxel; per sample)", pass.name())?,
                 Pass::CellTransfer => {
                     writeln!(f, "  {} (once per frame: one fabric frame, no shadows)", pass.name())?;
                 }
-                Pass::Shade { single, multiple, paths } => {
+                Pass::Shade { single, multiple, paths, global_visibility, cell_transfer } => {
                     let mut terms = Vec::new();
                     if *single {
                         terms.push(format!(
@@ -293,9 +326,11 @@ impl fmt::Display for FramePlan {
                         ));
                     }
                     if *multiple {
-                        terms.push("multiple scattering [IIRTF]".to_owned());
+                        let cells = if *cell_transfer { "cells' A c_in" } else { "per pixel" };
+                        terms.push(format!("multiple scattering [IIRTF, {cells}]"));
                     }
-                    writeln!(f, "  {}: {}", pass.name(), terms.join(" + "))?;
+                    let shadows = if *global_visibility { " x shadow-map visibility" } else { "" };
+                    writeln!(f, "  {}: {}{shadows}; per sample", pass.name(), terms.join(" + "))?;
                 }
                 _ => writeln!(f, "  {}", pass.name())?,
             }

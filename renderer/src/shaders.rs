@@ -27,8 +27,10 @@ pub const SHADING: &str = include_str!("../../shaders/shared/shading.wgsl");
 
 /// Eye rays through the shell into the G-buffer (paper 5.1).
 pub const GBUFFER: &str = include_str!("../../shaders/gbuffer.wgsl");
-/// Shadow maps and the top-surface position texture.
-pub const SHELL_SURFACE: &str = include_str!("../../shaders/shell_surface.wgsl");
+/// Shadow maps: the shell's surfaces, depth only, from each shadowing light.
+pub const SHADOW_MAP: &str = include_str!("../../shaders/shadow_map.wgsl");
+/// The top-surface position texture X[u, v].
+pub const TOP_SURFACE: &str = include_str!("../../shaders/top_surface.wgsl");
 /// Shell-space visibility by PCF / PCSS.
 pub const VISIBILITY: &str = include_str!("../../shaders/visibility.wgsl");
 /// Separable Gaussian blur of the visibility by sigma_glo.
@@ -48,7 +50,8 @@ pub const SH: &str = include_str!("../../shaders/shared/sh.wgsl");
 /// the file current). Needs no other module.
 pub const SH_QUARTER_TURN: &str = include_str!("../../shaders/shared/sh_quarter_turn.wgsl");
 
-/// `TetraGpu` (the shell's tetrahedra) for the passes that walk or shade the shell.
+/// `TetraGpu` and `SurfaceVertex`: the shell's tetrahedra and surface vertices, for the passes
+/// that walk, shade or rasterize the shell.
 pub const SHELL: &str = include_str!("../../shaders/shared/shell.wgsl");
 
 /// Every WGSL file by its path under `shaders/` (what `#import` names).
@@ -61,7 +64,8 @@ pub const FILES: &[(&str, &str)] = &[
     ("shared/shading.wgsl", SHADING),
     ("shared/shell.wgsl", SHELL),
     ("gbuffer.wgsl", GBUFFER),
-    ("shell_surface.wgsl", SHELL_SURFACE),
+    ("shadow_map.wgsl", SHADOW_MAP),
+    ("top_surface.wgsl", TOP_SURFACE),
     ("visibility.wgsl", VISIBILITY),
     ("blur.wgsl", BLUR),
     ("shade.wgsl", SHADE),

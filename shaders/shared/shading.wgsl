@@ -12,7 +12,7 @@
 const LOBE_R: u32 = 0u;
 const LOBE_TT: u32 = 1u;
 const HALF_PI: f32 = 1.5707963267948966;
-// A light as the passes that shade read it. Twin: renderer/src/frame.rs (LightGpu).
+// A light as the passes that shade read it. Twin: renderer/src/passes/shade.rs (LightGpu).
 const LIGHT_DIRECTIONAL: u32 = 0u;
 const LIGHT_SG: u32 = 1u;
 
