@@ -14,7 +14,7 @@ use twill_precompute::image::{Estimate, compare};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::scene::{GpuSection, Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
-use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX};
+use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX, Readback};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::{SceneRenderer, frame_settings, shell_for_mesh};
 use twill_renderer::plan::Components;
@@ -165,6 +165,81 @@ fn sample_batches_add_up_to_one_frame() {
     assert!(first.radiance != second.radiance, "the two batches take different samples");
     let err = session.renderer.render_samples(camera, lights, &half, MAX_SAMPLE_INDEX - 1).unwrap_err();
     assert!(err.to_string().contains("sequence ends"), "{err}");
+}
+
+#[test]
+fn the_progressive_picture_on_the_gpu_is_the_frame_of_all_its_samples() {
+    // The viewer's frame: batches of 1, 1, 2 and 4 samples accumulated on the GPU and tone
+    // mapped there are the one-shot frame of samples 0..8, to the bit (the same additions in
+    // the same order). An export between batches does not disturb the picture; a retone needs
+    // no samples; a continuation of another view, a wrong sample count or a rebake is refused.
+    let Some(gpu) = Gpu::for_test("the_progressive_picture_on_the_gpu_is_the_frame_of_all_its_samples")
+    else {
+        return;
+    };
+    let swatch = scene(&format!("{FABRIC}{}", camera_above(0.4)), &[SUN]);
+    let mut settings = frame_settings(&swatch, Components::All);
+    (settings.width, settings.height, settings.spp) = (40, 32, 8);
+    let mut session = SceneRenderer::with_gpu(gpu, &swatch, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let whole = session.render(&swatch, &settings).expect("frame renders");
+    let (camera, lights) = (&swatch.camera, &swatch.path_scene.lights);
+    let renderer = &mut session.renderer;
+    let mut first = 0;
+    let mut last = None;
+    for spp in [1, 1, 2, 4] {
+        let batch = FrameSettings { spp, ..settings.clone() };
+        let readback = if first == 4 { Readback::Display } else { Readback::Nothing };
+        let frame =
+            renderer.render_progressive(camera, lights, &batch, first, readback).expect("batch renders");
+        assert_eq!(frame.samples, first + spp);
+        assert_eq!(frame.display.is_some(), readback == Readback::Display, "read back only when asked");
+        first += spp;
+        if first == 2 {
+            // An export at another size in the middle of the picture.
+            let export = FrameSettings { width: 24, height: 16, spp: 2, ..settings.clone() };
+            renderer.render_samples(camera, lights, &export, 0).expect("export renders");
+        }
+        last = Some(frame);
+    }
+    let last = last.expect("four batches");
+    assert_eq!(last.display.as_deref(), Some(&whole.display[..]), "tone mapped on the GPU, as one frame");
+    let everything = FrameSettings { spp: 1, ..settings.clone() };
+    let more =
+        renderer.render_progressive(camera, lights, &everything, 8, Readback::Everything).expect("9th");
+    assert_eq!(more.samples, 9);
+    assert_eq!(more.radiance.as_ref().map(Vec::len), Some(whole.radiance.len()));
+
+    // A retone: the same samples, a new exposure, as a frame rendered with it.
+    let brighter = FrameSettings { exposure: settings.exposure + 1.0, spp: 8, ..settings.clone() };
+    let brighter_whole = renderer.render(camera, lights, &brighter).expect("frame renders");
+    let restarted =
+        renderer.render_progressive(camera, lights, &settings, 0, Readback::Nothing).expect("restart");
+    assert_eq!(restarted.samples, 8);
+    let retoned = renderer.tone_map_progressive(brighter.exposure, true, Readback::Display).expect("retone");
+    assert_eq!(retoned.samples, 8);
+    assert_eq!(
+        retoned.display.as_deref(),
+        Some(&brighter_whole.display[..]),
+        "a retone is the frame at that exposure"
+    );
+    // The picture goes on with the new exposure (the samples do not depend on it).
+    let next = FrameSettings { spp: 1, ..brighter.clone() };
+    renderer
+        .render_progressive(camera, lights, &next, 8, Readback::Nothing)
+        .expect("continues after a retone");
+
+    // Refused: a wrong sample count, another view, and anything after a rebake.
+    let one = FrameSettings { spp: 1, ..settings.clone() };
+    let err = renderer.render_progressive(camera, lights, &one, 5, Readback::Nothing).unwrap_err();
+    assert!(err.to_string().contains("start it again from sample 0"), "{err}");
+    let moved = scene(&format!("{FABRIC}{}", camera_above(0.3)), &[SUN]);
+    let err = renderer.render_progressive(&moved.camera, lights, &one, 9, Readback::Nothing).unwrap_err();
+    assert!(err.to_string().contains("0 samples"), "{err}");
+    let exemplars = [default_bake()];
+    renderer.update_fabric(&exemplars, &PatternMap::uniform(0)).expect("rebake in place");
+    assert!(renderer.render_progressive(camera, lights, &one, 9, Readback::Nothing).is_err());
+    assert!(renderer.tone_map_progressive(0.0, true, Readback::Nothing).is_err());
 }
 
 #[test]

@@ -92,6 +92,11 @@ struct Run {
 /// Runs `twill view ARGS` under xvfb-run in `dir`, with a private runtime folder and bake cache.
 /// One at a time: `xvfb-run -a` can hand two concurrent runs the same display number.
 fn run_viewer(xvfb: &Path, dir: &Path, args: &[&str]) -> Run {
+    run_viewer_with(xvfb, dir, args, &[])
+}
+
+/// As [`run_viewer`], with extra environment variables.
+fn run_viewer_with(xvfb: &Path, dir: &Path, args: &[&str], envs: &[(&str, &str)]) -> Run {
     static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let runtime = dir.join("xdg");
@@ -113,6 +118,7 @@ fn run_viewer(xvfb: &Path, dir: &Path, args: &[&str]) -> Run {
         .env("WGPU_DEBUG", "0")
         .env("TWILL_CACHE_DIR", dir.join("cache"))
         .env("RUST_LOG", "warn")
+        .envs(envs.iter().copied())
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(&stderr_path).unwrap());
@@ -225,6 +231,68 @@ fn scripted_edits_render_and_match_the_golden() {
         panic!("light 1 should be the SG fill, is {:?}", saved.lights[1]);
     };
     assert!((sharpness - 40.0).abs() < 1e-9, "the edited λ is saved: {sharpness}");
+}
+
+#[test]
+fn the_gpu_picture_is_drawn_natively_on_the_window_device_and_read_back_on_another() {
+    // The viewer's picture is accumulated and tone mapped on the GPU. On the window's own
+    // device the window draws the renderer's display texture as it is (nothing read back); on
+    // a device of the worker's own (the default on lavapipe) the 8-bit display image is read
+    // back and uploaded. Both must show the same pixels, and an exposure edit tone-maps the
+    // same samples again on the GPU.
+    let test = "the_gpu_picture_is_drawn_natively_on_the_window_device_and_read_back_on_another";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let script = "wait-fabric draft\nset spp 2\nwait-idle\nwait-spp 2\nscreenshot shot.png\n\
+                  set exposure 1.5\nwait-spp 2\nscreenshot bright.png\nquit\n";
+    std::fs::write(dir.path().join("tone.script"), script).unwrap();
+    let mut shots = Vec::new();
+    for device in ["shared", "separate"] {
+        let out = dir.path().join(device);
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::copy(dir.path().join("tone.script"), out.join("tone.script")).unwrap();
+        let args = ["--quality", "draft", "--window-size", "640x480", "--script", "tone.script"];
+        // Both runs share one bake cache: the second reads the first's draft bake.
+        let cache = dir.path().join("shared-cache");
+        let cache = cache.to_str().unwrap();
+        let run = run_viewer_with(
+            &xvfb,
+            &out,
+            &args,
+            &[("TWILL_VIEWER_DEVICE", device), ("TWILL_CACHE_DIR", cache)],
+        );
+        assert!(run.success && run.stderr.contains("script finished"), "{device}:\n{}", run.stderr);
+        let (_, _, shot) = read_png_rgba(&out.join("shot.viewport.png"));
+        let (_, _, bright) = read_png_rgba(&out.join("bright.viewport.png"));
+        shots.push((device, shot, bright));
+    }
+    let mean = |p: &[[u8; 4]]| {
+        p.iter().map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2])).sum::<f64>()
+            / (3.0 * p.len() as f64)
+    };
+    for (device, shot, bright) in &shots {
+        assert!(mean(shot) > 20.0, "{device}: the fabric is on screen (mean level {:.1})", mean(shot));
+        assert!(
+            mean(bright) > mean(shot) + 10.0,
+            "{device}: +1.5 stops brightens the picture ({:.1} -> {:.1})",
+            mean(shot),
+            mean(bright)
+        );
+    }
+    let ((_, shared, shared_bright), (_, separate, separate_bright)) = (&shots[0], &shots[1]);
+    for (what, a, b) in [("picture", shared, separate), ("retoned picture", shared_bright, separate_bright)] {
+        assert_eq!(a.len(), b.len(), "{what}: same viewport");
+        let largest = a
+            .iter()
+            .zip(b.iter())
+            .flat_map(|(p, q)| (0..3).map(move |c| p[c].abs_diff(q[c])))
+            .max()
+            .unwrap_or(0);
+        assert!(
+            largest <= 1,
+            "{what}: the native texture and the read-back pixels differ by {largest} levels"
+        );
+    }
 }
 
 /// The stages the `wait-idle` steps report, in order.

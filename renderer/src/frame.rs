@@ -55,6 +55,11 @@ pub enum RenderError {
     Limit { adapter: String, what: &'static str, have: u64, need: u64 },
     #[error("GPU error in {label}: {message}")]
     Gpu { label: String, message: String },
+    #[error(
+        "samples from {first_sample} do not continue the progressive picture on the GPU ({kept} samples \
+         of this view kept): start it again from sample 0"
+    )]
+    Continuation { first_sample: u32, kept: u32 },
     #[error("the frame plan runs {pass:?} before {needs}, which it reads")]
     PassOrder { pass: String, needs: &'static str },
     #[error(transparent)]
@@ -117,6 +122,95 @@ impl Frame {
     }
 }
 
+/// What a frame reads back to the CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Readback {
+    /// Nothing: the picture stays on the GPU, where a window on the same device draws its
+    /// display texture.
+    Nothing,
+    /// The tone-mapped display image (for a window on another device).
+    Display,
+    /// The display image and the mean radiance (exports, comparisons).
+    Everything,
+}
+
+/// The progressive picture after a batch of samples or a new tone map.
+#[derive(Debug, Clone)]
+pub struct ProgressiveFrame {
+    pub width: u32,
+    pub height: u32,
+    /// Samples in the picture.
+    pub samples: u32,
+    pub exposure: f64,
+    pub filmic: bool,
+    /// The tone-mapped picture on the GPU: `Rgba8Unorm` holding sRGB-encoded values (what
+    /// egui's own textures hold), with `TEXTURE_BINDING`, so a window on the renderer's device
+    /// can draw it as it is.
+    pub display_texture: wgpu::Texture,
+    /// The display image, when read back.
+    pub display: Option<Vec<[u8; 4]>>,
+    /// The mean radiance, when read back.
+    pub radiance: Option<Vec<[f32; 3]>>,
+    pub plan: FramePlan,
+    /// GPU time per pass of this call, when the adapter has timestamp queries.
+    pub timings: Option<Vec<PassTiming>>,
+    /// Passes of the plan this call did not run because it reused an earlier frame's result.
+    pub reused: Vec<String>,
+}
+
+/// The picture [`Renderer::render_progressive`] keeps on the GPU between calls.
+struct ProgressivePicture {
+    targets: FrameTargets,
+    /// What the samples depend on, hashed ([`picture_key`]).
+    key: u64,
+    samples: u32,
+    plan: FramePlan,
+    exposure: f64,
+    filmic: bool,
+}
+
+impl ProgressivePicture {
+    fn frame(&self, read: ReadBack, reused: Vec<String>) -> ProgressiveFrame {
+        ProgressiveFrame {
+            width: self.targets.size.0,
+            height: self.targets.size.1,
+            samples: self.samples,
+            exposure: self.exposure,
+            filmic: self.filmic,
+            display_texture: self.targets.display.clone(),
+            display: read.display,
+            radiance: read.radiance,
+            plan: self.plan.clone(),
+            timings: read.timings,
+            reused,
+        }
+    }
+}
+
+/// A frame recorded and not yet submitted.
+struct Recorded {
+    frame: FrameEncoder,
+    plan: FramePlan,
+    reused: Vec<String>,
+}
+
+/// What a submitted frame read back.
+struct ReadBack {
+    radiance: Option<Vec<[f32; 3]>>,
+    display: Option<Vec<[u8; 4]>>,
+    timings: Option<Vec<PassTiming>>,
+}
+
+/// What a progressive picture's samples depend on, hashed: the camera, the lights and the
+/// settings but the sample count, the exposure and the tone curve.
+fn picture_key(camera: &CameraSection, lights: &[Light], settings: &FrameSettings) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let samples_alike = FrameSettings { spp: 1, exposure: 0.0, filmic: true, ..settings.clone() };
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    format!("{camera:?}|{lights:?}|{samples_alike:?}").hash(&mut hasher);
+    hasher.finish()
+}
+
 /// Shell-space visibility V[u, v] of a frame with shadow maps (sharp, and blurred by σ_glo: the
 /// same texture without a blur), and a hash of what it depends on: the lights, the plan's
 /// shadow filters, the GPU settings and the shell. It does not depend on the camera or the
@@ -136,6 +230,8 @@ struct FrameState<'a> {
     eye: EyeRays,
     /// The sample the per-sample passes are recording.
     sample: u32,
+    /// The samples the accumulation holds once the frame's are added (the tone map's divisor).
+    tone_samples: u32,
     /// The frame's lights on the GPU, and how many.
     lights_gpu: (wgpu::Buffer, usize),
     shadow_maps: Option<ShadowMaps>,
@@ -161,6 +257,8 @@ pub struct Renderer {
     shell_visibility: Option<ShellVisibility>,
     /// The last frame's targets, reused by the next frame of the same size.
     frame_targets: Option<FrameTargets>,
+    /// The picture [`Renderer::render_progressive`] accumulates on the GPU.
+    progressive: Option<ProgressivePicture>,
     timestamps: bool,
 }
 
@@ -198,6 +296,7 @@ impl Renderer {
             shell_generation: 0,
             shell_visibility: None,
             frame_targets: None,
+            progressive: None,
             timestamps,
         })
     }
@@ -265,6 +364,7 @@ impl Renderer {
         self.shell = ShellGpu::upload(&self.device, &self.queue, shell);
         self.shell_generation += 1;
         self.shell_visibility = None;
+        self.progressive = None;
     }
 
     /// What shell-space visibility depends on, hashed (see [`ShellVisibility`]).
@@ -292,6 +392,7 @@ impl Renderer {
         exemplars: &[&twill_precompute::bake::pipeline::Baked],
         pattern: &twill_precompute::bake::pattern::PatternMap,
     ) -> Result<Option<Vec<&'static str>>, RenderError> {
+        self.progressive = None;
         Ok(self.fabric.update_in_place(&self.queue, exemplars, pattern)?)
     }
 
@@ -313,10 +414,10 @@ impl Renderer {
 
     /// As [`Renderer::render`], for samples `first_sample .. first_sample + settings.spp` of
     /// one longer sample sequence (the sub-pixel jitter continues where the previous frame
-    /// stopped). The frame's `radiance` is the mean of its own samples, so a
-    /// viewer that weights each frame by its `spp` and sums them gets the same image as one
-    /// frame with all the samples: progressive rendering without keeping state on the GPU.
-    /// `first_sample = 0` is exactly [`Renderer::render`].
+    /// stopped). The frame's `radiance` is the mean of its own samples, so a caller that
+    /// weights each frame by its `spp` and sums them gets the same image as one frame with all
+    /// the samples (what an export does). `first_sample = 0` is exactly [`Renderer::render`].
+    /// These frames have targets of their own: they never touch the progressive picture.
     pub fn render_samples(
         &mut self,
         camera: &CameraSection,
@@ -324,6 +425,125 @@ impl Renderer {
         settings: &FrameSettings,
         first_sample: u32,
     ) -> Result<Frame, RenderError> {
+        let settings = self.checked(camera, lights, settings, first_sample)?;
+        let (width, height) = (settings.width, settings.height);
+        let targets = self.targets(width, height);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let recorded = self.record(camera, lights, &settings, first_sample, &targets, true, settings.spp)?;
+        let read = self.submit(recorded.frame, scope, &targets, Readback::Everything, settings.spp)?;
+        Ok(Frame {
+            width,
+            height,
+            radiance: read.radiance.unwrap_or_default(),
+            display: read.display.unwrap_or_default(),
+            plan: recorded.plan,
+            timings: read.timings,
+            reused: recorded.reused,
+        })
+    }
+
+    /// Adds samples `first_sample .. first_sample + settings.spp` to the progressive picture
+    /// kept on the GPU and tone-maps the running mean into its display texture: the viewer's
+    /// frame, which stays on the GPU unless `readback` asks for it.
+    ///
+    /// `first_sample = 0` starts a new picture (the last picture's targets are reused when the
+    /// size is the same). Any other `first_sample` must continue the kept picture exactly: the
+    /// same camera, lights and settings (exposure and tone curve aside) and exactly
+    /// `first_sample` samples so far, else [`RenderError::Continuation`] and nothing is added.
+    /// A new bake written in place ([`Renderer::update_fabric`]) or a new shell ends the picture.
+    ///
+    /// # Errors
+    /// Bad settings, a continuation of a different picture, or a GPU failure.
+    pub fn render_progressive(
+        &mut self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+        first_sample: u32,
+        readback: Readback,
+    ) -> Result<ProgressiveFrame, RenderError> {
+        let settings = self.checked(camera, lights, settings, first_sample)?;
+        let key = picture_key(camera, lights, &settings);
+        let size = (settings.width, settings.height);
+        let targets = if first_sample == 0 {
+            match self.progressive.take() {
+                Some(kept) if kept.targets.size == size => kept.targets,
+                _ => FrameTargets::new(&self.device, size.0, size.1),
+            }
+        } else {
+            match &self.progressive {
+                Some(kept) if kept.key == key && kept.samples == first_sample => kept.targets.clone(),
+                kept => {
+                    return Err(RenderError::Continuation {
+                        first_sample,
+                        kept: kept.as_ref().map_or(0, |k| if k.key == key { k.samples } else { 0 }),
+                    });
+                }
+            }
+        };
+        let samples = first_sample + settings.spp;
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let recorded =
+            self.record(camera, lights, &settings, first_sample, &targets, first_sample == 0, samples)?;
+        let read = self.submit(recorded.frame, scope, &targets, readback, samples)?;
+        let picture = ProgressivePicture {
+            targets,
+            key,
+            samples,
+            plan: recorded.plan,
+            exposure: settings.exposure,
+            filmic: settings.filmic,
+        };
+        let frame = picture.frame(read, recorded.reused);
+        self.progressive = Some(picture);
+        Ok(frame)
+    }
+
+    /// Tone-maps the progressive picture again with a new exposure and curve (no new samples).
+    ///
+    /// # Errors
+    /// When there is no picture, or on a GPU failure.
+    pub fn tone_map_progressive(
+        &mut self,
+        exposure: f64,
+        filmic: bool,
+        readback: Readback,
+    ) -> Result<ProgressiveFrame, RenderError> {
+        if !(-30.0..=30.0).contains(&exposure) {
+            return Err(RenderError::Settings(format!("exposure {exposure}: must be in -30..=30 stops")));
+        }
+        let Some(picture) = self.progressive.as_mut() else {
+            return Err(RenderError::Continuation { first_sample: 0, kept: 0 });
+        };
+        (picture.exposure, picture.filmic) = (exposure, filmic);
+        let (targets, samples) = (picture.targets.clone(), picture.samples);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut frame = FrameEncoder::new(&self.device, self.timestamps.then_some(1));
+        let name = Pass::ToneMap.name();
+        self.passes.tone_map.encode(
+            &mut frame,
+            &self.device,
+            &self.queue,
+            &targets,
+            exposure,
+            filmic,
+            samples,
+            &name,
+        );
+        let read = self.submit(frame, scope, &targets, readback, samples)?;
+        let picture =
+            self.progressive.as_ref().ok_or(RenderError::Continuation { first_sample: 0, kept: 0 })?;
+        Ok(picture.frame(read, Vec::new()))
+    }
+
+    /// Validates a request and fits it to the adapter.
+    fn checked(
+        &self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+        first_sample: u32,
+    ) -> Result<FrameSettings, RenderError> {
         validate(settings, lights)?;
         twill_precompute::scene::camera_from(camera, settings.width as usize, settings.height as usize)
             .map_err(|e| RenderError::Settings(e.to_string()))?;
@@ -333,12 +553,26 @@ impl Renderer {
                 settings.spp
             )));
         }
-        let settings = &self.fit_to_adapter(settings)?;
+        self.fit_to_adapter(settings)
+    }
+
+    /// Records the plan's passes for samples `first_sample ..` into `targets`, clearing the
+    /// accumulation first when `clear`; the tone map divides by `tone_samples`.
+    #[allow(clippy::too_many_arguments)]
+    fn record(
+        &mut self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+        first_sample: u32,
+        targets: &FrameTargets,
+        clear: bool,
+        tone_samples: u32,
+    ) -> Result<Recorded, RenderError> {
         let plan = self.plan(lights, settings);
         let passes = plan.passes();
-        let (width, height) = (settings.width, settings.height);
         let device = self.device.clone();
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let (width, height) = targets.size;
 
         // Shell-space visibility is reused from the previous frame when nothing it depends on
         // changed (a progressive batch, a camera move): its passes do not run.
@@ -370,9 +604,9 @@ impl Renderer {
             .sum();
         let timed = self.timestamps.then_some(timed_instances).filter(|&n| n <= MAX_TIMED_PASS_INSTANCES);
         let mut frame = FrameEncoder::new(&device, timed);
-
-        let targets = self.targets(width, height);
-        frame.encoder.clear_buffer(&targets.accumulation, 0, None);
+        if clear {
+            frame.encoder.clear_buffer(&targets.accumulation, 0, None);
+        }
         let lights_gpu = lights_gpu(lights, &plan);
         let mut state = FrameState {
             lights,
@@ -381,6 +615,7 @@ impl Renderer {
             eye: EyeRays::new(camera, width as f32 / height as f32, self.shell.bounds),
             targets: targets.clone(),
             sample: first_sample,
+            tone_samples,
             lights_gpu: (lights_buffer(&device, &self.queue, &lights_gpu), lights_gpu.len()),
             shadow_maps: None,
             top_surface: None,
@@ -404,20 +639,38 @@ impl Renderer {
             self.shell_visibility =
                 Some(ShellVisibility { key, sharp: sharp.clone(), blurred: blurred.clone() });
         }
+        Ok(Recorded { frame, plan, reused })
+    }
 
-        targets.encode_readback(&mut frame.encoder, true);
-        let (commands, timing_readback) = frame.finish(&device);
+    /// Submits a recorded frame, with copies of what `readback` asks for, and reads them.
+    fn submit(
+        &self,
+        mut frame: FrameEncoder,
+        scope: wgpu::ErrorScopeGuard,
+        targets: &FrameTargets,
+        readback: Readback,
+        samples: u32,
+    ) -> Result<ReadBack, RenderError> {
+        if readback != Readback::Nothing {
+            targets.encode_readback(&mut frame.encoder, readback == Readback::Everything);
+        }
+        let (commands, timing_readback) = frame.finish(&self.device);
         self.queue.submit([commands]);
         if let Some(error) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Gpu { label: "frame".into(), message: error.to_string() });
         }
-
-        let accumulated: Vec<[f32; 4]> = crate::gpu::read_buffer(&device, &targets.radiance_readback)?;
-        let inv = 1.0 / settings.spp as f32;
-        let radiance = accumulated.iter().map(|p| [p[0] * inv, p[1] * inv, p[2] * inv]).collect();
-        let display = read_display(&device, &targets)?;
-        let timings = timing_readback.map(|t| t.read(&device, &self.queue)).transpose()?;
-        Ok(Frame { width, height, radiance, display, plan, timings, reused })
+        let radiance = if readback == Readback::Everything {
+            let accumulated: Vec<[f32; 4]> =
+                crate::gpu::read_buffer(&self.device, &targets.radiance_readback)?;
+            let inv = 1.0 / samples.max(1) as f32;
+            Some(accumulated.iter().map(|p| [p[0] * inv, p[1] * inv, p[2] * inv]).collect())
+        } else {
+            None
+        };
+        let display =
+            if readback == Readback::Nothing { None } else { Some(read_display(&self.device, targets)?) };
+        let timings = timing_readback.map(|t| t.read(&self.device, &self.queue)).transpose()?;
+        Ok(ReadBack { radiance, display, timings })
     }
 
     /// The targets for a frame of this size: the last frame's when the size is the same.
@@ -477,7 +730,7 @@ impl Renderer {
             }
             Pass::GBuffer => {
                 let (width, height) = state.targets.size;
-                let jitter = sample_jitter(state.sample, state.settings.spp, width, height);
+                let jitter = sample_jitter(state.sample, width, height);
                 passes.gbuffer.encode(
                     frame,
                     device,
@@ -529,7 +782,7 @@ impl Renderer {
                     &state.targets,
                     s.exposure,
                     s.filmic,
-                    s.spp,
+                    state.tone_samples,
                     &name,
                 );
             }
@@ -557,14 +810,15 @@ fn shadow_layers(passes: &[Pass], lights: &[Light]) -> Vec<ShadowLayer> {
     layers.into_iter().map(|(_, l)| l).collect()
 }
 
-/// The sub-pixel offset of sample `index` in clip units: the Halton (2, 3) point of
-/// `index + 1` over the pixel; none for a lone first sample (a one-sample frame is the pixel
-/// centres, as the path tracer's).
-fn sample_jitter(index: u32, spp: u32, width: u32, height: u32) -> [f32; 2] {
-    if spp == 1 && index == 0 {
+/// The sub-pixel offset of sample `index` in clip units, a function of the index alone (so a
+/// picture accumulated over batches is the frame of all its samples): none for sample 0 (a
+/// one-sample frame is the pixel centres, as the path tracer's), then the Halton (2, 3) points
+/// 1, 2, ... over the pixel.
+fn sample_jitter(index: u32, width: u32, height: u32) -> [f32; 2] {
+    if index == 0 {
         return [0.0; 2];
     }
-    let (jx, jy) = (halton(index + 1, 2) as f32, halton(index + 1, 3) as f32);
+    let (jx, jy) = (halton(index, 2) as f32, halton(index, 3) as f32);
     [(2.0 * jx - 1.0) / width as f32, -(2.0 * jy - 1.0) / height as f32]
 }
 

@@ -38,7 +38,7 @@ use twill_renderer::frame::FrameSettings;
 use twill_renderer::plan::Components;
 
 use super::ViewerOptions;
-use super::accumulate::{Accumulation, Added};
+use super::accumulate::{Accumulation, Added, Picture};
 use super::bake::{BakeEvent, BakedSet, Baker};
 use super::camera::OrbitCamera;
 use super::colourway::{ColourwayForm, colourway_panel};
@@ -52,7 +52,8 @@ use super::quality::{
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, quality_panel,
 };
 use super::render_worker::{
-    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, WorkerEvent,
+    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, ToneRequest,
+    WorkerEvent,
 };
 use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
 use super::timing::FrameStats;
@@ -214,7 +215,11 @@ pub struct ViewerApp {
     /// Render devices replaced after a loss since the start.
     device_recoveries: u32,
     accumulation: Option<Accumulation>,
-    texture: Option<egui::TextureHandle>,
+    /// The worker answered that the picture on the GPU is not the one the view continues.
+    restart_picture: bool,
+    /// eframe's wgpu state: the window draws a picture on its own device as a native texture.
+    render_state: Option<eframe::egui_wgpu::RenderState>,
+    viewport_texture: Option<ViewportTexture>,
     texture_dirty: bool,
     shown_tone: (f64, bool),
     viewport_px: [u32; 2],
@@ -323,7 +328,9 @@ impl ViewerApp {
             in_flight: None,
             device_recoveries: 0,
             accumulation: None,
-            texture: None,
+            restart_picture: false,
+            render_state: cc.wgpu_render_state.clone(),
+            viewport_texture: None,
             texture_dirty: false,
             shown_tone: (f64::NAN, true),
             viewport_px: [0, 0],
@@ -586,9 +593,25 @@ impl ViewerApp {
                     let cost = result.wall_ms * 1e6 / work.max(1.0);
                     self.cost_ns_per_pixel_sample =
                         Some(self.cost_ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
-                    if Accumulation::add(&mut self.accumulation, &result) != Added::Dropped {
+                    match Accumulation::add(&mut self.accumulation, &result) {
+                        Added::Dropped => {}
+                        added => {
+                            self.texture_dirty = true;
+                            self.restart_picture &= added != Added::Restarted;
+                        }
+                    }
+                }
+                WorkerEvent::Toned(frame) => {
+                    if self.accumulation.as_mut().is_some_and(|acc| acc.retoned(&frame)) {
                         self.texture_dirty = true;
                     }
+                }
+                WorkerEvent::FrameRestart { generation } => {
+                    self.in_flight = None;
+                    self.restart_picture = true;
+                    log::debug!(
+                        "generation {generation}: the picture on the GPU was replaced; starting again"
+                    );
                 }
                 WorkerEvent::FrameFailed { generation, message } => {
                     self.in_flight = None;
@@ -634,23 +657,58 @@ impl ViewerApp {
         }
     }
 
+    /// Shows the newest picture: a picture on the window's device as a native texture (the
+    /// renderer's display texture itself), pixels read back from the worker's device through
+    /// an egui texture. An exposure or curve edit asks the worker to tone-map the picture again.
     fn refresh_texture(&mut self, ctx: &egui::Context) {
         let tone = (self.controls.exposure, self.controls.filmic);
         if tone != self.shown_tone {
-            self.texture_dirty = true;
+            self.shown_tone = tone;
+            if let Some(worker) = &self.worker {
+                worker.tone_map(ToneRequest { exposure: tone.0, filmic: tone.1 });
+            }
         }
         let Some(acc) = self.accumulation.as_ref().filter(|_| self.texture_dirty) else { return };
-        let rgba = acc.display_rgba8(tone.0, tone.1);
-        let image =
-            egui::ColorImage::from_rgba_unmultiplied([acc.width as usize, acc.height as usize], &rgba);
-        match &mut self.texture {
-            Some(texture) => texture.set(image, egui::TextureOptions::LINEAR),
-            None => {
-                self.texture = Some(ctx.load_texture("twill.viewport", image, egui::TextureOptions::LINEAR));
+        match &acc.picture {
+            Picture::Pixels(rgba) => {
+                let size = [acc.width as usize, acc.height as usize];
+                let image = egui::ColorImage::from_rgba_unmultiplied(size, rgba);
+                match &mut self.viewport_texture {
+                    Some(ViewportTexture::Managed(handle)) => handle.set(image, egui::TextureOptions::LINEAR),
+                    shown => {
+                        if let (Some(ViewportTexture::Native { id, .. }), Some(state)) =
+                            (shown.as_ref(), &self.render_state)
+                        {
+                            state.renderer.write().free_texture(id);
+                        }
+                        let handle = ctx.load_texture("twill.viewport", image, egui::TextureOptions::LINEAR);
+                        *shown = Some(ViewportTexture::Managed(handle));
+                    }
+                }
+            }
+            Picture::Texture(texture) => {
+                let Some(state) = &self.render_state else { return };
+                let view = texture.create_view(&wgpu::TextureViewDescriptor {
+                    label: Some("twill.viewport.view"),
+                    ..Default::default()
+                });
+                let mut renderer = state.renderer.write();
+                let filter = wgpu::FilterMode::Linear;
+                match &mut self.viewport_texture {
+                    Some(ViewportTexture::Native { id, texture: shown }) => {
+                        if shown != texture {
+                            renderer.update_egui_texture_from_wgpu_texture(&state.device, &view, filter, *id);
+                            shown.clone_from(texture);
+                        }
+                    }
+                    shown => {
+                        let id = renderer.register_native_texture(&state.device, &view, filter);
+                        *shown = Some(ViewportTexture::Native { id, texture: texture.clone() });
+                    }
+                }
             }
         }
         self.texture_dirty = false;
-        self.shown_tone = tone;
     }
 
     fn fit_view(&mut self) -> Result<(), String> {
@@ -939,7 +997,7 @@ impl ViewerApp {
 
         let painter = ui.painter_at(rect);
         painter.rect_filled(rect, 0.0, egui::Color32::from_gray(18));
-        if let Some(texture) = &self.texture {
+        if let Some(texture) = &self.viewport_texture {
             let [w, h] = texture.size().map(|s| s as f32);
             let scale = (rect.width() / w).min(rect.height() / h);
             let image_rect = egui::Rect::from_center_size(rect.center(), egui::vec2(w, h) * scale);
@@ -1034,7 +1092,8 @@ impl ViewerApp {
         }
         let first_sample = match &self.accumulation {
             Some(acc)
-                if acc.generation == self.generation
+                if !self.restart_picture
+                    && acc.generation == self.generation
                     && acc.fabric_id == fabric.id
                     && [acc.width, acc.height] == size =>
             {
@@ -1066,9 +1125,9 @@ impl ViewerApp {
                 width: size[0],
                 height: size[1],
                 spp,
-                // The viewer tone maps on the CPU (exposure edits need no new samples).
-                exposure: 0.0,
-                filmic: true,
+                // Tone mapped on the GPU; an exposure edit alone tone-maps the samples again.
+                exposure: self.controls.exposure,
+                filmic: self.controls.filmic,
                 components: key.components,
                 gpu: key.gpu,
                 frame_transfer: true,
@@ -1268,7 +1327,8 @@ impl ViewerApp {
             }
             Step::WaitSpp(n) => {
                 let samples = self.accumulation.as_ref().map_or(0, |a| a.samples);
-                if !self.picture_is_current() || self.texture_dirty || samples < *n {
+                let toned = self.accumulation.as_ref().is_some_and(|a| a.tone == self.shown_tone);
+                if !self.picture_is_current() || self.texture_dirty || !toned || samples < *n {
                     return Ok(false);
                 }
                 if samples > *n {
@@ -1433,6 +1493,30 @@ fn overlay_text(painter: &egui::Painter, anchor: egui::Pos2, align: egui::Align2
 /// whose single queue runs one submission at a time, so the window's frames would wait behind
 /// every fabric frame (seconds each): there the renderer gets a device of its own.
 /// `TWILL_VIEWER_DEVICE=shared|separate` overrides the choice.
+/// The picture as egui draws it.
+enum ViewportTexture {
+    /// Pixels read back from the worker's own device, uploaded by egui.
+    Managed(egui::TextureHandle),
+    /// The renderer's display texture on the window's device, registered with egui's renderer.
+    Native { id: egui::TextureId, texture: wgpu::Texture },
+}
+
+impl ViewportTexture {
+    fn id(&self) -> egui::TextureId {
+        match self {
+            Self::Managed(handle) => handle.id(),
+            Self::Native { id, .. } => *id,
+        }
+    }
+
+    fn size(&self) -> [usize; 2] {
+        match self {
+            Self::Managed(handle) => handle.size(),
+            Self::Native { texture, .. } => [texture.width() as usize, texture.height() as usize],
+        }
+    }
+}
+
 fn render_device(state: &eframe::egui_wgpu::RenderState) -> Result<DeviceHandles, String> {
     let info = state.adapter.get_info();
     let separate = match std::env::var("TWILL_VIEWER_DEVICE").as_deref() {

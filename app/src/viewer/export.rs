@@ -14,12 +14,11 @@
 use std::path::{Path, PathBuf};
 
 use eframe::egui;
+use twill_precompute::Rgb;
 use twill_precompute::atomic_file::write_atomically;
 use twill_precompute::image::Image;
 use twill_precompute::scene::{RenderSection, SceneFile};
-use twill_renderer::export::{write_image, write_rgb8_png};
-
-use super::accumulate::{display_settings, tone_map_rgba8};
+use twill_renderer::export::{Display, ToneCurve, display_srgb8, write_image, write_rgb8_png};
 
 /// Largest export side in pixels (the renderer's limit).
 pub const MAX_EXPORT_SIDE: u32 = 16384;
@@ -200,6 +199,35 @@ pub fn export_panel(
     action
 }
 
+/// The display settings of the renderer's tone map.
+#[must_use]
+pub fn display_settings(exposure: f64, filmic: bool) -> Display {
+    Display { exposure, curve: if filmic { ToneCurve::Filmic } else { ToneCurve::Clamp } }
+}
+
+/// Tone maps `radiance × scale` to RGBA8 with the renderer's curve, on a few scoped threads.
+/// (Not on rayon's pool: a bake keeps that busy for seconds at a time, and the window would wait.)
+#[must_use]
+pub fn tone_map_rgba8(radiance: &[[f32; 3]], scale: f64, exposure: f64, filmic: bool) -> Vec<u8> {
+    let display = display_settings(exposure, filmic);
+    let mut out = vec![0_u8; radiance.len() * 4];
+    let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get).min(8);
+    let chunk = radiance.len().div_ceil(threads).max(1);
+    let map = |out: &mut [u8], pixels: &[[f32; 3]]| {
+        for (o, p) in out.chunks_exact_mut(4).zip(pixels) {
+            let rgb = Rgb::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2])) * scale;
+            let [r, g, b] = display_srgb8(rgb, display);
+            o.copy_from_slice(&[r, g, b, 255]);
+        }
+    };
+    std::thread::scope(|scope| {
+        for (out, pixels) in out.chunks_mut(4 * chunk).zip(radiance.chunks(chunk)) {
+            scope.spawn(move || map(out, pixels));
+        }
+    });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -243,5 +271,37 @@ mod tests {
         assert!(err.contains("shot.jpg"), "{err}");
         let err = write_export(&dir.path().join("missing/shot.png"), &image, "").unwrap_err();
         assert!(err.contains("missing"), "{err}");
+    }
+
+    /// Known answers, worked by hand from the sRGB transfer function (IEC 61966-2-1) and
+    /// Narkowicz's filmic fit: sRGB 0.5 is linear 0.21404 (level 127.5), so linear 0.213 is
+    /// level 127 and 0.215 level 128; the filmic curve maps 1 to 2.54 / 3.16 = 0.8038 (level
+    /// 232), 0.18 to level 141 and 4 to level 252.
+    #[test]
+    fn the_cpu_tone_map_gives_the_known_levels() {
+        let clamp = |p: [f32; 3], scale: f64, exposure: f64| tone_map_rgba8(&[p], scale, exposure, false);
+        assert_eq!(clamp([0.0, 1.0, 2.0], 1.0, 0.0), [0, 255, 255, 255]);
+        assert_eq!(clamp([-1.0, 0.001, 0.213], 1.0, 0.0), [0, 3, 127, 255]);
+        assert_eq!(clamp([0.215, 0.0, 0.0], 1.0, 0.0), [128, 0, 0, 255]);
+        // The scale and the exposure (in stops) multiply: 0.05375 x 2 x 2^1 = 0.215.
+        assert_eq!(clamp([0.053_75, 0.25, 0.0], 2.0, 1.0), [128, 255, 0, 255]);
+        let filmic = tone_map_rgba8(&[[1.0, 0.18, 4.0], [100.0, 0.0, -3.0]], 1.0, 0.0, true);
+        assert_eq!(filmic, [232, 141, 252, 255, 255, 0, 0, 255]);
+    }
+
+    /// The picture is split over threads: every pixel lands in its own place, whatever the count.
+    #[test]
+    fn the_tone_map_keeps_every_pixel_in_place() {
+        for n in [1_usize, 7, 1000, 1001] {
+            let radiance: Vec<[f32; 3]> = (0..n).map(|i| [i as f32 / n as f32, 0.0, 1.0]).collect();
+            let rgba = tone_map_rgba8(&radiance, 1.0, 0.0, false);
+            assert_eq!(rgba.len(), 4 * n);
+            for (i, px) in rgba.chunks_exact(4).enumerate() {
+                assert_eq!(px[1..], [0, 255, 255], "pixel {i} of {n}");
+                // Red rises with the pixel index: no chunk was written twice or out of order.
+                assert!(i == 0 || px[0] >= rgba[4 * (i - 1)], "pixel {i} of {n}");
+            }
+            assert_eq!(rgba[4 * (n - 1)], tone_map_rgba8(&radiance[n - 1..], 1.0, 0.0, false)[0]);
+        }
     }
 }

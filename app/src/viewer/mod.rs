@@ -5,9 +5,11 @@
 //! storage buffers per stage than wgpu's defaults and times its passes. The app
 //! ([`app::ViewerApp`]) then
 //! - bakes the scene's fabric in the background ([`bake`]): draft first, then the final quality;
-//! - renders on eframe's device from a worker thread ([`render_worker`]) that owns twill's
-//!   `Renderer`, accumulating samples progressively while the view is still ([`accumulate`]) and
-//!   showing the picture as an egui texture;
+//! - renders from a worker thread ([`render_worker`]) that owns twill's `Renderer`, adding
+//!   samples to a picture kept and tone-mapped on the GPU while the view is still
+//!   ([`accumulate`]); on eframe's device the window draws the renderer's display texture as a
+//!   native egui texture, on a device of the worker's own (the default on a CPU adapter) it
+//!   uploads the 8-bit picture read back;
 //! - orbits, pans, zooms and fits the camera ([`camera`]);
 //! - edits lights ([`lights`]) and render settings ([`quality`]), which only restart the picture;
 //! - edits the fabric ([`fabric`]: fiber scattering parameters, the weave draft, WIF import,

@@ -6,14 +6,22 @@
 //! The viewer posts work into a small inbox — a new fabric to upload, an export, and the one
 //! viewport frame it wants next — and the worker takes them in that order. The inbox holds at
 //! most one frame request: posting a newer one replaces a request not yet started, so the worker
-//! never renders a picture that is already stale. Each request renders samples
-//! `first_sample .. first_sample + spp` of the view's sample sequence
-//! ([`Renderer::render_samples`]), which is how the viewer accumulates samples over frames.
+//! never renders a picture that is already stale. Each request adds samples
+//! `first_sample .. first_sample + spp` of the view's sample sequence to the picture the
+//! renderer keeps on the GPU and tone-maps it there ([`Renderer::render_progressive`]); an
+//! exposure or curve edit tone-maps the same samples again ([`RenderWorker::tone_map`]). On the
+//! window's own device the picture is not read back at all: the result carries the display
+//! texture, which the window draws as a native egui texture. On a device of the worker's own
+//! (the default on a CPU adapter, where one long submission would stall the window's queue) only
+//! the 8-bit display image is read back, for the window to upload. A request that does not
+//! continue the picture on the GPU (a rebake or a new device came between) is answered with
+//! [`WorkerEvent::FrameRestart`], and the viewer starts the picture again.
 //! Results and errors come back as [`WorkerEvent`]s, with a repaint request so the window picks
 //! them up at once. A render that panics is caught and reported as an error; the viewer goes on.
 //!
-//! Exports render at their own size with the same renderer, a few samples per batch (so a
-//! cancel takes effect quickly), accumulate on the CPU and write the files (see `export.rs`).
+//! Exports render at their own size with the same renderer into targets of their own (the
+//! picture on the GPU is untouched), a few samples per batch (so a cancel takes effect
+//! quickly), read back, accumulate on the CPU and write the files (see `export.rs`).
 //!
 //! A lost device (a driver reset, a GPU unplugged, or [`RenderWorker::lose_device`], which
 //! destroys the worker's device to simulate one) is noticed through wgpu's device-lost callback
@@ -37,7 +45,7 @@ use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
-use twill_renderer::frame::{Frame, FrameSettings, Renderer};
+use twill_renderer::frame::{FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
 use twill_renderer::headless::{HeadlessError, renderer_on_mesh};
@@ -134,9 +142,17 @@ pub struct FrameRequest {
 /// A rendered batch.
 pub struct FrameResult {
     pub request: FrameRequest,
-    pub frame: Frame,
+    /// The picture with the batch's samples added.
+    pub frame: ProgressiveFrame,
     /// Wall time from the start of the render to the readback.
     pub wall_ms: f64,
+}
+
+/// A new exposure and tone curve for the picture on the GPU.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToneRequest {
+    pub exposure: f64,
+    pub filmic: bool,
 }
 
 /// An off-screen render to files.
@@ -172,6 +188,12 @@ pub enum WorkerEvent {
         message: String,
     },
     Frame(Box<FrameResult>),
+    /// The picture tone-mapped again ([`RenderWorker::tone_map`]).
+    Toned(Box<ProgressiveFrame>),
+    /// The request continued a picture the renderer no longer holds: start again from sample 0.
+    FrameRestart {
+        generation: u64,
+    },
     FrameFailed {
         generation: u64,
         message: String,
@@ -208,6 +230,7 @@ struct Inbox {
     mesh: Option<MeshRequest>,
     export: Option<ExportRequest>,
     frame: Option<FrameRequest>,
+    tone: Option<ToneRequest>,
     lose_device: bool,
     shutdown: bool,
 }
@@ -261,6 +284,12 @@ impl RenderWorker {
         self.post(|inbox| inbox.frame = Some(request));
     }
 
+    /// Tone-maps the picture on the GPU again (after the batch in progress; a newer request
+    /// replaces one not yet started).
+    pub fn tone_map(&self, request: ToneRequest) {
+        self.post(|inbox| inbox.tone = Some(request));
+    }
+
     /// Drops a frame request not yet started.
     pub fn clear_frame_request(&self) {
         self.post(|inbox| inbox.frame = None);
@@ -306,6 +335,7 @@ enum Work {
     Mesh(MeshRequest),
     Export(ExportRequest),
     Frame(FrameRequest),
+    Tone(ToneRequest),
 }
 
 fn next_work(shared: &Shared) -> Option<Work> {
@@ -328,6 +358,9 @@ fn next_work(shared: &Shared) -> Option<Work> {
         }
         if let Some(frame) = inbox.frame.take() {
             return Some(Work::Frame(frame));
+        }
+        if let Some(tone) = inbox.tone.take() {
+            return Some(Work::Tone(tone));
         }
         inbox = shared.wake.wait(inbox).unwrap_or_else(PoisonError::into_inner);
     }
@@ -457,12 +490,14 @@ fn worker_loop(
                     continue;
                 };
                 let started = Instant::now();
+                let readback = picture_readback(&device);
                 let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                    r.render_samples(
+                    r.render_progressive(
                         &request.camera,
                         &request.lights,
                         &request.settings,
                         request.first_sample,
+                        readback,
                     )
                 }));
                 let wall_ms = started.elapsed().as_secs_f64() * 1e3;
@@ -480,6 +515,10 @@ fn worker_loop(
                         send(WorkerEvent::Frame(Box::new(FrameResult { request, frame, wall_ms })));
                         continue;
                     }
+                    Ok(Err(RenderError::Continuation { .. })) => {
+                        send(WorkerEvent::FrameRestart { generation: request.generation });
+                        continue;
+                    }
                     Ok(Err(e)) => format!("render failed: {e}"),
                     Err(payload) => format!("render crashed: {}", panic_text(payload.as_ref())),
                 };
@@ -487,6 +526,20 @@ fn worker_loop(
                 // recovery below; any other failure is the viewer's to show.
                 if !is_lost(&device, &loss) {
                     send(WorkerEvent::FrameFailed { generation: request.generation, message: failure });
+                }
+            }
+            Work::Tone(request) => {
+                let Some(r) = renderer.as_mut() else { continue };
+                let readback = picture_readback(&device);
+                let toned = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    r.tone_map_progressive(request.exposure, request.filmic, readback)
+                }));
+                match toned {
+                    Ok(Ok(frame)) => send(WorkerEvent::Toned(Box::new(frame))),
+                    // No picture yet: the next batch is tone mapped with the new settings.
+                    Ok(Err(RenderError::Continuation { .. })) => {}
+                    Ok(Err(e)) => log::warn!("tone map failed: {e}"),
+                    Err(payload) => log::warn!("tone map crashed: {}", panic_text(payload.as_ref())),
                 }
             }
             Work::Export(request) => {
@@ -540,6 +593,12 @@ fn worker_loop(
             }
         }
     }
+}
+
+/// What a viewport picture reads back: nothing on the window's device (it draws the display
+/// texture itself), the 8-bit display image on a device of the worker's own.
+fn picture_readback(device: &DeviceHandles) -> Readback {
+    if device.own { Readback::Display } else { Readback::Nothing }
 }
 
 /// The event saying `fabric` is on screen through `r`, uploaded since `started`.

@@ -25,8 +25,8 @@
 //! remove-light INDEX
 //! preset NAME                           # an environment preset, e.g. preset sunset
 //! set exposure|spp|sigma-glo|interaction-scale VALUE
-//! wait-spp N                            # until the picture has N samples at full size (it
-//!                                       # fails if it has more: `set spp N` first)
+//! wait-spp N                            # until the picture has N samples at full size, tone
+//!                                       # mapped as set (it fails if it has more: `set spp N` first)
 //! screenshot PATH.png                   # the window; the viewport alone goes to PATH.viewport.png
 //! export PATH WxH SPP                   # an off-screen export (PNG or EXR, with its TOML)
 //! wait-export                           # until the export is written
