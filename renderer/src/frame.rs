@@ -518,18 +518,9 @@ impl Renderer {
         (picture.exposure, picture.filmic) = (exposure, filmic);
         let (targets, samples) = (picture.targets.clone(), picture.samples);
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let mut frame = FrameEncoder::new(&self.device, self.timestamps.then_some(1));
+        let mut frame = FrameEncoder::new(&self.device, &self.queue, self.timestamps.then_some(1));
         let name = Pass::ToneMap.name();
-        self.passes.tone_map.encode(
-            &mut frame,
-            &self.device,
-            &self.queue,
-            &targets,
-            exposure,
-            filmic,
-            samples,
-            &name,
-        );
+        self.passes.tone_map.encode(&mut frame, &targets, exposure, filmic, samples, &name);
         let read = self.submit(frame, scope, &targets, readback, samples)?;
         let picture =
             self.progressive.as_ref().ok_or(RenderError::Continuation { first_sample: 0, kept: 0 })?;
@@ -603,7 +594,7 @@ impl Renderer {
             })
             .sum();
         let timed = self.timestamps.then_some(timed_instances).filter(|&n| n <= MAX_TIMED_PASS_INSTANCES);
-        let mut frame = FrameEncoder::new(&device, timed);
+        let mut frame = FrameEncoder::new(&device, &self.queue, timed);
         if clear {
             frame.encoder.clear_buffer(&targets.accumulation, 0, None);
         }
@@ -654,7 +645,7 @@ impl Renderer {
         if readback != Readback::Nothing {
             targets.encode_readback(&mut frame.encoder, readback == Readback::Everything);
         }
-        let (commands, timing_readback) = frame.finish(&self.device);
+        let (commands, timing_readback) = frame.finish();
         self.queue.submit([commands]);
         if let Some(error) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Gpu { label: "frame".into(), message: error.to_string() });
@@ -707,41 +698,30 @@ impl Renderer {
             }
             Pass::TopSurface => {
                 let size = gpu.visibility_texture_size;
-                state.top_surface = Some(passes.top_surface.encode(frame, device, queue, shell, size, &name));
+                state.top_surface = Some(passes.top_surface.encode(frame, shell, size, &name));
             }
             Pass::Visibility { .. } => {
                 let top = state.top_surface.as_ref().ok_or_else(|| out_of_order("the top surface X[u,v]"))?;
                 let maps = state.shadow_maps.as_ref().ok_or_else(|| out_of_order("the shadow maps"))?;
                 let size = gpu.visibility_texture_size;
-                let sharp = passes.visibility.encode(frame, device, queue, top, maps, gpu, size, &name);
+                let sharp = passes.visibility.encode(frame, top, maps, gpu, size, &name);
                 state.visibility = Some((sharp.clone(), sharp));
             }
             Pass::Blur { sigma_glo_cm } => {
                 let (sharp, _) =
                     state.visibility.as_ref().ok_or_else(|| out_of_order("the visibility V[u,v]"))?;
-                let blurred =
-                    passes.blur.encode(frame, device, queue, sharp, *sigma_glo_cm, shell.uv_rect, &name);
+                let blurred = passes.blur.encode(frame, sharp, *sigma_glo_cm, shell.uv_rect, &name);
                 state.visibility = Some((sharp.clone(), blurred));
             }
             Pass::CellTransfer => {
                 let (lights, count) = &state.lights_gpu;
                 state.cell_transfer =
-                    passes.cell_transfer.encode(frame, device, queue, shell, fabric, lights, *count, &name);
+                    passes.cell_transfer.encode(frame, shell, fabric, lights, *count, &name);
             }
             Pass::GBuffer => {
                 let (width, height) = state.targets.size;
                 let jitter = sample_jitter(state.sample, width, height);
-                passes.gbuffer.encode(
-                    frame,
-                    device,
-                    queue,
-                    &state.eye,
-                    jitter,
-                    shell,
-                    fabric,
-                    &state.targets,
-                    &name,
-                );
+                passes.gbuffer.encode(frame, &state.eye, jitter, shell, fabric, &state.targets, &name);
             }
             Pass::Shade { .. } => {
                 if state.shade.is_none() {
@@ -777,8 +757,6 @@ impl Renderer {
                 let s = state.settings;
                 passes.tone_map.encode(
                     frame,
-                    device,
-                    queue,
                     &state.targets,
                     s.exposure,
                     s.filmic,

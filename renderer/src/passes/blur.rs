@@ -7,7 +7,7 @@
 //! alike, so their ratio averages V over the fabric's own area.
 
 use super::visibility::visibility_texture;
-use super::{FrameEncoder, array_view, bind_group, compute_pipeline, pass_module, uniform_buffer};
+use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, uniform_buffer};
 
 /// Twin of `BlurUniforms` in shaders/blur.wgsl.
 #[repr(C)]
@@ -25,8 +25,7 @@ pub struct BlurPass {
 impl BlurPass {
     #[must_use]
     pub fn new(device: &wgpu::Device) -> Self {
-        let module = pass_module(device, "blur.wgsl");
-        Self { pipeline: compute_pipeline(device, "twill.blur.pipeline", &module, None, &[]) }
+        Self { pipeline: compute_pass_pipeline(device, "blur") }
     }
 
     /// Blurs `sharp` by `sigma_glo_cm` over a shell whose uv rectangle is `uv_rect`, timed as
@@ -35,13 +34,12 @@ impl BlurPass {
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         sharp: &wgpu::Texture,
         sigma_glo_cm: f64,
         uv_rect: [f32; 4],
         name: &str,
     ) -> wgpu::Texture {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let size = sharp.width();
         let layers = sharp.depth_or_array_layers();
         let across = visibility_texture(device, "twill.visibility.blur_u", size, layers);

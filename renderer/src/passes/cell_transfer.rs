@@ -62,19 +62,17 @@ impl CellTransferPass {
     /// Records the pass for `light_count` lights in `lights`, timed as `name`, and returns its
     /// output (`cells × sh_count` vec4s). `None` when the shell has no common frame (the plan
     /// does not run it then).
-    #[allow(clippy::too_many_arguments)]
     #[must_use]
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         shell: &ShellGpu,
         fabric: &FabricData,
         lights: &wgpu::Buffer,
         light_count: usize,
         name: &str,
     ) -> Option<wgpu::Buffer> {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let mut rows = shell.uniform_frame?;
         let header = fabric.arrays.header;
         let cells = fabric.arrays.cell_flags.len() as u32;

@@ -150,12 +150,9 @@ impl GBufferPass {
 
     /// Renders one sample's G-buffer into `targets`, its eye rays offset by `jitter` (clip
     /// units), timed as `name`.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         eye: &EyeRays,
         jitter: [f32; 2],
         shell: &ShellGpu,
@@ -163,6 +160,7 @@ impl GBufferPass {
         targets: &FrameTargets,
         name: &str,
     ) {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let z = fabric.arrays.header.z_range;
         let uniforms = FrameUniformsGpu {
             clip_from_world: eye.clip_from_world.to_cols_array_2d(),

@@ -70,6 +70,8 @@ pub const MAX_TIMED_PASS_INSTANCES: u32 = 2048;
 /// A frame being recorded: the command encoder and, when the adapter has timestamp queries,
 /// the timestamps of every pass begun through it, by name.
 pub struct FrameEncoder {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
     pub encoder: wgpu::CommandEncoder,
     queries: Option<wgpu::QuerySet>,
     names: Vec<String>,
@@ -82,9 +84,10 @@ pub struct TimingReadback {
 }
 
 impl FrameEncoder {
-    /// A new frame; `timed_instances`: how many pass instances it will time (`None`: no timing).
+    /// A new frame on `device`; `timed_instances`: how many pass instances it will time
+    /// (`None`: no timing).
     #[must_use]
-    pub fn new(device: &wgpu::Device, timed_instances: Option<u32>) -> Self {
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, timed_instances: Option<u32>) -> Self {
         let queries = timed_instances.filter(|&n| n > 0).map(|n| {
             device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("twill.frame.timestamps"),
@@ -94,7 +97,7 @@ impl FrameEncoder {
         });
         let encoder = device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("twill.frame.encoder") });
-        Self { encoder, queries, names: Vec::new() }
+        Self { device: device.clone(), queue: queue.clone(), encoder, queries, names: Vec::new() }
     }
 
     /// The first of the two query slots of the next timed pass, `name`.
@@ -147,7 +150,8 @@ impl FrameEncoder {
 
     /// Resolves the timestamps into a readback buffer and finishes the encoder.
     #[must_use]
-    pub fn finish(mut self, device: &wgpu::Device) -> (wgpu::CommandBuffer, Option<TimingReadback>) {
+    pub fn finish(mut self) -> (wgpu::CommandBuffer, Option<TimingReadback>) {
+        let device = &self.device;
         let count = 2 * self.names.len() as u32;
         let readback = self.queries.as_ref().filter(|_| count > 0).map(|set| {
             let bytes = u64::from(count) * 8;
@@ -292,6 +296,13 @@ pub(crate) fn compute_pipeline(
         compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
         cache: None,
     })
+}
+
+/// The compute pipeline of a pass's WGSL file `shaders/<stem>.wgsl` (entry point `main`, the
+/// bind group layout taken from the shader), labelled `twill.<stem>.pipeline`.
+pub(crate) fn compute_pass_pipeline(device: &wgpu::Device, stem: &str) -> wgpu::ComputePipeline {
+    let module = pass_module(device, &format!("{stem}.wgsl"));
+    compute_pipeline(device, &format!("twill.{stem}.pipeline"), &module, None, &[])
 }
 
 /// A uniform buffer holding `value`.

@@ -6,7 +6,7 @@
 //! needs no new samples.
 
 use super::targets::FrameTargets;
-use super::{FrameEncoder, bind_group, compute_pipeline, pass_module, uniform_buffer, view};
+use super::{FrameEncoder, bind_group, compute_pass_pipeline, uniform_buffer, view};
 
 /// Twin of `ToneMapUniforms` in shaders/tonemap.wgsl.
 #[repr(C)]
@@ -26,24 +26,21 @@ pub struct ToneMapPass {
 impl ToneMapPass {
     #[must_use]
     pub fn new(device: &wgpu::Device) -> Self {
-        let module = pass_module(device, "tonemap.wgsl");
-        Self { pipeline: compute_pipeline(device, "twill.tonemap.pipeline", &module, None, &[]) }
+        Self { pipeline: compute_pass_pipeline(device, "tonemap") }
     }
 
     /// Tone-maps `targets`' accumulation of `samples` samples into its display image, timed as
     /// `name`.
-    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         targets: &FrameTargets,
         exposure: f64,
         filmic: bool,
         samples: u32,
         name: &str,
     ) {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let (width, height) = targets.size;
         let uniforms = ToneMapUniformsGpu {
             size: [width, height, u32::from(filmic), 0],

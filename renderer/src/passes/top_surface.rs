@@ -51,15 +51,8 @@ impl TopSurfacePass {
 
     /// Renders X[u, v] at `size`² texels, timed as `name`, and returns it.
     #[must_use]
-    pub fn encode(
-        &self,
-        frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        shell: &ShellGpu,
-        size: u32,
-        name: &str,
-    ) -> wgpu::Texture {
+    pub fn encode(&self, frame: &mut FrameEncoder, shell: &ShellGpu, size: u32, name: &str) -> wgpu::Texture {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let top = texture_2d(
             device,
             "twill.top_surface",

@@ -15,9 +15,7 @@
 use twill_precompute::scene::GpuSection;
 
 use super::shadow_map::ShadowMaps;
-use super::{
-    FrameEncoder, array_view, bind_group, compute_pipeline, pass_module, texture_2d, uniform_buffer, view,
-};
+use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, texture_2d, uniform_buffer, view};
 use crate::frame::MAX_SHADOWED_LIGHTS;
 use crate::plan::GlobalVisibility;
 
@@ -80,25 +78,22 @@ pub struct VisibilityPass {
 impl VisibilityPass {
     #[must_use]
     pub fn new(device: &wgpu::Device) -> Self {
-        let module = pass_module(device, "visibility.wgsl");
-        Self { pipeline: compute_pipeline(device, "twill.visibility.pipeline", &module, None, &[]) }
+        Self { pipeline: compute_pass_pipeline(device, "visibility") }
     }
 
     /// Computes V[u, v] from X (`top`) and the shadow maps, timed as `name`, into a new texture
     /// of `size`² texels and one layer per shadow map, which it returns.
-    #[allow(clippy::too_many_arguments)]
     #[must_use]
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
         top: &wgpu::Texture,
         maps: &ShadowMaps,
         settings: &GpuSection,
         size: u32,
         name: &str,
     ) -> wgpu::Texture {
+        let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let output = visibility_texture(device, "twill.visibility.sharp", size, maps.layers.len() as u32);
         let uniforms = uniform_buffer(
             device,
