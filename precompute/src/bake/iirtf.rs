@@ -367,14 +367,33 @@ pub fn bake_iirtf(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<Iirtf, IirtfError> {
+    let all = 0..grid.cell_count();
+    let cells = bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
+    Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells })
+}
+
+/// The IIRTF of cells `cells` of `grid` only, in order: each cell draws from its own stream,
+/// so a range baked alone equals the same cells of a whole bake (what a shard of a sharded
+/// bake computes, `shard.rs`).
+#[allow(clippy::too_many_arguments)]
+pub fn bake_iirtf_cells(
+    exemplar: &Exemplar,
+    yarn_materials: &[Material],
+    grid: &CellGrid,
+    settings: &BakeSettings,
+    options: &IirtfOptions,
+    cells: std::ops::Range<usize>,
+    cancel: &Cancel,
+    progress: Progress<'_>,
+) -> Result<Vec<CellTransfer>, IirtfError> {
     if grid.segment_count() != exemplar.segment_count() {
         return Err(IirtfError::GridMismatch {
             grid: grid.segment_count(),
             exemplar: exemplar.segment_count(),
         });
     }
-    let cells = grid.cell_count();
-    let nonempty = (0..cells as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count();
+    let cells = cells.start.min(grid.cell_count())..cells.end.min(grid.cell_count());
+    let nonempty = cells.clone().filter(|&c| !grid.segments_in_cell(c as u32).is_empty()).count();
     let workers = rayon::current_num_threads().clamp(1, nonempty.max(1));
     let mut samplers = Vec::with_capacity(workers);
     for _ in 0..workers {
@@ -383,18 +402,20 @@ pub fn bake_iirtf(
     }
     let paths = settings.iirtf_paths_per_cell;
     let total_paths = (nonempty * paths).max(1) as f64;
-    let next_cell = AtomicUsize::new(0);
+    let next_cell = AtomicUsize::new(cells.start);
     let paths_done = AtomicUsize::new(0);
     let stop = AtomicBool::new(false);
-    let results: Mutex<Vec<Option<CellTransfer>>> = Mutex::new(vec![None; cells]);
+    let results: Mutex<Vec<Option<CellTransfer>>> = Mutex::new(vec![None; cells.len()]);
     let order = settings.sh_order;
+    let end = cells.end;
     rayon::scope(|scope| {
         for sampler in &mut samplers {
             let (next_cell, paths_done, stop, results) = (&next_cell, &paths_done, &stop, &results);
+            let first = cells.start;
             scope.spawn(move |_| {
                 loop {
                     let c = next_cell.fetch_add(1, Ordering::Relaxed);
-                    if c >= cells || stop.load(Ordering::Relaxed) {
+                    if c >= end || stop.load(Ordering::Relaxed) {
                         return;
                     }
                     let cell = bake_cell(
@@ -414,7 +435,7 @@ pub fn bake_iirtf(
                         },
                     );
                     let Some(cell) = cell else { return };
-                    results.lock().expect("a worker panicked")[c] = Some(cell);
+                    results.lock().expect("a worker panicked")[c - first] = Some(cell);
                 }
             });
         }
@@ -427,7 +448,7 @@ pub fn bake_iirtf(
         .map(|c| c.expect("every cell baked"))
         .collect();
     progress(1.0);
-    Ok(Iirtf { sh_order: order, light_domain: options.light_domain, cells })
+    Ok(cells)
 }
 
 /// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop

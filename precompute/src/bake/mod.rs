@@ -25,6 +25,7 @@ pub mod pattern;
 pub mod pca;
 pub mod pipeline;
 pub mod settings;
+pub mod shard;
 pub mod ssdf;
 pub mod sum_of_sg;
 pub mod svf;

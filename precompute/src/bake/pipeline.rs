@@ -30,13 +30,13 @@ use serde::de::DeserializeOwned;
 use super::cells::{CellError, CellGrid};
 use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
-use super::iirtf::{Iirtf, IirtfError, IirtfOptions, StoredIirtf, bake_iirtf};
+use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, StoredIirtf, bake_iirtf};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress};
 use super::settings::BakeSettings;
 use super::ssdf::ssdf_all;
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
-use super::svf::{SvfError, render_exemplar};
+use super::svf::{SvfError, VisibilityImages, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
 use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
@@ -277,7 +277,7 @@ pub fn bake(
     cancel: &Cancel,
     progress: BakeProgress<'_>,
 ) -> Result<BakeOutcome, BakeError> {
-    bake_stages(inputs, cache, cancel, progress, None)
+    bake_stages(inputs, cache, cancel, progress, None, None)
 }
 
 /// A quick preview of a material edit: every stage of `inputs` except the two that carry
@@ -301,19 +301,42 @@ pub fn bake_material_preview(
             previous.materials.len()
         )));
     }
-    bake_stages(inputs, cache, cancel, progress, Some(previous))
+    bake_stages(inputs, cache, cancel, progress, Some(previous), None)
 }
 
-/// [`bake`], or with `keep` the preview of [`bake_material_preview`].
-fn bake_stages(
+/// The raw results of the two expensive stages, computed elsewhere (the shards of a sharded
+/// bake, `shard.rs`): the visibility image of every segment and every cell's IIRTF.
+pub struct Precomputed {
+    pub images: VisibilityImages,
+    pub cells: Vec<CellTransfer>,
+}
+
+/// [`bake`] with the visibility images and the IIRTF cells taken from `precomputed` instead of
+/// computed: the same pipeline on the same data, so the same bake (no stage cache is used).
+///
+/// # Errors
+/// As [`bake`], and when `precomputed` does not fit the inputs.
+pub fn bake_precomputed(
     inputs: &BakeInputs<'_>,
-    cache: Option<&Cache>,
+    precomputed: &Precomputed,
     cancel: &Cancel,
     progress: BakeProgress<'_>,
-    keep: Option<&Baked>,
 ) -> Result<BakeOutcome, BakeError> {
-    let s = &inputs.settings;
-    s.validate()?;
+    if precomputed.images.segment_count() != inputs.exemplar.segment_count() {
+        return Err(BakeError::Fabric(format!(
+            "{} precomputed visibility images for {} segments",
+            precomputed.images.segment_count(),
+            inputs.exemplar.segment_count()
+        )));
+    }
+    bake_stages(inputs, None, cancel, progress, None, Some(precomputed))
+}
+
+/// The material of every material slot of `inputs`, and of every yarn of its exemplar.
+///
+/// # Errors
+/// A material that cannot be built, or a yarn naming a slot that does not exist.
+pub fn yarn_materials(inputs: &BakeInputs<'_>) -> Result<(Vec<Material>, Vec<Material>), BakeError> {
     let materials: Vec<Material> =
         inputs.materials.iter().map(Material::from_desc).collect::<Result<_, _>>()?;
     let yarn_materials: Vec<Material> = inputs
@@ -330,6 +353,22 @@ fn bake_stages(
             })
         })
         .collect::<Result<_, _>>()?;
+    Ok((materials, yarn_materials))
+}
+
+/// [`bake`], or with `keep` the preview of [`bake_material_preview`], or with `precomputed`
+/// [`bake_precomputed`].
+fn bake_stages(
+    inputs: &BakeInputs<'_>,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: BakeProgress<'_>,
+    keep: Option<&Baked>,
+    precomputed: Option<&Precomputed>,
+) -> Result<BakeOutcome, BakeError> {
+    let s = &inputs.settings;
+    s.validate()?;
+    let (materials, yarn_materials) = yarn_materials(inputs)?;
     let keys = StageKeys::new(inputs)?;
     let mut runs = Vec::new();
     let mut stage_runner = StageRunner { cache, runs: &mut runs };
@@ -355,7 +394,10 @@ fn bake_stages(
 
     let visibility = stage_runner.run(Stage::Visibility, keys.visibility, || {
         let report = |f: f64| progress(Stage::Visibility, f);
-        let images = render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?;
+        let images = match precomputed {
+            Some(p) => p.images.clone(),
+            None => render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?,
+        };
         let ssdfs = ssdf_all(&images, cancel)?;
         report(0.8);
         let dims = s.svf_resolution * s.svf_resolution;
@@ -376,15 +418,29 @@ fn bake_stages(
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
-            let iirtf = bake_iirtf(
-                inputs.exemplar,
-                &yarn_materials,
-                &cells,
-                s,
-                &IirtfOptions::default(),
-                cancel,
-                &|f| progress(Stage::Transfer, f),
-            )?;
+            let iirtf = match precomputed {
+                Some(p) if p.cells.len() == cells.cell_count() => Iirtf {
+                    sh_order: s.sh_order,
+                    light_domain: IirtfOptions::default().light_domain,
+                    cells: p.cells.clone(),
+                },
+                Some(p) => {
+                    return Err(BakeError::Fabric(format!(
+                        "{} precomputed IIRTF cells for a grid of {}",
+                        p.cells.len(),
+                        cells.cell_count()
+                    )));
+                }
+                None => bake_iirtf(
+                    inputs.exemplar,
+                    &yarn_materials,
+                    &cells,
+                    s,
+                    &IirtfOptions::default(),
+                    cancel,
+                    &|f| progress(Stage::Transfer, f),
+                )?,
+            };
             // Round to the stored precision now, so a fresh bake equals one loaded from a file.
             let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf))
                 .map_err(|message| BakeError::Serialize { stage: Stage::Transfer.name(), message })?;

@@ -125,6 +125,30 @@ impl VisibilityImages {
         self.segment_count
     }
 
+    /// Images from their bits (as [`VisibilityImages::words`] gives them); `None` when the
+    /// count of words is not `segment_count` images of `resolution`² bits.
+    #[must_use]
+    pub fn from_words(resolution: usize, segment_count: usize, bits: Vec<u64>) -> Option<Self> {
+        let words_per_image = (resolution * resolution).div_ceil(64);
+        (bits.len() == words_per_image * segment_count).then_some(Self {
+            resolution,
+            segment_count,
+            words_per_image,
+            bits,
+        })
+    }
+
+    /// The images of `parts`, one after the other; `None` when their resolutions differ.
+    #[must_use]
+    pub fn concat(parts: &[Self]) -> Option<Self> {
+        let resolution = parts.first().map_or(1, |p| p.resolution);
+        if parts.iter().any(|p| p.resolution != resolution) {
+            return None;
+        }
+        let bits: Vec<u64> = parts.iter().flat_map(|p| p.bits.iter().copied()).collect();
+        Self::from_words(resolution, parts.iter().map(|p| p.segment_count).sum(), bits)
+    }
+
     /// Pixels per image, `n²`.
     #[must_use]
     pub fn pixel_count(&self) -> usize {
