@@ -312,7 +312,7 @@ pub struct BakeOptions {
 
 /// Applies `KNOB=VALUE` overrides to bake settings (through their TOML form, so unknown knobs
 /// and wrong types are rejected with the parser's message) and validates the result.
-fn apply_overrides(settings: BakeSettings, overrides: &[String]) -> Result<BakeSettings> {
+pub(crate) fn apply_overrides(settings: BakeSettings, overrides: &[String]) -> Result<BakeSettings> {
     if overrides.is_empty() {
         return Ok(settings);
     }
@@ -342,6 +342,37 @@ pub(crate) fn default_cache_dir() -> Option<PathBuf> {
     var("TWILL_CACHE_DIR")
         .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("twill")))
         .or_else(|| var("HOME").map(|d| d.join(".cache").join("twill")))
+}
+
+/// A progress bar of a bake's stages: it restarts with each stage and shows its name.
+pub(crate) struct StageBar {
+    bar: ProgressBar,
+    current: std::sync::Mutex<Option<Stage>>,
+}
+
+impl StageBar {
+    pub(crate) fn new() -> Self {
+        let bar = ProgressBar::new(1000).with_style(
+            ProgressStyle::with_template("{msg:>16} [{bar:40}] {percent:>3}%, {elapsed} elapsed, eta {eta}")
+                .expect("the progress template is valid"),
+        );
+        Self { bar, current: std::sync::Mutex::new(None) }
+    }
+
+    /// `stage` is `fraction` done.
+    pub(crate) fn update(&self, stage: Stage, fraction: f64) {
+        let mut current = self.current.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if *current != Some(stage) {
+            *current = Some(stage);
+            self.bar.reset();
+            self.bar.set_message(stage.name());
+        }
+        self.bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
+    }
+
+    pub(crate) fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
 }
 
 pub fn bake(options: &BakeOptions) -> Result<()> {
@@ -377,24 +408,12 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
         .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", options.quality.name())));
     let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
 
-    let bar = ProgressBar::new(1000).with_style(
-        ProgressStyle::with_template("{msg:>16} [{bar:40}] {percent:>3}%, {elapsed} elapsed, eta {eta}")
-            .expect("the progress template is valid"),
-    );
-    let current = std::sync::Mutex::new(None::<Stage>);
-    let progress = |stage: Stage, fraction: f64| {
-        let mut current = current.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if *current != Some(stage) {
-            *current = Some(stage);
-            bar.reset();
-            bar.set_message(stage.name());
-        }
-        bar.set_position((fraction.clamp(0.0, 1.0) * 1000.0) as u64);
-    };
+    let bar = StageBar::new();
+    let progress = |stage: Stage, fraction: f64| bar.update(stage, fraction);
     let inputs = scene.bake_inputs(settings);
     let started = Instant::now();
     let set = bake_set(&inputs, scene.pattern_map(), cache.as_ref(), &Cancel::new(), &progress);
-    bar.finish_and_clear();
+    bar.finish();
     let set = set.map_err(|e| anyhow::anyhow!("bake failed: {e}"))?;
     write_bake(&output, &set)?;
 

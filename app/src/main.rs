@@ -7,6 +7,7 @@
 mod accuracy_report;
 mod colorways;
 mod commands;
+mod shard;
 mod viewer;
 
 use std::path::PathBuf;
@@ -43,8 +44,15 @@ enum Command {
     /// Render a set of named colourways of a scene (from a TOML file of `[[colorway]]`s) to
     /// PNG (and EXR) and a contact sheet with their names (docs/COLOURWAYS.md).
     Colorways(ColorwaysArgs),
-    /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file.
-    Bake(BakeArgs),
+    /// Precompute a scene's fabric (visibility, IIRTF, tables, volume) into a bake file; with
+    /// `--shard I/N` one shard of it into a part file, joined by `twill bake merge`.
+    #[command(args_conflicts_with_subcommands = true)]
+    Bake {
+        #[command(subcommand)]
+        command: Option<BakeCommand>,
+        #[command(flatten)]
+        args: BakeArgs,
+    },
     /// What accuracy costs in time: every knob swept on hard light/view configurations of
     /// several fabrics against cached path-traced references; writes report.html, report.csv
     /// and headline.md (`twill accuracy budget` explains one scene's error instead).
@@ -272,6 +280,25 @@ struct BakeArgs {
     /// Delete every entry of the stage cache, and bake nothing.
     #[arg(long, conflicts_with = "no_cache")]
     cache_clear: bool,
+    /// Compute shard I of N (0-based, e.g. 0/4) of the bake's visibility images and IIRTF
+    /// cells into a part file (default SCENE-STEM.QUALITY.partIofN.twillpart); join the N
+    /// parts with `twill bake merge`. Uses no stage cache.
+    #[arg(long, value_name = "I/N", conflicts_with_all = ["cache_info", "cache_clear"])]
+    shard: Option<String>,
+}
+
+#[derive(Debug, Subcommand)]
+enum BakeCommand {
+    /// Join the part files of every shard of a sharded bake (`twill bake --shard I/N`) into
+    /// its bake file: the same bytes a single `twill bake` of the scene writes.
+    Merge {
+        /// The part files, one per shard, in any order.
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        /// Output bake file.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 #[derive(Debug, Subcommand)]
@@ -429,7 +456,17 @@ fn run(cli: Cli) -> Result<()> {
                 commands::fabric_export(scene.as_deref(), matches!(format, FiberFormat::Hair), &output)
             }
         },
-        Command::Bake(args) => commands::bake(&commands::BakeOptions {
+        Command::Bake { command: Some(BakeCommand::Merge { parts, output }), .. } => {
+            shard::merge(&parts, &output)
+        }
+        Command::Bake { command: None, args } if args.shard.is_some() => shard::bake_shard(
+            args.scene.as_deref(),
+            quality_of(args.quality),
+            &args.overrides,
+            args.shard.as_deref().unwrap_or_default(),
+            args.output,
+        ),
+        Command::Bake { command: None, args } => commands::bake(&commands::BakeOptions {
             scene: args.scene,
             quality: quality_of(args.quality),
             output: args.output,
