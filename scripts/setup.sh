@@ -8,9 +8,10 @@ set -euo pipefail
 # without a GPU. The viewer's window (winit on X11) loads libX11, libXcursor, libXrandr, libXi
 # and libxkbcommon-x11 at run time; xvfb (with xauth, which xvfb-run needs and xvfb only
 # recommends) gives its test (tests/viewer_window.rs) a display. g++: libfuzzer-sys compiles
-# libFuzzer (C++) for the fuzz targets (scripts/fuzz.sh).
+# libFuzzer (C++) for the fuzz targets (scripts/fuzz.sh). slurm-wlm + munge: the sharded-bake
+# test (tests/slurm_bake.rs) starts a single-node Slurm cluster on this machine.
 need_packages=(pkg-config mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6
-  libxkbcommon-x11-0 g++)
+  libxkbcommon-x11-0 g++ slurm-wlm munge)
 
 missing=()
 for pkg in "${need_packages[@]}"; do

@@ -191,3 +191,25 @@ pub fn check_band(label: &str, value: f64, measured: f64, margin: f64) -> Result
     }
     Ok(())
 }
+
+/// The `twill` binary this test run goes with: `$TWILL_BIN`, else `twill` in the test's own
+/// profile folder (`cargo test --workspace` builds it).
+///
+/// # Panics
+/// When it is missing, saying how to build it.
+#[must_use]
+pub fn twill_binary() -> std::path::PathBuf {
+    if let Some(path) = std::env::var_os("TWILL_BIN") {
+        return std::path::PathBuf::from(path);
+    }
+    let exe = std::env::current_exe().expect("the test knows its own path");
+    let profile_dir = exe.parent().and_then(std::path::Path::parent).expect("target/<profile>/deps/<test>");
+    let binary = profile_dir.join("twill");
+    assert!(
+        binary.is_file(),
+        "{} is missing: build it first (cargo build -p twill-app with this test's profile, or run \
+         `cargo test --workspace`), or point TWILL_BIN at it",
+        binary.display()
+    );
+    binary
+}

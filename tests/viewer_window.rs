@@ -41,7 +41,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use twill_precompute::scene::SceneFile;
-use twill_tests::compare_with_golden;
+use twill_tests::{compare_with_golden, twill_binary};
 
 /// Window size of the scripted runs (points; Xvfb has one pixel per point).
 const WINDOW: (u32, u32) = (1000, 640);
@@ -65,23 +65,6 @@ fn xvfb_run_for(test: &str) -> Option<PathBuf> {
         "{test}: xvfb-run not found. Install it (apt-get install xvfb, or run scripts/setup.sh), \
          or set TWILL_ALLOW_NO_GPU=1 to skip this test explicitly."
     );
-}
-
-/// The `twill` binary this test run goes with.
-fn twill_binary() -> PathBuf {
-    if let Some(path) = std::env::var_os("TWILL_BIN") {
-        return PathBuf::from(path);
-    }
-    let exe = std::env::current_exe().expect("the test knows its own path");
-    let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps/<test>");
-    let binary = profile_dir.join("twill");
-    assert!(
-        binary.is_file(),
-        "{} is missing: build it first (cargo build -p twill-app with this test's profile, or run \
-         `cargo test --workspace`), or point TWILL_BIN at it",
-        binary.display()
-    );
-    binary
 }
 
 struct Run {

@@ -254,6 +254,7 @@ impl Default for ViewArgs {
 }
 
 #[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools)]
 struct BakeArgs {
     /// Scene file (default: the built-in default scene).
     scene: Option<PathBuf>,
@@ -285,6 +286,17 @@ struct BakeArgs {
     /// parts with `twill bake merge`. Uses no stage cache.
     #[arg(long, value_name = "I/N", conflicts_with_all = ["cache_info", "cache_clear"])]
     shard: Option<String>,
+    /// Bake on a Slurm cluster: submit a job array of N shards and a merge job that depends on
+    /// it (scripts, part files and logs in OUTPUT.shards/), then follow them until the bake
+    /// file is written. Needs sbatch and scontrol (and SLURM_CONF where the cluster wants it).
+    #[arg(long, value_name = "N", conflicts_with_all = ["shard", "cache_info", "cache_clear"])]
+    slurm: Option<usize>,
+    /// With --slurm: the partition to submit to.
+    #[arg(long, requires = "slurm")]
+    partition: Option<String>,
+    /// With --slurm: submit and return without following the jobs.
+    #[arg(long, requires = "slurm")]
+    no_wait: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -458,6 +470,25 @@ fn run(cli: Cli) -> Result<()> {
         },
         Command::Bake { command: Some(BakeCommand::Merge { parts, output }), .. } => {
             shard::merge(&parts, &output)
+        }
+        Command::Bake { command: None, args } if args.slurm.is_some() => {
+            let quality = quality_of(args.quality);
+            let stem = args
+                .scene
+                .as_deref()
+                .and_then(std::path::Path::file_stem)
+                .map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned());
+            shard::bake_slurm(&shard::SlurmOptions {
+                scene: args.scene.as_deref(),
+                quality,
+                overrides: &args.overrides,
+                shards: args.slurm.unwrap_or(1),
+                partition: args.partition.as_deref(),
+                output: args
+                    .output
+                    .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", quality.name()))),
+                no_wait: args.no_wait,
+            })
         }
         Command::Bake { command: None, args } if args.shard.is_some() => shard::bake_shard(
             args.scene.as_deref(),
