@@ -14,6 +14,8 @@
 //! the sums of SGs, the tables and the voxel volume — is the same code on the same data, so the
 //! merged bake equals the single-process bake whatever `N`.
 //!
+//! The IIRTF entries are kept as the bake stores them (f32; rounding them again when merging
+//! changes nothing), and empty cells (no segments, no paths) without entries, as in a bake file.
 //! Part files use the bake file container (`file.rs`: magic, version, checksum, atomic writes),
 //! keyed by [`inputs_key`]; a part of other inputs, a missing or repeated shard, or a slice that
 //! does not match its shard is an error naming the file.
@@ -154,7 +156,7 @@ pub fn bake_part(
             render_segments(&scene, &ids, s.svf_resolution, cancel, &|f| progress(Stage::Visibility, f))?;
         let grid = CellGrid::new(input.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
         let cells = shard.slice(grid.cell_count());
-        let transfer = bake_iirtf_cells(
+        let mut transfer = bake_iirtf_cells(
             input.exemplar,
             &yarns,
             &grid,
@@ -164,6 +166,13 @@ pub fn bake_part(
             cancel,
             &|f| progress(Stage::Transfer, f),
         )?;
+        // Rounded as the bake stores them (f32 entries): what the part file holds, and what the
+        // merged bake's transfer stage would round them to anyway (rounding again changes nothing).
+        for cell in &mut transfer {
+            for v in cell.matrix.iter_mut().chain(cell.std_error.iter_mut()) {
+                *v = v.as_vec3().as_dvec3();
+            }
+        }
         exemplars.push(ExemplarPart { segments, images, cells, transfer });
     }
     Ok(BakePart { shard, key, exemplars })
@@ -254,12 +263,13 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
     );
     for (e, x) in part.exemplars.iter().enumerate() {
         let range = |r: &Range<usize>| u32s(vec![r.start as u32, r.end as u32]);
-        let rgb = |v: &mut Vec<f64>, c: &[Rgb]| v.extend(c.iter().flat_map(Rgb::to_array));
+        let rgb = |v: &mut Vec<f32>, c: &[Rgb]| v.extend(c.iter().flat_map(|p| p.as_vec3().to_array()));
         let (mut matrix, mut error) = (Vec::new(), Vec::new());
-        for cell in &x.transfer {
+        for cell in x.transfer.iter().filter(|c| c.paths > 0) {
             rgb(&mut matrix, &cell.matrix);
             rgb(&mut error, &cell.std_error);
         }
+        let entries = x.transfer.first().map_or(0, |c| c.matrix.len()) as u32;
         let words: Vec<u8> = x.images.words().iter().flat_map(|w| w.to_le_bytes()).collect();
         let resolution = x.images.resolution as u32;
         writer = writer
@@ -268,8 +278,9 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
             .section(&format!("e{e}.images"), key, bytes(words))
             .section(&format!("e{e}.cells"), key, range(&x.cells))
             .section(&format!("e{e}.paths"), key, u32s(x.transfer.iter().map(|c| c.paths as u32).collect()))
-            .section(&format!("e{e}.matrix"), key, Array::vector(ArrayData::F64(matrix)))
-            .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F64(error)));
+            .section(&format!("e{e}.entries"), key, u32s(vec![entries]))
+            .section(&format!("e{e}.matrix"), key, Array::vector(ArrayData::F32(matrix)))
+            .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F32(error)));
     }
     writer.write(path)?;
     Ok(())
@@ -292,8 +303,8 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
     let u32s = |name: &str| -> Result<Vec<u32>, ShardError> {
         Ok(section(name)?.array.as_u32().ok_or_else(|| bad(format!("section {name:?} is not u32")))?.to_vec())
     };
-    let f64s = |name: &str| -> Result<Vec<f64>, ShardError> {
-        Ok(section(name)?.array.as_f64().ok_or_else(|| bad(format!("section {name:?} is not f64")))?.to_vec())
+    let f32s = |name: &str| -> Result<Vec<f32>, ShardError> {
+        Ok(section(name)?.array.as_f32().ok_or_else(|| bad(format!("section {name:?} is not f32")))?.to_vec())
     };
     let range = |name: &str| -> Result<Range<usize>, ShardError> {
         match u32s(name)?[..] {
@@ -328,24 +339,42 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
         })?;
         let cells = range(&format!("e{e}.cells"))?;
         let paths = u32s(&format!("e{e}.paths"))?;
-        let (matrix, error) = (f64s(&format!("e{e}.matrix"))?, f64s(&format!("e{e}.std_error"))?);
-        let n = cells.len();
-        if paths.len() != n || matrix.len() != error.len() || (n > 0 && matrix.len() % (3 * n) != 0) {
+        let entries = match u32s(&format!("e{e}.entries"))?[..] {
+            [n] if n <= 1 << 20 => n as usize,
+            ref v => return Err(bad(format!("e{e}.entries: {v:?} is not an entry count"))),
+        };
+        let (matrix, error) = (f32s(&format!("e{e}.matrix"))?, f32s(&format!("e{e}.std_error"))?);
+        let nonempty = paths.iter().filter(|&&p| p > 0).count();
+        if paths.len() != cells.len() || matrix.len() != 3 * entries * nonempty || error.len() != matrix.len()
+        {
             return Err(bad(format!(
-                "e{e}: {} cells, {} path counts, {} and {} transfer values",
-                n,
+                "e{e}: {} cells ({} path counts, {nonempty} with paths) of {entries} entries, but {} and {} transfer values",
+                cells.len(),
                 paths.len(),
                 matrix.len(),
                 error.len()
             )));
         }
-        let per_cell = matrix.len().checked_div(n).unwrap_or(0);
-        let rgb = |v: &[f64]| v.chunks_exact(3).map(|c| Rgb::new(c[0], c[1], c[2])).collect();
-        let transfer = (0..n)
-            .map(|c| CellTransfer {
-                matrix: rgb(&matrix[c * per_cell..(c + 1) * per_cell]),
-                std_error: rgb(&error[c * per_cell..(c + 1) * per_cell]),
-                paths: paths[c] as usize,
+        let rgb =
+            |v: &[f32]| v.chunks_exact(3).map(|c| glam::Vec3::new(c[0], c[1], c[2]).as_dvec3()).collect();
+        let mut at = 0;
+        let transfer = paths
+            .iter()
+            .map(|&p| {
+                if p == 0 {
+                    return CellTransfer {
+                        matrix: vec![Rgb::ZERO; entries],
+                        std_error: vec![Rgb::ZERO; entries],
+                        paths: 0,
+                    };
+                }
+                let range = 3 * entries * at..3 * entries * (at + 1);
+                at += 1;
+                CellTransfer {
+                    matrix: rgb(&matrix[range.clone()]),
+                    std_error: rgb(&error[range]),
+                    paths: p as usize,
+                }
             })
             .collect();
         exemplars.push(ExemplarPart { segments, images, cells, transfer });
