@@ -754,3 +754,48 @@ pub(crate) fn upload_to(
     };
     Ok((SceneRenderer::with_gpu(gpu, scene, exemplars, pattern)?, false))
 }
+
+/// `twill bench raycast`: incoherent rays per second per core on the scene's fabric (camera and
+/// scatter rays, closest and any hit; `twill_precompute::raycast::throughput`).
+pub fn bench_raycast(scene: Option<&Path>, side_cm: f32, rays: usize, seconds: f64) -> Result<()> {
+    use twill_precompute::raycast::FiberScene;
+    use twill_precompute::raycast::throughput::{
+        Query, camera_rays, cast, rays_per_second, scatter_rays, swatch_extent,
+    };
+    if !(side_cm.is_finite() && (0.01..=1000.0).contains(&side_cm)) {
+        bail!("--swatch-cm {side_cm}: must be in 0.01..=1000");
+    }
+    if !(1..=1 << 24).contains(&rays) {
+        bail!("--rays {rays}: must be in 1..={}", 1 << 24);
+    }
+    if !(seconds.is_finite() && (0.01..=600.0).contains(&seconds)) {
+        bail!("--seconds {seconds}: must be in 0.01..=600");
+    }
+    let file = SceneFile::load_or_default(scene)?;
+    let built = file.build()?;
+    let min_time = std::time::Duration::from_secs_f64(seconds);
+    println!(
+        "{}: incoherent rays per second on one core, {rays} rays per family over a {side_cm} cm swatch (best pass of {seconds} s)",
+        file.path.display()
+    );
+    for (k, exemplar) in built.exemplars().iter().enumerate() {
+        let fibers = FiberScene::new(exemplar, swatch_extent(side_cm))
+            .map_err(|e| anyhow::anyhow!("exemplar {k}: {e}"))?;
+        println!(
+            "exemplar {k}: {} segments, {} BVH capsules",
+            exemplar.segment_count(),
+            fibers.primitive_count()
+        );
+        println!("  {:<14} {:>14} {:>14} {:>8}", "rays", "closest hit", "any hit", "hit");
+        for (family, set) in [
+            ("camera", camera_rays(&fibers, side_cm, rays, 1)),
+            ("scatter", scatter_rays(&fibers, side_cm, rays, 2)),
+        ] {
+            let closest = rays_per_second(&fibers, &set, Query::ClosestHit, min_time);
+            let any = rays_per_second(&fibers, &set, Query::AnyHit, min_time);
+            let hit = 100.0 * cast(&fibers, &set, Query::ClosestHit) as f64 / set.len() as f64;
+            println!("  {family:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%", closest * 1e-6, any * 1e-6);
+        }
+    }
+    Ok(())
+}

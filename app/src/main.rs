@@ -141,6 +141,22 @@ struct ReportArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
+    /// Incoherent fiber ray casting on the scene's fabric: rays per second per core for camera
+    /// and scatter rays, closest and any hit (what reference renders, visibility and the IIRTF
+    /// cast).
+    Raycast {
+        /// Scene file (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Side of the square swatch the rays are cast at, cm.
+        #[arg(long, default_value_t = 2.0)]
+        swatch_cm: f32,
+        /// Rays per family.
+        #[arg(long, default_value_t = 32_768)]
+        rays: usize,
+        /// Least time each measurement casts for, seconds (the best pass counts).
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+    },
     /// GPU time per pass of a scene's frame: the median over several frames after a warm-up.
     Passes {
         /// Scene file (default: the built-in default scene).
@@ -578,6 +594,9 @@ fn run(cli: Cli) -> Result<()> {
             }
             BenchCommand::Recolor { scene, size, spp, quality, colourways, seed } => {
                 commands::bench_recolor(scene.as_deref(), size, spp, quality_of(quality), colourways, seed)
+            }
+            BenchCommand::Raycast { scene, swatch_cm, rays, seconds } => {
+                commands::bench_raycast(scene.as_deref(), swatch_cm, rays, seconds)
             }
             BenchCommand::Passes { scene, size, spp, quality, frames } => {
                 commands::bench_passes(scene.as_deref(), size, spp, quality_of(quality), frames)

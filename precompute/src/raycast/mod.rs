@@ -31,6 +31,7 @@
 pub mod capsule;
 mod mean_free_path;
 pub mod testing;
+pub mod throughput;
 
 pub use mean_free_path::{MeanFreePath, mean_free_path};
 
