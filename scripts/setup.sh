@@ -9,9 +9,10 @@ set -euo pipefail
 # and libxkbcommon-x11 at run time; xvfb (with xauth, which xvfb-run needs and xvfb only
 # recommends) gives its test (tests/viewer_window.rs) a display. g++: libfuzzer-sys compiles
 # libFuzzer (C++) for the fuzz targets (scripts/fuzz.sh). slurm-wlm + munge: the sharded-bake
-# test (tests/slurm_bake.rs) starts a single-node Slurm cluster on this machine.
+# test (tests/slurm_bake.rs) starts a single-node Slurm cluster on this machine. libembree-dev:
+# Embree 3, the ray caster ours is measured against (feature `embree`).
 need_packages=(pkg-config mesa-vulkan-drivers libvulkan1 xvfb xauth libx11-6 libxcursor1 libxrandr2 libxi6
-  libxkbcommon-x11-0 g++ slurm-wlm munge)
+  libxkbcommon-x11-0 g++ slurm-wlm munge libembree-dev)
 
 missing=()
 for pkg in "${need_packages[@]}"; do

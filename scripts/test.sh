@@ -49,6 +49,11 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked
+# Embree, the ray caster ours is measured against (`twill bench raycast --embree`), is an
+# optional feature: lint it, and check that it and our caster agree hit for hit.
+echo "== Embree comparison (feature embree)"
+cargo clippy -p twill-precompute --features embree --all-targets --locked -- -D warnings
+cargo test -p twill-precompute --features embree --locked --lib raycast::embree
 echo "== fuzz targets (scripts/fuzz.sh, ${TWILL_FUZZ_SECONDS:-5} s each)"
 cargo fmt --manifest-path fuzz/Cargo.toml --check
 bash scripts/fuzz.sh "${TWILL_FUZZ_SECONDS:-5}"

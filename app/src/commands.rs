@@ -757,11 +757,23 @@ pub(crate) fn upload_to(
 
 /// `twill bench raycast`: incoherent rays per second per core on the scene's fabric (camera and
 /// scatter rays, closest and any hit; `twill_precompute::raycast::throughput`).
-pub fn bench_raycast(scene: Option<&Path>, side_cm: f32, rays: usize, seconds: f64) -> Result<()> {
+pub fn bench_raycast(
+    scene: Option<&Path>,
+    side_cm: f32,
+    rays: usize,
+    seconds: f64,
+    embree: bool,
+) -> Result<()> {
     use twill_precompute::raycast::FiberScene;
     use twill_precompute::raycast::throughput::{
         Query, camera_rays, cast, rays_per_second, scatter_rays, swatch_extent,
     };
+    if embree && !cfg!(feature = "embree") {
+        bail!(
+            "--embree: this twill was built without Embree; build it with `cargo build --release --features embree` \
+             (Debian: apt-get install libembree-dev)"
+        );
+    }
     if !(side_cm.is_finite() && (0.01..=1000.0).contains(&side_cm)) {
         bail!("--swatch-cm {side_cm}: must be in 0.01..=1000");
     }
@@ -795,6 +807,18 @@ pub fn bench_raycast(scene: Option<&Path>, side_cm: f32, rays: usize, seconds: f
             let any = rays_per_second(&fibers, &set, Query::AnyHit, min_time);
             let hit = 100.0 * cast(&fibers, &set, Query::ClosestHit) as f64 / set.len() as f64;
             println!("  {family:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%", closest * 1e-6, any * 1e-6);
+            #[cfg(feature = "embree")]
+            if embree {
+                use twill_precompute::raycast::embree;
+                let capsules = embree::capsules(&fibers);
+                let closest = embree::rays_per_second(&capsules, &set, Query::ClosestHit, min_time);
+                let any = embree::rays_per_second(&capsules, &set, Query::AnyHit, min_time);
+                let hits =
+                    embree::cast(&capsules, &set, Query::ClosestHit).iter().filter(|h| h.is_some()).count();
+                let hit = 100.0 * hits as f64 / set.len() as f64;
+                let label = format!("{family} (Embree)");
+                println!("  {label:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%", closest * 1e-6, any * 1e-6);
+            }
         }
     }
     Ok(())

@@ -156,6 +156,10 @@ enum BenchCommand {
         /// Least time each measurement casts for, seconds (the best pass counts).
         #[arg(long, default_value_t = 2.0)]
         seconds: f64,
+        /// Measure Embree 3 (round linear curves over explicit copies of the exemplar) beside
+        /// our caster (a twill built with `--features embree`).
+        #[arg(long)]
+        embree: bool,
     },
     /// GPU time per pass of a scene's frame: the median over several frames after a warm-up.
     Passes {
@@ -595,8 +599,8 @@ fn run(cli: Cli) -> Result<()> {
             BenchCommand::Recolor { scene, size, spp, quality, colourways, seed } => {
                 commands::bench_recolor(scene.as_deref(), size, spp, quality_of(quality), colourways, seed)
             }
-            BenchCommand::Raycast { scene, swatch_cm, rays, seconds } => {
-                commands::bench_raycast(scene.as_deref(), swatch_cm, rays, seconds)
+            BenchCommand::Raycast { scene, swatch_cm, rays, seconds, embree } => {
+                commands::bench_raycast(scene.as_deref(), swatch_cm, rays, seconds, embree)
             }
             BenchCommand::Passes { scene, size, spp, quality, frames } => {
                 commands::bench_passes(scene.as_deref(), size, spp, quality_of(quality), frames)

@@ -29,6 +29,8 @@
 //! the paper's precomputation needs (a fiber never shadows itself).
 
 pub mod capsule;
+#[cfg(feature = "embree")]
+pub mod embree;
 mod mean_free_path;
 pub mod testing;
 pub mod throughput;

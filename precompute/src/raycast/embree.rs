@@ -1,0 +1,184 @@
+//! Embree 3 as a second fiber ray caster, for measuring ours against an engine built for this
+//! (feature `embree`; `twill bench raycast --embree`).
+//!
+//! How it works: Embree's round linear curves with a constant radius are exactly our capsules
+//! (a cylinder with hemispherical caps at both ends), traversed with Embree's SIMD BVH. Every
+//! segment becomes one curve of its own (two vertices `(x, y, z, r)`, both caps), in every copy
+//! of a periodic exemplar whose period cell lies within one period of the swatch rectangle (an
+//! explicit scene: Embree builds one BVH over all of them, where [`FiberScene`] walks the copies
+//! of one wrapped period). Rays are not clipped to the swatch here, so a hit on a capsule sticking
+//! out of the rectangle counts, where ours would not: the measured hit fractions say how much that
+//! matters. Closest hit is `rtcIntersect1`, any hit `rtcOccluded1`, both with an incoherent
+//! context. The binding (the `embree` crate) keeps Embree's C API behind a safe interface; this
+//! module has no `unsafe` of its own.
+
+use std::time::{Duration, Instant};
+
+use cgmath::{Vector3, Vector4};
+use embree::{Device, Geometry, IntersectContext, LinearCurve, Ray, RayHit, Scene};
+use glam::Vec3;
+
+use super::FiberScene;
+use super::throughput::Query;
+
+/// The capsules of `scene` as (a, b, radius), in every copy of the exemplar that can reach the
+/// swatch rectangle (the exemplar as it is for `Tiling::AsIs` or an unbounded scene).
+#[must_use]
+pub fn capsules(scene: &FiberScene) -> Vec<(Vec3, Vec3, f32)> {
+    let segments = scene.segments();
+    let (Some(period), Some((min, max))) = (scene.period(), scene.rectangle()) else {
+        return segments.iter().map(|s| (s.a, s.b, s.radius)).collect();
+    };
+    let first = ((min / period).floor() - 1.0).as_ivec2();
+    let last = ((max / period).floor() + 1.0).as_ivec2();
+    let mut out = Vec::new();
+    for ty in first.y..=last.y {
+        for tx in first.x..=last.x {
+            let offset = Vec3::new(tx as f32 * period.x, ty as f32 * period.y, 0.0);
+            out.extend(segments.iter().map(|s| (s.a + offset, s.b + offset, s.radius)));
+        }
+    }
+    out
+}
+
+/// Casts `rays` against `capsules` with Embree: the distance of every closest hit (`None` for a
+/// miss), or with [`Query::AnyHit`] whether each ray is occluded (`Some(0.0)` for a hit).
+#[must_use]
+pub fn cast(capsules: &[(Vec3, Vec3, f32)], rays: &[(Vec3, Vec3)], query: Query) -> Vec<Option<f32>> {
+    with_scene(capsules, |scene| rays.iter().map(|&(o, d)| trace(scene, o, d, query)).collect())
+}
+
+/// Rays per second on this thread with Embree: `rays` cast with `query` over and over for at
+/// least `min_time` (after one untimed pass), the best pass. The BVH build is not timed.
+#[must_use]
+pub fn rays_per_second(
+    capsules: &[(Vec3, Vec3, f32)],
+    rays: &[(Vec3, Vec3)],
+    query: Query,
+    min_time: Duration,
+) -> f64 {
+    with_scene(capsules, |scene| {
+        let pass = || rays.iter().filter(|&&(o, d)| trace(scene, o, d, query).is_some()).count();
+        let _ = std::hint::black_box(pass());
+        let started = Instant::now();
+        let mut best = 0.0_f64;
+        while started.elapsed() < min_time || best == 0.0 {
+            let timer = Instant::now();
+            let _ = std::hint::black_box(pass());
+            best = best.max(rays.len() as f64 / timer.elapsed().as_secs_f64().max(1e-9));
+        }
+        best
+    })
+}
+
+/// Builds the Embree scene of `capsules` and runs `f` on it.
+fn with_scene<T>(capsules: &[(Vec3, Vec3, f32)], f: impl FnOnce(&embree::CommittedScene<'_>) -> T) -> T {
+    let device = Device::new();
+    let mut curves = LinearCurve::round(&device, capsules.len(), 2 * capsules.len(), false);
+    {
+        let mut vertices = curves.vertex_buffer.map();
+        for (i, &(a, b, r)) in capsules.iter().enumerate() {
+            vertices[2 * i] = Vector4::new(a.x, a.y, a.z, r);
+            vertices[2 * i + 1] = Vector4::new(b.x, b.y, b.z, r);
+        }
+    }
+    {
+        let mut indices = curves.index_buffer.map();
+        for i in 0..capsules.len() {
+            indices[i] = 2 * i as u32;
+        }
+    }
+    {
+        // Both caps on every segment: each curve is a whole capsule.
+        let mut flags = curves.flag_buffer.map();
+        for i in 0..capsules.len() {
+            flags[i] = 0;
+        }
+    }
+    let mut geometry = Geometry::LinearCurve(curves);
+    geometry.commit();
+    let mut scene = Scene::new(&device);
+    scene.attach_geometry(geometry);
+    let committed = scene.commit();
+    f(&committed)
+}
+
+fn trace(scene: &embree::CommittedScene<'_>, o: Vec3, d: Vec3, query: Query) -> Option<f32> {
+    let mut context = IntersectContext::incoherent();
+    let ray = Ray::new(Vector3::new(o.x, o.y, o.z), Vector3::new(d.x, d.y, d.z));
+    match query {
+        Query::ClosestHit => {
+            let mut hit = RayHit::new(ray);
+            scene.intersect(&mut context, &mut hit);
+            hit.hit.hit().then_some(hit.ray.tfar)
+        }
+        Query::AnyHit => {
+            let mut ray = ray;
+            scene.occluded(&mut context, &mut ray);
+            // Embree marks an occluded ray by setting tfar to -inf.
+            (ray.tfar < 0.0).then_some(0.0)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raycast::testing::{SyntheticWeave, synthetic_weave};
+    use crate::raycast::throughput::{camera_rays, scatter_rays, swatch_extent};
+
+    /// Embree's round linear curves and our capsules give the same hits at the same distances on
+    /// a periodic swatch, for camera rays whose hit or exit lies inside the swatch (a difference
+    /// would make the throughput comparison one of different answers). Rays that start inside a
+    /// fiber differ by definition: ours skips the capsule a ray starts in, Embree hits its wall.
+    #[test]
+    fn embree_and_our_caster_agree_hit_for_hit() {
+        let exemplar = synthetic_weave(&SyntheticWeave { fibers_per_yarn: 16, ..SyntheticWeave::small() });
+        let side = 0.3;
+        let scene = FiberScene::new(&exemplar, swatch_extent(side)).unwrap();
+        let capsules = capsules(&scene);
+        assert!(capsules.len() > scene.segments().len(), "copies of the period cover the swatch");
+        let (lo, hi) = scene.slab();
+        let rays = camera_rays(&scene, side, 4000, 7);
+        let (mut compared, mut hits) = (0, 0);
+        for (&(o, d), embree) in rays.iter().zip(cast(&capsules, &rays, Query::ClosestHit)) {
+            let ours = scene.closest_hit(o, d, f32::INFINITY, None).map(|h| h.t);
+            // Only where our swatch's edge cannot matter: the hit (or the ray's exit from the
+            // slab) lies well inside the rectangle.
+            let t = ours.or(embree).unwrap_or_else(|| {
+                let exit = if d.z > 0.0 {
+                    (hi - o.z) / d.z
+                } else if d.z < 0.0 {
+                    (lo - o.z) / d.z
+                } else {
+                    10.0
+                };
+                exit.max(0.0)
+            });
+            let p = o + t * d;
+            let inside = |v: f32| (0.05..side - 0.05).contains(&v);
+            let start_inside = o.z > hi || (inside(o.x) && inside(o.y));
+            if !(inside(p.x) && inside(p.y) && start_inside) {
+                continue;
+            }
+            compared += 1;
+            match (ours, embree) {
+                (Some(a), Some(b)) => {
+                    hits += 1;
+                    assert!((a - b).abs() <= 2e-5 + 1e-4 * a, "ray {o} {d}: ours t = {a}, Embree {b}");
+                }
+                (None, None) => {}
+                (a, b) => panic!("ray {o} {d}: ours {a:?}, Embree {b:?}"),
+            }
+        }
+        assert!(compared > 1000 && hits > 500, "{compared} rays compared, {hits} hits");
+        // Any-hit agrees with closest-hit on Embree's side, scatter rays included.
+        let mut all = rays.clone();
+        all.extend(scatter_rays(&scene, side, 2000, 8));
+        let closest = cast(&capsules, &all, Query::ClosestHit);
+        let any = cast(&capsules, &all, Query::AnyHit);
+        for (c, a) in closest.iter().zip(&any) {
+            assert_eq!(c.is_some(), a.is_some());
+        }
+    }
+}
