@@ -6,7 +6,8 @@
 //! segment) and the IIRTF of every cell (`iirtf::bake_iirtf_cells`: cell `c` draws from its own
 //! random stream, `cell_stream(seed, c)`). Shard `I` of `N` ([`Shard`]) takes the `I`-th of `N`
 //! contiguous, balanced slices of the segments and of the cells of every exemplar
-//! ([`Shard::slice`]) and writes their raw results, with the inputs' key and a caller's record
+//! ([`Shard::slice`]; cells weighted by whether they hold segments, [`Shard::slice_weighted`],
+//! since an empty cell costs nothing) and writes their raw results, with the inputs' key and a caller's record
 //! (what the command line needs to rebuild the inputs), to a part file ([`bake_part`],
 //! [`write_part`]). [`merge_parts`] checks that the parts are the `N` shards of one bake of
 //! these inputs, each once, joins the slices in order and runs the bake's pipeline with them in
@@ -85,6 +86,34 @@ impl Shard {
     }
 }
 
+impl Shard {
+    /// This shard's slice of items of the given `weights`: the `index`-th of `count`
+    /// contiguous slices of about equal total weight (slice `k` starts at the first item where
+    /// the running total reaches `k / count` of the whole). Without any weight, [`Shard::slice`].
+    #[must_use]
+    pub fn slice_weighted(&self, weights: &[u64]) -> Range<usize> {
+        let total: u128 = weights.iter().map(|&w| u128::from(w)).sum();
+        if total == 0 {
+            return self.slice(weights.len());
+        }
+        let start_of = |k: usize| -> usize {
+            if k >= self.count {
+                return weights.len();
+            }
+            let target = total * k as u128 / self.count as u128;
+            let mut sum = 0_u128;
+            for (i, &w) in weights.iter().enumerate() {
+                if sum >= target {
+                    return i;
+                }
+                sum += u128::from(w);
+            }
+            weights.len()
+        };
+        start_of(self.index)..start_of(self.index + 1)
+    }
+}
+
 impl std::fmt::Display for Shard {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}/{}", self.index, self.count)
@@ -155,7 +184,10 @@ pub fn bake_part(
         let images =
             render_segments(&scene, &ids, s.svf_resolution, cancel, &|f| progress(Stage::Visibility, f))?;
         let grid = CellGrid::new(input.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
-        let cells = shard.slice(grid.cell_count());
+        // Balanced by work: a cell with segments costs its paths, an empty one nothing.
+        let weights: Vec<u64> =
+            (0..grid.cell_count() as u32).map(|c| u64::from(!grid.segments_in_cell(c).is_empty())).collect();
+        let cells = shard.slice_weighted(&weights);
         let mut transfer = bake_iirtf_cells(
             input.exemplar,
             &yarns,
@@ -449,6 +481,33 @@ mod tests {
                 assert!(max - min <= 1, "{total} in {count}: sizes {min}..{max}");
             }
         }
+    }
+
+    #[test]
+    fn weighted_slices_tile_the_items_and_balance_their_weight() {
+        let weights: Vec<u64> =
+            (0..1000_u64).map(|i| u64::from(i % 7 == 0 || (400..600).contains(&i))).collect();
+        let total: u64 = weights.iter().sum();
+        for count in [1, 2, 3, 4, 7, 16] {
+            let slices: Vec<_> =
+                (0..count).map(|index| Shard { index, count }.slice_weighted(&weights)).collect();
+            assert_eq!(slices[0].start, 0);
+            assert_eq!(slices[count - 1].end, weights.len());
+            for pair in slices.windows(2) {
+                assert_eq!(pair[0].end, pair[1].start);
+            }
+            for s in &slices {
+                let w: u64 = weights[s.clone()].iter().sum();
+                let share = total as f64 / count as f64;
+                assert!(
+                    (w as f64 - share).abs() <= 1.0 + 1e-9,
+                    "{count} shards: {s:?} weighs {w} of {total}"
+                );
+            }
+        }
+        // Nothing weighs anything: plain slices.
+        let zero = vec![0_u64; 10];
+        assert_eq!(Shard { index: 1, count: 2 }.slice_weighted(&zero), 5..10);
     }
 
     #[test]
