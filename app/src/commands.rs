@@ -810,14 +810,22 @@ pub fn bench_raycast(
             #[cfg(feature = "embree")]
             if embree {
                 use twill_precompute::raycast::embree;
-                let capsules = embree::capsules(&fibers);
-                let closest = embree::rays_per_second(&capsules, &set, Query::ClosestHit, min_time);
-                let any = embree::rays_per_second(&capsules, &set, Query::AnyHit, min_time);
-                let hits =
-                    embree::cast(&capsules, &set, Query::ClosestHit).iter().filter(|h| h.is_some()).count();
-                let hit = 100.0 * hits as f64 / set.len() as f64;
-                let label = format!("{family} (Embree)");
-                println!("  {label:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%", closest * 1e-6, any * 1e-6);
+                let copies = embree::copies(&fibers);
+                for (layout, name) in
+                    [(embree::Layout::Instanced, "instanced"), (embree::Layout::Explicit, "explicit")]
+                {
+                    let closest = embree::rays_per_second(&copies, layout, &set, Query::ClosestHit, min_time);
+                    let any = embree::rays_per_second(&copies, layout, &set, Query::AnyHit, min_time);
+                    let hits =
+                        embree::cast(&copies, layout, &set, Query::ClosestHit).iter().flatten().count();
+                    let hit = 100.0 * hits as f64 / set.len() as f64;
+                    let label = format!("  Embree, {name}");
+                    println!(
+                        "  {label:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%",
+                        closest * 1e-6,
+                        any * 1e-6
+                    );
+                }
             }
         }
     }

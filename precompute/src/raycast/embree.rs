@@ -4,60 +4,77 @@
 //! How it works: Embree's round linear curves with a constant radius are exactly our capsules
 //! (a cylinder with hemispherical caps at both ends), traversed with Embree's SIMD BVH. Every
 //! segment becomes one curve of its own (two vertices `(x, y, z, r)`, both caps), in every copy
-//! of a periodic exemplar whose period cell lies within one period of the swatch rectangle (an
-//! explicit scene: Embree builds one BVH over all of them, where [`FiberScene`] walks the copies
-//! of one wrapped period). Rays are not clipped to the swatch here, so a hit on a capsule sticking
-//! out of the rectangle counts, where ours would not: the measured hit fractions say how much that
-//! matters. Closest hit is `rtcIntersect1`, any hit `rtcOccluded1`, both with an incoherent
-//! context. The binding (the `embree` crate) keeps Embree's C API behind a safe interface; this
-//! module has no `unsafe` of its own.
+//! of a periodic exemplar whose period cell lies within one period of the swatch rectangle
+//! ([`copies`]), either all in one BVH ([`Layout::Explicit`]) or as one BVH of the exemplar
+//! instanced per copy ([`Layout::Instanced`], a two-level BVH: the nearest to [`FiberScene`],
+//! which walks the copies of one wrapped period). Rays are not clipped to the swatch here, so a
+//! hit on a capsule sticking out of the rectangle counts, where ours would not: the measured hit
+//! fractions say how much that matters. Closest hit is `rtcIntersect1`, any hit `rtcOccluded1`,
+//! both with an incoherent context. The binding (the `embree` crate) keeps Embree's C API behind
+//! a safe interface; this module has no `unsafe` of its own.
 
 use std::time::{Duration, Instant};
 
-use cgmath::{Vector3, Vector4};
-use embree::{Device, Geometry, IntersectContext, LinearCurve, Ray, RayHit, Scene};
+use cgmath::{Matrix4, Vector3, Vector4};
+use embree::{Device, Geometry, Instance, IntersectContext, LinearCurve, Ray, RayHit, Scene};
 use glam::Vec3;
 
 use super::FiberScene;
 use super::throughput::Query;
 
-/// The capsules of `scene` as (a, b, radius), in every copy of the exemplar that can reach the
-/// swatch rectangle (the exemplar as it is for `Tiling::AsIs` or an unbounded scene).
+/// The fabric as Embree sees it: the exemplar's capsules as (a, b, radius), and the offsets of
+/// its copies that can reach the swatch rectangle (one zero offset for `Tiling::AsIs` or an
+/// unbounded scene).
+#[derive(Debug, Clone)]
+pub struct Copies {
+    pub capsules: Vec<(Vec3, Vec3, f32)>,
+    pub offsets: Vec<Vec3>,
+}
+
+/// How the copies are put in the scene.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// Every capsule of every copy in one BVH.
+    Explicit,
+    /// One BVH of the exemplar, instanced once per copy (a two-level BVH).
+    Instanced,
+}
+
+/// The copies of `scene`'s exemplar that can reach its swatch.
 #[must_use]
-pub fn capsules(scene: &FiberScene) -> Vec<(Vec3, Vec3, f32)> {
-    let segments = scene.segments();
+pub fn copies(scene: &FiberScene) -> Copies {
+    let capsules = scene.segments().iter().map(|s| (s.a, s.b, s.radius)).collect();
     let (Some(period), Some((min, max))) = (scene.period(), scene.rectangle()) else {
-        return segments.iter().map(|s| (s.a, s.b, s.radius)).collect();
+        return Copies { capsules, offsets: vec![Vec3::ZERO] };
     };
     let first = ((min / period).floor() - 1.0).as_ivec2();
     let last = ((max / period).floor() + 1.0).as_ivec2();
-    let mut out = Vec::new();
-    for ty in first.y..=last.y {
-        for tx in first.x..=last.x {
-            let offset = Vec3::new(tx as f32 * period.x, ty as f32 * period.y, 0.0);
-            out.extend(segments.iter().map(|s| (s.a + offset, s.b + offset, s.radius)));
-        }
-    }
-    out
+    let offsets = (first.y..=last.y)
+        .flat_map(|ty| {
+            (first.x..=last.x).map(move |tx| Vec3::new(tx as f32 * period.x, ty as f32 * period.y, 0.0))
+        })
+        .collect();
+    Copies { capsules, offsets }
 }
 
-/// Casts `rays` against `capsules` with Embree: the distance of every closest hit (`None` for a
+/// Casts `rays` against `copies` with Embree: the distance of every closest hit (`None` for a
 /// miss), or with [`Query::AnyHit`] whether each ray is occluded (`Some(0.0)` for a hit).
 #[must_use]
-pub fn cast(capsules: &[(Vec3, Vec3, f32)], rays: &[(Vec3, Vec3)], query: Query) -> Vec<Option<f32>> {
-    with_scene(capsules, |scene| rays.iter().map(|&(o, d)| trace(scene, o, d, query)).collect())
+pub fn cast(copies: &Copies, layout: Layout, rays: &[(Vec3, Vec3)], query: Query) -> Vec<Option<f32>> {
+    with_scene(copies, layout, |scene| rays.iter().map(|&(o, d)| trace(scene, o, d, query)).collect())
 }
 
 /// Rays per second on this thread with Embree: `rays` cast with `query` over and over for at
 /// least `min_time` (after one untimed pass), the best pass. The BVH build is not timed.
 #[must_use]
 pub fn rays_per_second(
-    capsules: &[(Vec3, Vec3, f32)],
+    copies: &Copies,
+    layout: Layout,
     rays: &[(Vec3, Vec3)],
     query: Query,
     min_time: Duration,
 ) -> f64 {
-    with_scene(capsules, |scene| {
+    with_scene(copies, layout, |scene| {
         let pass = || rays.iter().filter(|&&(o, d)| trace(scene, o, d, query).is_some()).count();
         let _ = std::hint::black_box(pass());
         let started = Instant::now();
@@ -71,10 +88,43 @@ pub fn rays_per_second(
     })
 }
 
-/// Builds the Embree scene of `capsules` and runs `f` on it.
-fn with_scene<T>(capsules: &[(Vec3, Vec3, f32)], f: impl FnOnce(&embree::CommittedScene<'_>) -> T) -> T {
+/// Builds the Embree scene of `copies` and runs `f` on it.
+fn with_scene<T>(copies: &Copies, layout: Layout, f: impl FnOnce(&embree::CommittedScene<'_>) -> T) -> T {
     let device = Device::new();
-    let mut curves = LinearCurve::round(&device, capsules.len(), 2 * capsules.len(), false);
+    match layout {
+        Layout::Explicit => {
+            let all: Vec<(Vec3, Vec3, f32)> = copies
+                .offsets
+                .iter()
+                .flat_map(|&o| copies.capsules.iter().map(move |&(a, b, r)| (a + o, b + o, r)))
+                .collect();
+            let mut scene = Scene::new(&device);
+            scene.attach_geometry(curves(&device, &all));
+            let committed = scene.commit();
+            f(&committed)
+        }
+        Layout::Instanced => {
+            let mut exemplar = Scene::new(&device);
+            exemplar.attach_geometry(curves(&device, &copies.capsules));
+            let exemplar = exemplar.commit();
+            let mut scene = Scene::new(&device);
+            for offset in &copies.offsets {
+                let mut instance = Instance::unanimated(&device, &exemplar);
+                instance
+                    .set_transform(&Matrix4::from_translation(Vector3::new(offset.x, offset.y, offset.z)));
+                let mut geometry = Geometry::Instance(instance);
+                geometry.commit();
+                scene.attach_geometry(geometry);
+            }
+            let committed = scene.commit();
+            f(&committed)
+        }
+    }
+}
+
+/// One round linear curve per capsule, both caps on (each curve a whole capsule).
+fn curves<'a>(device: &'a Device, capsules: &[(Vec3, Vec3, f32)]) -> Geometry<'a> {
+    let mut curves = LinearCurve::round(device, capsules.len(), 2 * capsules.len(), false);
     {
         let mut vertices = curves.vertex_buffer.map();
         for (i, &(a, b, r)) in capsules.iter().enumerate() {
@@ -89,7 +139,6 @@ fn with_scene<T>(capsules: &[(Vec3, Vec3, f32)], f: impl FnOnce(&embree::Committ
         }
     }
     {
-        // Both caps on every segment: each curve is a whole capsule.
         let mut flags = curves.flag_buffer.map();
         for i in 0..capsules.len() {
             flags[i] = 0;
@@ -97,10 +146,7 @@ fn with_scene<T>(capsules: &[(Vec3, Vec3, f32)], f: impl FnOnce(&embree::Committ
     }
     let mut geometry = Geometry::LinearCurve(curves);
     geometry.commit();
-    let mut scene = Scene::new(&device);
-    scene.attach_geometry(geometry);
-    let committed = scene.commit();
-    f(&committed)
+    geometry
 }
 
 fn trace(scene: &embree::CommittedScene<'_>, o: Vec3, d: Vec3, query: Query) -> Option<f32> {
@@ -136,12 +182,17 @@ mod tests {
         let exemplar = synthetic_weave(&SyntheticWeave { fibers_per_yarn: 16, ..SyntheticWeave::small() });
         let side = 0.3;
         let scene = FiberScene::new(&exemplar, swatch_extent(side)).unwrap();
-        let capsules = capsules(&scene);
-        assert!(capsules.len() > scene.segments().len(), "copies of the period cover the swatch");
+        let copies = copies(&scene);
+        assert!(copies.offsets.len() > 4, "copies of the period cover the swatch");
         let (lo, hi) = scene.slab();
         let rays = camera_rays(&scene, side, 4000, 7);
         let (mut compared, mut hits) = (0, 0);
-        for (&(o, d), embree) in rays.iter().zip(cast(&capsules, &rays, Query::ClosestHit)) {
+        let explicit = cast(&copies, Layout::Explicit, &rays, Query::ClosestHit);
+        let instanced = cast(&copies, Layout::Instanced, &rays, Query::ClosestHit);
+        for (e, i) in explicit.iter().zip(&instanced) {
+            assert_eq!(e.is_some(), i.is_some(), "both layouts hit the same rays");
+        }
+        for (&(o, d), embree) in rays.iter().zip(explicit) {
             let ours = scene.closest_hit(o, d, f32::INFINITY, None).map(|h| h.t);
             // Only where our swatch's edge cannot matter: the hit (or the ray's exit from the
             // slab) lies well inside the rectangle.
@@ -175,8 +226,8 @@ mod tests {
         // Any-hit agrees with closest-hit on Embree's side, scatter rays included.
         let mut all = rays.clone();
         all.extend(scatter_rays(&scene, side, 2000, 8));
-        let closest = cast(&capsules, &all, Query::ClosestHit);
-        let any = cast(&capsules, &all, Query::AnyHit);
+        let closest = cast(&copies, Layout::Instanced, &all, Query::ClosestHit);
+        let any = cast(&copies, Layout::Instanced, &all, Query::AnyHit);
         for (c, a) in closest.iter().zip(&any) {
             assert_eq!(c.is_some(), a.is_some());
         }
