@@ -811,17 +811,24 @@ pub fn bench_raycast(
             if embree {
                 use twill_precompute::raycast::embree;
                 let copies = embree::copies(&fibers);
-                for (layout, name) in
-                    [(embree::Layout::Instanced, "instanced"), (embree::Layout::Explicit, "explicit")]
-                {
-                    let closest = embree::rays_per_second(&copies, layout, &set, Query::ClosestHit, min_time);
-                    let any = embree::rays_per_second(&copies, layout, &set, Query::AnyHit, min_time);
-                    let hits =
-                        embree::cast(&copies, layout, &set, Query::ClosestHit).iter().flatten().count();
+                let variants = [
+                    (embree::Layout::Instanced, embree::Batch::Single, "instanced"),
+                    (embree::Layout::Instanced, embree::Batch::Packets4, "inst., 4-packets"),
+                    (embree::Layout::Instanced, embree::Batch::Stream, "inst., stream"),
+                    (embree::Layout::Explicit, embree::Batch::Single, "explicit"),
+                ];
+                for (layout, batch, name) in variants {
+                    let closest =
+                        embree::rays_per_second(&copies, layout, batch, &set, Query::ClosestHit, min_time);
+                    let any = embree::rays_per_second(&copies, layout, batch, &set, Query::AnyHit, min_time);
+                    let hits = embree::cast(&copies, layout, batch, &set, Query::ClosestHit)
+                        .iter()
+                        .flatten()
+                        .count();
                     let hit = 100.0 * hits as f64 / set.len() as f64;
                     let label = format!("  Embree, {name}");
                     println!(
-                        "  {label:<14} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%",
+                        "  {label:<24} {:>11.3} M/s {:>11.3} M/s {hit:>7.1}%",
                         closest * 1e-6,
                         any * 1e-6
                     );

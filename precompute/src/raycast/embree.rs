@@ -10,13 +10,14 @@
 //! which walks the copies of one wrapped period). Rays are not clipped to the swatch here, so a
 //! hit on a capsule sticking out of the rectangle counts, where ours would not: the measured hit
 //! fractions say how much that matters. Closest hit is `rtcIntersect1`, any hit `rtcOccluded1`,
-//! both with an incoherent context. The binding (the `embree` crate) keeps Embree's C API behind
+//! both with an incoherent context; [`Batch`] also hands the rays over in packets of four or as
+//! one stream. The binding (the `embree` crate) keeps Embree's C API behind
 //! a safe interface; this module has no `unsafe` of its own.
 
 use std::time::{Duration, Instant};
 
 use cgmath::{Matrix4, Vector3, Vector4};
-use embree::{Device, Geometry, Instance, IntersectContext, LinearCurve, Ray, RayHit, Scene};
+use embree::{Device, Geometry, Instance, IntersectContext, LinearCurve, Ray, Ray4, RayHit, RayHit4, Scene};
 use glam::Vec3;
 
 use super::FiberScene;
@@ -57,11 +58,28 @@ pub fn copies(scene: &FiberScene) -> Copies {
     Copies { capsules, offsets }
 }
 
+/// How rays are handed to Embree.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Batch {
+    /// One ray per call (`rtcIntersect1`, `rtcOccluded1`).
+    Single,
+    /// Packets of four (`rtcIntersect4`, `rtcOccluded4`): SIMD across the rays of a packet.
+    Packets4,
+    /// All rays in one call (`rtcIntersect1M`, `rtcOccluded1M`): Embree orders the work.
+    Stream,
+}
+
 /// Casts `rays` against `copies` with Embree: the distance of every closest hit (`None` for a
 /// miss), or with [`Query::AnyHit`] whether each ray is occluded (`Some(0.0)` for a hit).
 #[must_use]
-pub fn cast(copies: &Copies, layout: Layout, rays: &[(Vec3, Vec3)], query: Query) -> Vec<Option<f32>> {
-    with_scene(copies, layout, |scene| rays.iter().map(|&(o, d)| trace(scene, o, d, query)).collect())
+pub fn cast(
+    copies: &Copies,
+    layout: Layout,
+    batch: Batch,
+    rays: &[(Vec3, Vec3)],
+    query: Query,
+) -> Vec<Option<f32>> {
+    with_scene(copies, layout, |scene| trace_all(scene, batch, rays, query))
 }
 
 /// Rays per second on this thread with Embree: `rays` cast with `query` over and over for at
@@ -70,12 +88,13 @@ pub fn cast(copies: &Copies, layout: Layout, rays: &[(Vec3, Vec3)], query: Query
 pub fn rays_per_second(
     copies: &Copies,
     layout: Layout,
+    batch: Batch,
     rays: &[(Vec3, Vec3)],
     query: Query,
     min_time: Duration,
 ) -> f64 {
     with_scene(copies, layout, |scene| {
-        let pass = || rays.iter().filter(|&&(o, d)| trace(scene, o, d, query).is_some()).count();
+        let pass = || trace_all(scene, batch, rays, query).iter().flatten().count();
         let _ = std::hint::black_box(pass());
         let started = Instant::now();
         let mut best = 0.0_f64;
@@ -149,6 +168,63 @@ fn curves<'a>(device: &'a Device, capsules: &[(Vec3, Vec3, f32)]) -> Geometry<'a
     geometry
 }
 
+fn trace_all(
+    scene: &embree::CommittedScene<'_>,
+    batch: Batch,
+    rays: &[(Vec3, Vec3)],
+    query: Query,
+) -> Vec<Option<f32>> {
+    let v = |p: Vec3| Vector3::new(p.x, p.y, p.z);
+    match batch {
+        Batch::Single => rays.iter().map(|&(o, d)| trace(scene, o, d, query)).collect(),
+        Batch::Packets4 => {
+            let mut out = Vec::with_capacity(rays.len());
+            let mut context = IntersectContext::incoherent();
+            for chunk in rays.chunks(4) {
+                let mut origins = [Vector3::new(0.0, 0.0, 0.0); 4];
+                let mut dirs = [Vector3::new(0.0, 0.0, 1.0); 4];
+                let mut valid = [0_i32; 4];
+                for (k, &(o, d)) in chunk.iter().enumerate() {
+                    (origins[k], dirs[k], valid[k]) = (v(o), v(d), -1);
+                }
+                let packet = Ray4::new(origins, dirs);
+                match query {
+                    Query::ClosestHit => {
+                        let mut hits = RayHit4::new(packet);
+                        scene.intersect4(&mut context, &mut hits, &valid);
+                        out.extend(
+                            (0..chunk.len())
+                                .map(|k| (hits.hit.geomID[k] != u32::MAX).then_some(hits.ray.tfar[k])),
+                        );
+                    }
+                    Query::AnyHit => {
+                        let mut packet = packet;
+                        scene.occluded4(&mut context, &mut packet, &valid);
+                        out.extend((0..chunk.len()).map(|k| (packet.tfar[k] < 0.0).then_some(0.0)));
+                    }
+                }
+            }
+            out
+        }
+        Batch::Stream => {
+            let mut context = IntersectContext::incoherent();
+            match query {
+                Query::ClosestHit => {
+                    let mut all: Vec<RayHit> =
+                        rays.iter().map(|&(o, d)| RayHit::new(Ray::new(v(o), v(d)))).collect();
+                    scene.intersect_stream_aos(&mut context, &mut all);
+                    all.iter().map(|h| h.hit.hit().then_some(h.ray.tfar)).collect()
+                }
+                Query::AnyHit => {
+                    let mut all: Vec<Ray> = rays.iter().map(|&(o, d)| Ray::new(v(o), v(d))).collect();
+                    scene.occluded_stream_aos(&mut context, &mut all);
+                    all.iter().map(|r| (r.tfar < 0.0).then_some(0.0)).collect()
+                }
+            }
+        }
+    }
+}
+
 fn trace(scene: &embree::CommittedScene<'_>, o: Vec3, d: Vec3, query: Query) -> Option<f32> {
     let mut context = IntersectContext::incoherent();
     let ray = Ray::new(Vector3::new(o.x, o.y, o.z), Vector3::new(d.x, d.y, d.z));
@@ -187,8 +263,8 @@ mod tests {
         let (lo, hi) = scene.slab();
         let rays = camera_rays(&scene, side, 4000, 7);
         let (mut compared, mut hits) = (0, 0);
-        let explicit = cast(&copies, Layout::Explicit, &rays, Query::ClosestHit);
-        let instanced = cast(&copies, Layout::Instanced, &rays, Query::ClosestHit);
+        let explicit = cast(&copies, Layout::Explicit, Batch::Single, &rays, Query::ClosestHit);
+        let instanced = cast(&copies, Layout::Instanced, Batch::Single, &rays, Query::ClosestHit);
         for (e, i) in explicit.iter().zip(&instanced) {
             assert_eq!(e.is_some(), i.is_some(), "both layouts hit the same rays");
         }
@@ -226,8 +302,26 @@ mod tests {
         // Any-hit agrees with closest-hit on Embree's side, scatter rays included.
         let mut all = rays.clone();
         all.extend(scatter_rays(&scene, side, 2000, 8));
-        let closest = cast(&copies, Layout::Instanced, &all, Query::ClosestHit);
-        let any = cast(&copies, Layout::Instanced, &all, Query::AnyHit);
+        let closest = cast(&copies, Layout::Instanced, Batch::Single, &all, Query::ClosestHit);
+        let any = cast(&copies, Layout::Instanced, Batch::Single, &all, Query::AnyHit);
+        // Packets and streams give what single rays give (a ragged last packet included).
+        let odd = &all[..all.len() - 1];
+        for batch in [Batch::Packets4, Batch::Stream] {
+            for query in [Query::ClosestHit, Query::AnyHit] {
+                let single = cast(&copies, Layout::Instanced, Batch::Single, odd, query);
+                let batched = cast(&copies, Layout::Instanced, batch, odd, query);
+                assert_eq!(batched.len(), single.len());
+                for (a, b) in single.iter().zip(&batched) {
+                    match (a, b) {
+                        (Some(a), Some(b)) => {
+                            assert!((a - b).abs() <= 1e-6 + 1e-5 * a, "{batch:?}: {a} vs {b}");
+                        }
+                        (None, None) => {}
+                        _ => panic!("{batch:?} {query:?}: {a:?} vs {b:?}"),
+                    }
+                }
+            }
+        }
         for (c, a) in closest.iter().zip(&any) {
             assert_eq!(c.is_some(), a.is_some());
         }
