@@ -509,9 +509,7 @@ impl Renderer {
         filmic: bool,
         readback: Readback,
     ) -> Result<ProgressiveFrame, RenderError> {
-        if !(-30.0..=30.0).contains(&exposure) {
-            return Err(RenderError::Settings(format!("exposure {exposure}: must be in -30..=30 stops")));
-        }
+        check_exposure(exposure)?;
         let Some(picture) = self.progressive.as_mut() else {
             return Err(RenderError::Continuation { first_sample: 0, kept: 0 });
         };
@@ -728,8 +726,10 @@ impl Renderer {
                     let variant =
                         ShadeVariant::of(pass).ok_or_else(|| out_of_order("its shading variant"))?;
                     let pipeline = passes.shade.pipeline(device, &fabric.layout, variant);
-                    let none = visibility_texture(device, "twill.visibility.none", 1, 1);
-                    let (sharp, blurred) = state.visibility.clone().unwrap_or_else(|| (none.clone(), none));
+                    let (sharp, blurred) = state.visibility.clone().unwrap_or_else(|| {
+                        let none = visibility_texture(device, "twill.visibility.none", 1, 1);
+                        (none.clone(), none)
+                    });
                     let cell_transfer = state
                         .cell_transfer
                         .clone()
@@ -850,10 +850,17 @@ fn validate(settings: &FrameSettings, lights: &[Light]) -> Result<(), RenderErro
     if lights.len() > MAX_LIGHTS {
         return bad(format!("{} lights: at most {MAX_LIGHTS} are supported", lights.len()));
     }
-    if !(-30.0..=30.0).contains(&settings.exposure) {
-        return bad(format!("exposure {}: must be in -30..=30 stops", settings.exposure));
-    }
+    check_exposure(settings.exposure)?;
     settings.gpu.validate().map_err(|e| RenderError::Settings(e.to_string()))
+}
+
+/// The display exposure, in stops, within -30..=30.
+fn check_exposure(exposure: f64) -> Result<(), RenderError> {
+    if (-30.0..=30.0).contains(&exposure) {
+        Ok(())
+    } else {
+        Err(RenderError::Settings(format!("exposure {exposure}: must be in -30..=30 stops")))
+    }
 }
 
 /// Radical inverse of `index` in `base` (Halton sequence), in [0, 1).
