@@ -344,6 +344,17 @@ pub(crate) fn default_cache_dir() -> Option<PathBuf> {
         .or_else(|| var("HOME").map(|d| d.join(".cache").join("twill")))
 }
 
+/// The name `twill bake` writes by default: `SCENE-STEM.QUALITY.twillbake` in the current
+/// folder (`default` for the built-in scene).
+pub(crate) fn default_bake_path(scene: Option<&Path>, quality: Quality) -> PathBuf {
+    PathBuf::from(format!("{}.{}.twillbake", scene_stem(scene), quality.name()))
+}
+
+/// The scene file's name without its extension, `default` for the built-in scene.
+pub(crate) fn scene_stem(scene: Option<&Path>) -> String {
+    scene.and_then(Path::file_stem).map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned())
+}
+
 /// A progress bar of a bake's stages: it restarts with each stage and shows its name.
 pub(crate) struct StageBar {
     bar: ProgressBar,
@@ -397,15 +408,10 @@ pub fn bake(options: &BakeOptions) -> Result<()> {
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
     let scene = file.build()?;
     let settings = apply_overrides(options.quality.settings(), &options.overrides)?;
-    let stem = options
-        .scene
-        .as_deref()
-        .and_then(Path::file_stem)
-        .map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned());
     let output = options
         .output
         .clone()
-        .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", options.quality.name())));
+        .unwrap_or_else(|| default_bake_path(options.scene.as_deref(), options.quality));
     let cache = open_cache(options.cache.as_deref(), options.no_cache)?;
 
     let bar = StageBar::new();

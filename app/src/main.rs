@@ -493,11 +493,6 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Bake { command: None, args } if args.slurm.is_some() => {
             let quality = quality_of(args.quality);
-            let stem = args
-                .scene
-                .as_deref()
-                .and_then(std::path::Path::file_stem)
-                .map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned());
             shard::bake_slurm(&shard::SlurmOptions {
                 scene: args.scene.as_deref(),
                 quality,
@@ -506,7 +501,7 @@ fn run(cli: Cli) -> Result<()> {
                 partition: args.partition.as_deref(),
                 output: args
                     .output
-                    .unwrap_or_else(|| PathBuf::from(format!("{stem}.{}.twillbake", quality.name()))),
+                    .unwrap_or_else(|| commands::default_bake_path(args.scene.as_deref(), quality)),
                 no_wait: args.no_wait,
             })
         }

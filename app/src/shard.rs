@@ -18,7 +18,7 @@ use twill_precompute::bake::settings::Quality;
 use twill_precompute::bake::shard::{Shard, bake_part, merge_parts, read_part, write_part};
 use twill_precompute::scene::SceneFile;
 
-use crate::commands::{StageBar, apply_overrides};
+use crate::commands::{StageBar, apply_overrides, scene_stem};
 
 /// What a part records to rebuild its inputs.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -51,10 +51,8 @@ pub fn bake_shard(
     let built = file.build()?;
     let settings = apply_overrides(quality.settings(), overrides)?;
     let inputs = built.bake_inputs(settings);
-    let stem = scene
-        .and_then(Path::file_stem)
-        .map_or_else(|| "default".to_owned(), |s| s.to_string_lossy().into_owned());
     let output = output.unwrap_or_else(|| {
+        let stem = scene_stem(scene);
         PathBuf::from(format!("{stem}.{}.part{}of{}.twillpart", quality.name(), shard.index, shard.count))
     });
     let started = Instant::now();
