@@ -14,14 +14,14 @@
 //! one stream. The binding (the `embree` crate) keeps Embree's C API behind
 //! a safe interface; this module has no `unsafe` of its own.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use cgmath::{Matrix4, Vector3, Vector4};
 use embree::{Device, Geometry, Instance, IntersectContext, LinearCurve, Ray, Ray4, RayHit, RayHit4, Scene};
 use glam::Vec3;
 
 use super::FiberScene;
-use super::throughput::Query;
+use super::throughput::{Query, best_rate};
 
 /// The fabric as Embree sees it: the exemplar's capsules as (a, b, radius), and the offsets of
 /// its copies that can reach the swatch rectangle (one zero offset for `Tiling::AsIs` or an
@@ -94,16 +94,7 @@ pub fn rays_per_second(
     min_time: Duration,
 ) -> f64 {
     with_scene(copies, layout, |scene| {
-        let pass = || trace_all(scene, batch, rays, query).iter().flatten().count();
-        let _ = std::hint::black_box(pass());
-        let started = Instant::now();
-        let mut best = 0.0_f64;
-        while started.elapsed() < min_time || best == 0.0 {
-            let timer = Instant::now();
-            let _ = std::hint::black_box(pass());
-            best = best.max(rays.len() as f64 / timer.elapsed().as_secs_f64().max(1e-9));
-        }
-        best
+        best_rate(rays.len(), min_time, || trace_all(scene, batch, rays, query).iter().flatten().count())
     })
 }
 

@@ -81,13 +81,19 @@ pub fn cast(scene: &FiberScene, rays: &[(Vec3, Vec3)], query: Query) -> usize {
 /// a pass down).
 #[must_use]
 pub fn rays_per_second(scene: &FiberScene, rays: &[(Vec3, Vec3)], query: Query, min_time: Duration) -> f64 {
-    let _ = std::hint::black_box(cast(scene, rays, query));
+    best_rate(rays.len(), min_time, || cast(scene, rays, query))
+}
+
+/// Items per second of the fastest of repeated `pass`es over `items` items: one untimed pass,
+/// then passes until `min_time` has gone by (at least one).
+pub fn best_rate(items: usize, min_time: Duration, mut pass: impl FnMut() -> usize) -> f64 {
+    let _ = std::hint::black_box(pass());
     let started = Instant::now();
     let mut best = 0.0_f64;
     while started.elapsed() < min_time || best == 0.0 {
-        let pass = Instant::now();
-        let _ = std::hint::black_box(cast(scene, rays, query));
-        best = best.max(rays.len() as f64 / pass.elapsed().as_secs_f64().max(1e-9));
+        let timer = Instant::now();
+        let _ = std::hint::black_box(pass());
+        best = best.max(items as f64 / timer.elapsed().as_secs_f64().max(1e-9));
     }
     best
 }
