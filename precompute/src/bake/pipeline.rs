@@ -863,7 +863,7 @@ fn whole_key(runs: &[StageRun]) -> ContentHash {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::Rgb;
     use crate::bcsdf::FiberParams;
@@ -871,7 +871,7 @@ mod tests {
     use crate::fabric::weave::WeavePreset;
 
     /// A plain weave with very few fibers, and settings small enough for a test.
-    fn tiny(weave: WeavePreset) -> (Exemplar, Vec<MaterialDesc>) {
+    pub(crate) fn tiny(weave: WeavePreset) -> (Exemplar, Vec<MaterialDesc>) {
         tiny_with_blocks(weave, [1, 1])
     }
 

@@ -421,16 +421,10 @@ mod tests {
     use crate::bake::settings::BakeSettings;
     use crate::bcsdf::MaterialDesc;
     use crate::fabric::Exemplar;
-    use crate::fabric::presets::{FabricSpec, fabric_preset};
+    use crate::fabric::weave::WeavePreset;
 
-    /// A plain weave with very few fibers.
     fn tiny() -> (Exemplar, Vec<MaterialDesc>) {
-        let preset = fabric_preset("cotton_plain").unwrap();
-        let FabricSpec::Woven(mut spec) = preset.fabric else { panic!("cotton_plain is woven") };
-        spec.warp.fibers_per_ply = 3;
-        spec.weft.fibers_per_ply = 3;
-        let exemplar = FabricSpec::Woven(spec).build(Path::new(".")).unwrap();
-        (exemplar, vec![preset.warp_material, preset.weft_material])
+        crate::bake::pipeline::tests::tiny(WeavePreset::Plain)
     }
 
     fn settings() -> BakeSettings {
