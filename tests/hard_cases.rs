@@ -731,9 +731,8 @@ fn hard_zero_albedo_fibers() {
             .iirtf
             .cells
             .iter()
-            .flat_map(|c| c.matrix.iter())
-            .map(|m| m.abs().max_element())
-            .fold(0.0, f64::max)
+            .flat_map(|c| c.matrix.iter().flatten())
+            .fold(0.0, |m: f64, v| m.max(f64::from(v.abs())))
     };
     let (sz, sw) = (size(baked(Materials::Zero)), size(baked(Materials::White)));
     let n = 100_000;

@@ -294,14 +294,19 @@ impl FabricArrays {
             out.pca_coefficients.extend_from_slice(ssdf.all_coefficients());
             out.sos_weights.extend_from_slice(baked.visibility.sum_of_sg.all_weights());
             for cell in &baked.transfer.iirtf.cells {
-                let largest = cell.matrix.iter().map(|c| c.abs().max_element()).fold(0.0, f64::max);
+                if cell.is_empty() {
+                    // Every cell has its slot: an empty one transfers nothing.
+                    iirtf_values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
+                    continue;
+                }
+                let largest = cell.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs()));
                 for channel in 0..3 {
                     for entry in &cell.matrix {
                         let value = entry[channel];
-                        iirtf_values.push(value as f32);
+                        iirtf_values.push(value);
                         if largest > 0.0 && value.abs() >= 1e-3 * largest {
-                            let rounded = f64::from(f16_round_trip(value as f32));
-                            let rel = (rounded - value).abs() / value.abs();
+                            let rounded = f16_round_trip(value);
+                            let rel = f64::from((rounded - value).abs() / value.abs());
                             out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
                         }
                     }

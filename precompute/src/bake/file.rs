@@ -421,31 +421,105 @@ pub enum BakeFileError {
     InvalidSection { name: String, what: String },
 }
 
-/// Collects sections and writes them as one bake file.
-#[derive(Debug, Clone)]
-pub struct BakeWriter {
+/// Collects sections and writes them as one bake file. A section is either an [`Array`] held
+/// in memory or a byte section [`BakeWriter::streamed_section`] writes on demand (a serialized
+/// stage), so a bake is written without an encoded copy of itself in memory.
+pub struct BakeWriter<'a> {
     key: ContentHash,
-    sections: Vec<Section>,
+    sections: Vec<PendingSection<'a>>,
+}
+
+/// Writes a streamed section's bytes to the sink it is given.
+type WriteBytes<'a> = Box<dyn Fn(&mut dyn Write) -> io::Result<()> + 'a>;
+
+/// A section's data as the writer holds it.
+enum Payload<'a> {
+    Array(Array),
+    /// `len` bytes (element type u8), produced by `write` each time the body is written.
+    Streamed {
+        len: u64,
+        write: WriteBytes<'a>,
+    },
+}
+
+struct PendingSection<'a> {
+    name: String,
+    key: ContentHash,
+    payload: Payload<'a>,
+}
+
+impl PendingSection<'_> {
+    fn shape(&self) -> Vec<u64> {
+        match &self.payload {
+            Payload::Array(a) => a.shape.clone(),
+            Payload::Streamed { len, .. } => vec![*len],
+        }
+    }
+
+    fn element_type(&self) -> ElementType {
+        match &self.payload {
+            Payload::Array(a) => a.data.element_type(),
+            Payload::Streamed { .. } => ElementType::U8,
+        }
+    }
+
+    fn byte_len(&self) -> u64 {
+        match &self.payload {
+            Payload::Array(a) => a.byte_len(),
+            Payload::Streamed { len, .. } => *len,
+        }
+    }
+
+    /// The data's bytes; a streamed section that writes another length than it announced is
+    /// an error (the directory already holds the length).
+    fn write_data(&self, w: &mut dyn Write) -> io::Result<()> {
+        match &self.payload {
+            Payload::Array(a) => a.data.write_le(&mut { w }),
+            Payload::Streamed { len, write } => {
+                let mut counted = CountingWriter { inner: w, count: 0 };
+                write(&mut counted)?;
+                if counted.count == *len {
+                    Ok(())
+                } else {
+                    Err(io::Error::other(format!(
+                        "section {:?} wrote {} bytes, announced {len}",
+                        self.name, counted.count
+                    )))
+                }
+            }
+        }
+    }
+}
+
+impl fmt::Debug for BakeWriter<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let names: Vec<&str> = self.sections.iter().map(|s| s.name.as_str()).collect();
+        f.debug_struct("BakeWriter").field("key", &self.key).field("sections", &names).finish()
+    }
+}
+
+/// A writer that counts what passes through it.
+struct CountingWriter<'w> {
+    inner: &'w mut dyn Write,
+    count: u64,
+}
+
+impl Write for CountingWriter<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.count += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 fn pad8(n: u64) -> u64 {
     n.div_ceil(8) * 8
 }
 
-/// Writes that only count bytes.
-struct CountingSink(u64);
-
-impl Write for CountingSink {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.0 += buf.len() as u64;
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        Ok(())
-    }
-}
-
-impl BakeWriter {
+impl<'a> BakeWriter<'a> {
     /// A file whose cache key is `key`.
     #[must_use]
     pub fn new(key: ContentHash) -> Self {
@@ -455,7 +529,26 @@ impl BakeWriter {
     /// Adds a section produced by the stage whose cache key is `key`.
     #[must_use]
     pub fn section(mut self, name: &str, key: ContentHash, array: Array) -> Self {
-        self.sections.push(Section { name: name.to_owned(), key, array });
+        self.sections.push(PendingSection { name: name.to_owned(), key, payload: Payload::Array(array) });
+        self
+    }
+
+    /// Adds a byte section of `len` bytes that `write` produces when the file is written (it is
+    /// called twice: for the checksum, then for the file). It must write exactly `len` bytes,
+    /// the same each time; a different count fails the write.
+    #[must_use]
+    pub fn streamed_section(
+        mut self,
+        name: &str,
+        key: ContentHash,
+        len: u64,
+        write: impl Fn(&mut dyn Write) -> io::Result<()> + 'a,
+    ) -> Self {
+        self.sections.push(PendingSection {
+            name: name.to_owned(),
+            key,
+            payload: Payload::Streamed { len, write: Box::new(write) },
+        });
         self
     }
 
@@ -486,30 +579,37 @@ impl BakeWriter {
     }
 
     fn directory_len(&self) -> u64 {
-        self.sections.iter().map(|s| (3 + s.name.len() + 32 + 8 * s.array.shape.len() + 16) as u64).sum()
+        self.sections.iter().map(|s| (3 + s.name.len() + 32 + 8 * s.shape().len() + 16) as u64).sum()
+    }
+
+    /// The length of what [`Self::write_body`] writes.
+    fn body_len(&self) -> u64 {
+        let data: u64 = self.sections.iter().map(|s| pad8(s.byte_len())).sum();
+        pad8(HEADER_LEN as u64 + self.directory_len()) + data - HEADER_LEN as u64
     }
 
     /// Everything after the header: directory, then data, each data block padded to 8 bytes.
     fn write_body(&self, w: &mut impl Write) -> io::Result<u64> {
         let mut offset = pad8(HEADER_LEN as u64 + self.directory_len());
         for s in &self.sections {
+            let shape = s.shape();
             w.write_all(&[s.name.len() as u8])?;
             w.write_all(s.name.as_bytes())?;
-            w.write_all(&[s.array.data.element_type() as u8, s.array.shape.len() as u8])?;
+            w.write_all(&[s.element_type() as u8, shape.len() as u8])?;
             w.write_all(&s.key.0)?;
-            for d in &s.array.shape {
+            for d in &shape {
                 w.write_all(&d.to_le_bytes())?;
             }
             w.write_all(&offset.to_le_bytes())?;
-            w.write_all(&s.array.byte_len().to_le_bytes())?;
-            offset = pad8(offset + s.array.byte_len());
+            w.write_all(&s.byte_len().to_le_bytes())?;
+            offset = pad8(offset + s.byte_len());
         }
         let zeros = [0u8; 8];
         let dir_end = HEADER_LEN as u64 + self.directory_len();
         w.write_all(&zeros[..(pad8(dir_end) - dir_end) as usize])?;
         for s in &self.sections {
-            s.array.data.write_le(w)?;
-            let n = s.array.byte_len();
+            s.write_data(w)?;
+            let n = s.byte_len();
             w.write_all(&zeros[..(pad8(n) - n) as usize])?;
         }
         Ok(offset - HEADER_LEN as u64)
@@ -525,13 +625,12 @@ impl BakeWriter {
         h
     }
 
-    /// Serializes the whole file to `w` (two passes over the data: checksum, then bytes).
+    /// Serializes the whole file to `w` (two passes over the data: checksum, then bytes; the
+    /// body's length follows from the directory).
     pub fn write_to(&self, w: &mut impl Write) -> Result<(), BakeFileError> {
         self.validate()?;
         let io_err = |source| BakeFileError::Io { file: PathBuf::from("<stream>"), source };
-        let mut counter = CountingSink(0);
-        self.write_body(&mut counter).map_err(io_err)?;
-        let prefix = self.header_prefix(counter.0);
+        let prefix = self.header_prefix(self.body_len());
         let mut hasher = blake3::Hasher::new();
         hasher.update(&prefix);
         self.write_body(&mut hasher).map_err(io_err)?;
@@ -944,7 +1043,7 @@ mod tests {
         Hasher::new("test").str(s).finish()
     }
 
-    fn sample_writer() -> BakeWriter {
+    fn sample_writer() -> BakeWriter<'static> {
         BakeWriter::new(key("file"))
             .section(
                 "a.f32",
@@ -970,13 +1069,39 @@ mod tests {
     }
 
     #[test]
+    fn a_streamed_section_is_written_as_the_same_bytes_held_in_memory() {
+        let bytes: Vec<u8> = (0..1001_u32).map(|i| (i * 7 % 251) as u8).collect();
+        let held = sample_writer().section("s", key("s"), Array::vector(ArrayData::U8(bytes.clone())));
+        let streamed = sample_writer().streamed_section("s", key("s"), bytes.len() as u64, |w| {
+            // In uneven pieces, as a serializer writes.
+            bytes.chunks(13).try_for_each(|c| w.write_all(c))
+        });
+        assert_eq!(bytes_of(&held), bytes_of(&streamed));
+        // A section that writes other than it announced fails the write and leaves nothing.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("short.twillbake");
+        let short = sample_writer().streamed_section("s", key("s"), 10, |w| w.write_all(&[1; 9]));
+        let error = short.write(&path).unwrap_err();
+        assert!(error.to_string().contains("wrote 9 bytes, announced 10"), "{error}");
+        assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0, "no file or temporary left behind");
+    }
+
+    #[test]
     fn every_element_type_round_trips() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.twillbake");
         let w = sample_writer();
         w.write(&path).unwrap();
         let f = BakeFile::open(&path, key("file")).unwrap();
-        assert_eq!(f.sections(), &w.sections[..]);
+        let written: Vec<Section> = w
+            .sections
+            .iter()
+            .map(|s| match &s.payload {
+                Payload::Array(array) => Section { name: s.name.clone(), key: s.key, array: array.clone() },
+                Payload::Streamed { .. } => unreachable!("the sample has arrays only"),
+            })
+            .collect();
+        assert_eq!(f.sections(), &written[..]);
         assert_eq!(f.section("c.u16").unwrap().array.shape(), &[1, 1, 3]);
         assert_eq!(f.section("b.u32").unwrap().array.as_u32().unwrap(), &[0, 1, u32::MAX]);
         assert_eq!(

@@ -19,7 +19,9 @@
 //! With a [`Cache`], every stage first looks for its key; a missing, corrupt, truncated or
 //! stale entry is recomputed (the cache deletes bad files and says why). A stage's result is
 //! stored only once complete, through an atomic write, so a cancelled or failed bake leaves no
-//! partial file. Stage results are serialized with serde (postcard) into one section each.
+//! partial file. Stage results are serialized with serde (postcard) into one section each,
+//! streamed into the file as it is written ([`BakeWriter::streamed_section`]): a bake never
+//! holds an encoded copy of itself.
 
 use std::path::Path;
 use std::time::Instant;
@@ -30,7 +32,7 @@ use serde::de::DeserializeOwned;
 use super::cells::{CellError, CellGrid};
 use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
-use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, StoredIirtf, bake_iirtf};
+use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress};
 use super::settings::BakeSettings;
@@ -441,9 +443,6 @@ fn bake_stages(
                     &|f| progress(Stage::Transfer, f),
                 )?,
             };
-            // Round to the stored precision now, so a fresh bake equals one loaded from a file.
-            let iirtf = Iirtf::try_from(StoredIirtf::from(iirtf))
-                .map_err(|message| BakeError::Serialize { stage: Stage::Transfer.name(), message })?;
             Ok(TransferData { cells, iirtf })
         })?
     };
@@ -633,19 +632,18 @@ pub fn write_bake(path: &Path, set: &BakeSet) -> Result<(), BakeError> {
         BakeWriter::new(set.key()).section("pattern", set.key(), Array::vector(ArrayData::U8(pattern)));
     for (i, outcome) in set.exemplars.iter().enumerate() {
         let b = &outcome.baked;
-        let sections: [(Stage, Vec<u8>); 7] = [
-            (Stage::MeanFreePath, encode(Stage::MeanFreePath, &b.mean_free_path)?),
-            (Stage::Visibility, encode(Stage::Visibility, &b.visibility)?),
-            (Stage::Transfer, encode(Stage::Transfer, &b.transfer)?),
-            (Stage::CsTables, encode(Stage::CsTables, &b.cs_tables)?),
-            (Stage::GnTables, encode(Stage::GnTables, &b.gn)?),
-            (Stage::CgTable, encode(Stage::CgTable, &b.cg)?),
-            (Stage::Volume, encode(Stage::Volume, &b.volume)?),
+        let sections: [(Stage, &dyn erased::Encode); 7] = [
+            (Stage::MeanFreePath, &b.mean_free_path),
+            (Stage::Visibility, &b.visibility),
+            (Stage::Transfer, &b.transfer),
+            (Stage::CsTables, &b.cs_tables),
+            (Stage::GnTables, &b.gn),
+            (Stage::CgTable, &b.cg),
+            (Stage::Volume, &b.volume),
         ];
-        for (stage, bytes) in sections {
+        for (stage, value) in sections {
             let key = outcome.stages.iter().find(|r| r.stage == stage).map_or(outcome.key, |r| r.key);
-            writer =
-                writer.section(&format!("e{i}.{}", stage.name()), key, Array::vector(ArrayData::U8(bytes)));
+            writer = streamed(writer, &format!("e{i}.{}", stage.name()), stage, key, value)?;
         }
         writer = writer.section(
             &format!("e{i}.inputs"),
@@ -722,6 +720,82 @@ fn decode_inputs(file: &BakeFile, name: &str) -> Result<InputsRecord, BakeError>
     toml::from_str(text).map_err(|e| corrupt_section(file, name, format!("does not parse: {e}")))
 }
 
+/// Adds `value` to `writer` as a streamed section `name` (encoded once here for its length,
+/// then again as the file is written).
+fn streamed<'a>(
+    writer: BakeWriter<'a>,
+    name: &str,
+    stage: Stage,
+    key: ContentHash,
+    value: &'a dyn erased::Encode,
+) -> Result<BakeWriter<'a>, BakeError> {
+    let len = value
+        .encode_into(&mut std::io::sink())
+        .map_err(|e| BakeError::Serialize { stage: stage.name(), message: e.to_string() })?;
+    Ok(writer.streamed_section(name, key, len, move |w| value.encode_into(w).map(|_| ())))
+}
+
+/// Postcard encoding straight into a writer, for the streamed sections of [`write_bake`].
+mod erased {
+    use std::io::{self, BufWriter, Write};
+
+    use postcard::ser_flavors::Flavor;
+    use serde::Serialize;
+
+    /// A value that can be encoded (postcard) into any writer; object safe, so one list can
+    /// hold every stage's result.
+    pub trait Encode {
+        /// Encodes into `w`, returning the byte count.
+        fn encode_into(&self, w: &mut dyn Write) -> io::Result<u64>;
+    }
+
+    impl<T: Serialize> Encode for T {
+        fn encode_into(&self, w: &mut dyn Write) -> io::Result<u64> {
+            let mut flavor =
+                WriterFlavor { out: BufWriter::with_capacity(1 << 16, w), count: 0, error: None };
+            match postcard::serialize_with_flavor::<T, _, _>(self, &mut flavor) {
+                Ok(()) => {
+                    flavor.out.flush()?;
+                    Ok(flavor.count)
+                }
+                Err(e) => Err(flavor.error.take().unwrap_or_else(|| io::Error::other(e.to_string()))),
+            }
+        }
+    }
+
+    /// A postcard output that writes through, counting bytes and keeping the first I/O error.
+    struct WriterFlavor<'w> {
+        out: BufWriter<&'w mut dyn Write>,
+        count: u64,
+        error: Option<io::Error>,
+    }
+
+    impl Flavor for &mut WriterFlavor<'_> {
+        type Output = ();
+
+        fn try_extend(&mut self, data: &[u8]) -> postcard::Result<()> {
+            match self.out.write_all(data) {
+                Ok(()) => {
+                    self.count += data.len() as u64;
+                    Ok(())
+                }
+                Err(e) => {
+                    self.error = Some(e);
+                    Err(postcard::Error::SerializeBufferFull)
+                }
+            }
+        }
+
+        fn try_push(&mut self, data: u8) -> postcard::Result<()> {
+            self.try_extend(&[data])
+        }
+
+        fn finalize(self) -> postcard::Result<()> {
+            Ok(())
+        }
+    }
+}
+
 fn encode<T: Serialize>(stage: Stage, value: &T) -> Result<Vec<u8>, BakeError> {
     postcard::to_allocvec(value)
         .map_err(|e| BakeError::Serialize { stage: stage.name(), message: e.to_string() })
@@ -770,12 +844,7 @@ impl StageRunner<'_, '_> {
         }
         let value = compute()?;
         if let Some(cache) = self.cache {
-            let bytes = encode(stage, &value)?;
-            cache.store(&BakeWriter::new(key).section(
-                stage.name(),
-                key,
-                Array::vector(ArrayData::U8(bytes)),
-            ))?;
+            cache.store(&streamed(BakeWriter::new(key), stage.name(), stage, key, &value)?)?;
         }
         self.record(stage, key, StageSource::Computed, started);
         Ok(value)

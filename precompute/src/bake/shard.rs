@@ -33,7 +33,6 @@ use super::pipeline::{
     BakeError, BakeInputs, BakeProgress, BakeSet, Precomputed, Stage, bake_precomputed, yarn_materials,
 };
 use super::svf::{VisibilityImages, render_segments};
-use crate::Rgb;
 use crate::raycast::{Extent, FiberScene, mean_free_path};
 
 /// Most shards of one bake.
@@ -188,7 +187,7 @@ pub fn bake_part(
         let weights: Vec<u64> =
             (0..grid.cell_count() as u32).map(|c| u64::from(!grid.segments_in_cell(c).is_empty())).collect();
         let cells = shard.slice_weighted(&weights);
-        let mut transfer = bake_iirtf_cells(
+        let transfer = bake_iirtf_cells(
             input.exemplar,
             &yarns,
             &grid,
@@ -198,13 +197,6 @@ pub fn bake_part(
             cancel,
             &|f| progress(Stage::Transfer, f),
         )?;
-        // Rounded as the bake stores them (f32 entries): what the part file holds, and what the
-        // merged bake's transfer stage would round them to anyway (rounding again changes nothing).
-        for cell in &mut transfer {
-            for v in cell.matrix.iter_mut().chain(cell.std_error.iter_mut()) {
-                *v = v.as_vec3().as_dvec3();
-            }
-        }
         exemplars.push(ExemplarPart { segments, images, cells, transfer });
     }
     Ok(BakePart { shard, key, exemplars })
@@ -295,13 +287,12 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
     );
     for (e, x) in part.exemplars.iter().enumerate() {
         let range = |r: &Range<usize>| u32s(vec![r.start as u32, r.end as u32]);
-        let rgb = |v: &mut Vec<f32>, c: &[Rgb]| v.extend(c.iter().flat_map(|p| p.as_vec3().to_array()));
         let (mut matrix, mut error) = (Vec::new(), Vec::new());
         for cell in x.transfer.iter().filter(|c| c.paths > 0) {
-            rgb(&mut matrix, &cell.matrix);
-            rgb(&mut error, &cell.std_error);
+            matrix.extend(cell.matrix.iter().flatten());
+            error.extend(cell.std_error.iter().flatten());
         }
-        let entries = x.transfer.first().map_or(0, |c| c.matrix.len()) as u32;
+        let entries = x.transfer.iter().find(|c| !c.is_empty()).map_or(0, |c| c.matrix.len()) as u32;
         let words: Vec<u8> = x.images.words().iter().flat_map(|w| w.to_le_bytes()).collect();
         let resolution = x.images.resolution as u32;
         writer = writer
@@ -387,18 +378,13 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
                 error.len()
             )));
         }
-        let rgb =
-            |v: &[f32]| v.chunks_exact(3).map(|c| glam::Vec3::new(c[0], c[1], c[2]).as_dvec3()).collect();
+        let rgb = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let mut at = 0;
         let transfer = paths
             .iter()
             .map(|&p| {
                 if p == 0 {
-                    return CellTransfer {
-                        matrix: vec![Rgb::ZERO; entries],
-                        std_error: vec![Rgb::ZERO; entries],
-                        paths: 0,
-                    };
+                    return CellTransfer::empty();
                 }
                 let range = 3 * entries * at..3 * entries * (at + 1);
                 at += 1;

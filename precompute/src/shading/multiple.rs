@@ -98,9 +98,12 @@ pub fn multiple_scattering_in_cell(
 /// If the transfer matrix does not match `c_light`'s length.
 pub fn add_transferred(transfer: &CellTransfer, c_light: &[Rgb], weight: f64, sum: &mut [Rgb]) {
     let n = c_light.len();
+    if transfer.is_empty() {
+        return;
+    }
     assert_eq!(transfer.matrix.len(), n * n, "multiple_scattering: transfer matrix order mismatch");
     for (out, row) in sum.iter_mut().zip(transfer.matrix.chunks_exact(n)) {
-        let value: Rgb = row.iter().zip(c_light).map(|(a, c)| *a * *c).sum();
+        let value: Rgb = row.iter().zip(c_light).map(|(a, c)| glam::Vec3::from(*a).as_dvec3() * *c).sum();
         *out += value * weight;
     }
 }
