@@ -6,9 +6,14 @@
 //! segment's `K` coefficients (f32), so that
 //! `d_k(p) ≈ mean[p] + Σ_c coefficient[k][c] component[c][p]`.
 //!
-//! How it works: the data (`segments x dims`, f32) is never held centred in f64 as a whole;
-//! every pass streams blocks of [`BLOCK_ROWS`] segments, centres them in f64 and multiplies with
-//! faer (parallel GEMM), checking the [`Cancel`] token between blocks. Two methods:
+//! How it works: the data (`segments x dims`) is never held whole: it comes from a
+//! [`PcaRows`] source one block of segments at a time ([`block_rows`] of them, about a million
+//! values), either a slice held by the caller or the visibility images themselves, whose SSDFs
+//! are computed again for every pass ([`compress_images`]: a bake never holds all its SSDFs,
+//! 6.8 GB in f32 for the paper's 128² images on a 100k-segment fabric). Each pass centres a
+//! block in f64 and multiplies with faer, checking the [`Cancel`] token between blocks; passes
+//! that sum over segments add the blocks in order, so results do not depend on thread count.
+//! Two methods:
 //! - [`PcaMethod::CovarianceEigen`] (used when `dims <= 4096`, e.g. `n <= 64`): accumulate the
 //!   `dims x dims` scatter matrix `Σ (x − μ)(x − μ)ᵀ` and take its symmetric eigendecomposition
 //!   (faer `self_adjoint_eigen`); the components are the eigenvectors of the `K` largest
@@ -35,6 +40,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
 
+use super::ssdf::ssdf_into;
+use super::svf::VisibilityImages;
 use super::{Cancel, Cancelled};
 
 /// Every faer call runs sequentially with this: faer's own parallel kernels split reductions
@@ -44,8 +51,61 @@ use super::{Cancel, Cancelled};
 const PAR: Par = Par::Seq;
 /// Output columns per parallel task of the scatter-matrix and `Xᵀ L` products.
 const COLUMN_CHUNK: usize = 64;
-/// Segments per streamed block.
+/// Most segments per streamed block.
 pub const BLOCK_ROWS: usize = 1024;
+/// Values per streamed block the block size aims at (8 MiB in f64).
+const BLOCK_VALUES: usize = 1 << 20;
+
+/// Segments per streamed block for `dims` values per segment: [`BLOCK_ROWS`], fewer for big
+/// images so that a block stays near [`BLOCK_VALUES`] (a function of `dims` alone, so the
+/// blocking, and the result, is the same on every machine).
+#[must_use]
+pub fn block_rows(dims: usize) -> usize {
+    (BLOCK_VALUES / dims.max(1)).clamp(16, BLOCK_ROWS)
+}
+
+/// Where PCA reads its data: `segments` rows of `dims` values, produced on demand.
+pub trait PcaRows: Sync {
+    fn segments(&self) -> usize;
+    fn dims(&self) -> usize;
+    /// Rows `start..start + out.len() / dims` into `out`.
+    fn fill(&self, start: usize, out: &mut [f32]);
+}
+
+/// A row-major slice held by the caller.
+struct SliceRows<'a> {
+    values: &'a [f32],
+    dims: usize,
+}
+
+impl PcaRows for SliceRows<'_> {
+    fn segments(&self) -> usize {
+        self.values.len() / self.dims
+    }
+    fn dims(&self) -> usize {
+        self.dims
+    }
+    fn fill(&self, start: usize, out: &mut [f32]) {
+        out.copy_from_slice(&self.values[start * self.dims..start * self.dims + out.len()]);
+    }
+}
+
+/// The SSDFs of visibility images, computed when a block is read.
+struct SsdfRows<'a> {
+    images: &'a VisibilityImages,
+}
+
+impl PcaRows for SsdfRows<'_> {
+    fn segments(&self) -> usize {
+        self.images.segment_count()
+    }
+    fn dims(&self) -> usize {
+        self.images.pixel_count()
+    }
+    fn fill(&self, start: usize, out: &mut [f32]) {
+        ssdf_into(self.images, start, out);
+    }
+}
 /// Largest `dims` for which [`compress`] uses [`PcaMethod::CovarianceEigen`].
 pub const COVARIANCE_EIGEN_MAX_DIMS: usize = 4096;
 /// Extra test vectors of the randomized range finder.
@@ -169,12 +229,27 @@ pub fn compress(
     seed: u64,
     cancel: &Cancel,
 ) -> Result<PcaBasis, PcaError> {
-    let method = if dims <= COVARIANCE_EIGEN_MAX_DIMS {
+    compress_with(ssdfs, dims, k, method_for(dims), seed, cancel)
+}
+
+/// [`compress`] of the SSDFs of `images`, computed block by block as each pass reads them
+/// (never all held at once; the result equals [`compress`] of [`super::ssdf::ssdf_all`]).
+pub fn compress_images(
+    images: &VisibilityImages,
+    k: usize,
+    seed: u64,
+    cancel: &Cancel,
+) -> Result<PcaBasis, PcaError> {
+    let rows = SsdfRows { images };
+    compress_rows(&rows, k, method_for(rows.dims()), seed, cancel)
+}
+
+fn method_for(dims: usize) -> PcaMethod {
+    if dims <= COVARIANCE_EIGEN_MAX_DIMS {
         PcaMethod::CovarianceEigen
     } else {
         PcaMethod::RandomizedRangeFinder
-    };
-    compress_with(ssdfs, dims, k, method, seed, cancel)
+    }
 }
 
 /// [`compress`] with the method chosen by the caller.
@@ -192,16 +267,27 @@ pub fn compress_with(
     if !ssdfs.len().is_multiple_of(dims) {
         return Err(PcaError::LengthMismatch { len: ssdfs.len(), dims });
     }
+    compress_rows(&SliceRows { values: ssdfs, dims }, k, method, seed, cancel)
+}
+
+/// PCA of the rows of `rows`; see the module docs.
+fn compress_rows(
+    rows: &dyn PcaRows,
+    k: usize,
+    method: PcaMethod,
+    seed: u64,
+    cancel: &Cancel,
+) -> Result<PcaBasis, PcaError> {
+    let (segments, dims) = (rows.segments(), rows.dims());
+    if dims == 0 || segments == 0 {
+        return Err(PcaError::Empty);
+    }
     if k == 0 {
         return Err(PcaError::NoComponents);
     }
-    if let Some(index) = ssdfs.iter().position(|v| !v.is_finite()) {
-        return Err(PcaError::NonFinite { index });
-    }
-    let segments = ssdfs.len() / dims;
     let k = k.min(segments).min(dims);
-    let data = Data { values: ssdfs, dims, segments, mean: mean(ssdfs, dims, segments) };
-    cancel.check()?;
+    let mut data = Data { rows, dims, segments, block_rows: block_rows(dims), mean: Vec::new() };
+    data.mean = data.mean(cancel)?;
     let total_square = data.total_square(cancel)?;
     let (basis, kept_square) = match method {
         PcaMethod::CovarianceEigen => covariance_eigen(&data, k, cancel)?,
@@ -234,43 +320,61 @@ pub fn compress_with(
     })
 }
 
-fn mean(values: &[f32], dims: usize, segments: usize) -> Vec<f64> {
-    let mut sum = vec![0.0_f64; dims];
-    for row in values.chunks_exact(dims) {
-        for (s, &v) in sum.iter_mut().zip(row) {
-            *s += f64::from(v);
-        }
-    }
-    sum.iter().map(|s| s / segments as f64).collect()
-}
-
-/// The input and its mean; yields centred f64 blocks.
+/// The input and its mean; yields blocks of rows, centred in f64.
 struct Data<'a> {
-    values: &'a [f32],
+    rows: &'a dyn PcaRows,
     dims: usize,
     segments: usize,
+    block_rows: usize,
+    /// Empty until [`Data::mean`] has run.
     mean: Vec<f64>,
 }
 
 impl Data<'_> {
     fn blocks(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        (0..self.segments).step_by(BLOCK_ROWS).map(|s| (s, (s + BLOCK_ROWS).min(self.segments)))
+        (0..self.segments).step_by(self.block_rows).map(|s| (s, (s + self.block_rows).min(self.segments)))
     }
 
-    /// Segments `start..end`, pixels `c0..c1`, centred, as a `(end − start) x (c1 − c0)` matrix.
-    fn block(&self, start: usize, end: usize, c0: usize, c1: usize) -> Mat<f64> {
+    /// Segments `start..end` as the source gives them (f32, row-major).
+    fn raw(&self, start: usize, end: usize) -> Vec<f32> {
+        let mut out = vec![0.0_f32; (end - start) * self.dims];
+        self.rows.fill(start, &mut out);
+        out
+    }
+
+    /// Segments `start..end`, centred, as a `(end − start) x dims` matrix, with the raw values.
+    fn block(&self, start: usize, end: usize) -> (Mat<f64>, Vec<f32>) {
+        let raw = self.raw(start, end);
         let d = self.dims;
-        Mat::from_fn(end - start, c1 - c0, |i, j| {
-            f64::from(self.values[(start + i) * d + c0 + j]) - self.mean[c0 + j]
-        })
+        (Mat::from_fn(end - start, d, |i, j| f64::from(raw[i * d + j]) - self.mean[j]), raw)
+    }
+
+    /// The mean row, summed row by row in order; fails on the first value that is not finite.
+    fn mean(&self, cancel: &Cancel) -> Result<Vec<f64>, PcaError> {
+        let mut sum = vec![0.0_f64; self.dims];
+        for (start, end) in self.blocks() {
+            cancel.check()?;
+            let raw = self.raw(start, end);
+            if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+                return Err(PcaError::NonFinite { index: start * self.dims + i });
+            }
+            for row in raw.chunks_exact(self.dims) {
+                for (s, &v) in sum.iter_mut().zip(row) {
+                    *s += f64::from(v);
+                }
+            }
+        }
+        Ok(sum.iter().map(|s| s / self.segments as f64).collect())
     }
 
     fn total_square(&self, cancel: &Cancel) -> Result<f64, Cancelled> {
         let mut total = 0.0;
-        for row in self.values.chunks_exact(self.dims) {
-            total += row.iter().zip(&self.mean).map(|(&v, m)| (f64::from(v) - m).powi(2)).sum::<f64>();
+        for (start, end) in self.blocks() {
+            cancel.check()?;
+            for row in self.raw(start, end).chunks_exact(self.dims) {
+                total += row.iter().zip(&self.mean).map(|(&v, m)| (f64::from(v) - m).powi(2)).sum::<f64>();
+            }
         }
-        cancel.check()?;
         Ok(total)
     }
 
@@ -282,7 +386,7 @@ impl Data<'_> {
             .into_par_iter()
             .map(|(start, end)| {
                 cancel.check()?;
-                let block = self.block(start, end, 0, self.dims);
+                let (block, _) = self.block(start, end);
                 let mut out = Mat::zeros(end - start, right.ncols());
                 matmul(out.as_mut(), Accum::Replace, block.as_ref(), right, 1.0, PAR);
                 Ok(out)
@@ -295,34 +399,18 @@ impl Data<'_> {
         Ok(out)
     }
 
-    /// `Xᵀ L` for the centred data `X` and `L` (`segments x l`), in parallel over chunks of
-    /// output rows (pixels), each summed over the blocks in order.
+    /// `Xᵀ L` for the centred data `X` and `L` (`segments x l`): block by block in order,
+    /// each block's product split over chunks of output rows (pixels) in parallel.
     fn transpose_times(&self, left: MatRef<'_, f64>, cancel: &Cancel) -> Result<Mat<f64>, Cancelled> {
-        let chunks: Vec<Mat<f64>> = (0..self.dims)
-            .step_by(COLUMN_CHUNK)
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(|c0| {
-                let c1 = (c0 + COLUMN_CHUNK).min(self.dims);
-                let mut out = Mat::zeros(c1 - c0, left.ncols());
-                for (start, end) in self.blocks() {
-                    cancel.check()?;
-                    let block = self.block(start, end, c0, c1);
-                    matmul(
-                        out.as_mut(),
-                        Accum::Add,
-                        block.transpose(),
-                        left.subrows(start, end - start),
-                        1.0,
-                        PAR,
-                    );
-                }
-                Ok(out)
-            })
-            .collect::<Result<_, Cancelled>>()?;
         let mut out = Mat::zeros(self.dims, left.ncols());
-        for (i, chunk) in chunks.iter().enumerate() {
-            out.as_mut().subrows_mut(i * COLUMN_CHUNK, chunk.nrows()).copy_from(chunk.as_ref());
+        for (start, end) in self.blocks() {
+            cancel.check()?;
+            let (block, _) = self.block(start, end);
+            let left = left.subrows(start, end - start);
+            for_column_chunks(self.dims, out.as_mut(), |c0, mut rows| {
+                let part = block.as_ref().subcols(c0, rows.nrows());
+                matmul(rows.as_mut(), Accum::Add, part.transpose(), left, 1.0, PAR);
+            });
         }
         Ok(out)
     }
@@ -337,7 +425,7 @@ impl Data<'_> {
             .into_par_iter()
             .map(|(start, end)| {
                 cancel.check()?;
-                let block = self.block(start, end, 0, self.dims);
+                let (block, raw) = self.block(start, end);
                 let mut coeffs = Mat::zeros(end - start, k);
                 matmul(coeffs.as_mut(), Accum::Replace, block.as_ref(), basis, 1.0, PAR);
                 let mut recon = Mat::zeros(end - start, self.dims);
@@ -349,7 +437,7 @@ impl Data<'_> {
                         coefficients[i * k + c] = coeffs[(i, c)] as f32;
                     }
                     for p in 0..self.dims {
-                        let original = f64::from(self.values[(start + i) * self.dims + p]);
+                        let original = f64::from(raw[i * self.dims + p]);
                         let approx = recon[(i, p)] + self.mean[p];
                         square_error += (approx - original).powi(2);
                         agree += usize::from((approx > 0.0) == (original > 0.0));
@@ -369,29 +457,39 @@ impl Data<'_> {
     }
 }
 
+/// Runs `f(c0, rows)` on chunks of [`COLUMN_CHUNK`] rows `c0..` of `out` (`dims` rows) in
+/// parallel; each chunk is written by one task, so the result does not depend on threads.
+fn for_column_chunks(
+    dims: usize,
+    out: faer::MatMut<'_, f64>,
+    f: impl Fn(usize, faer::MatMut<'_, f64>) + Sync,
+) {
+    let mut chunks = Vec::new();
+    let mut rest = out;
+    let mut c0 = 0;
+    while c0 < dims {
+        let rows = COLUMN_CHUNK.min(dims - c0);
+        let (head, tail) = rest.split_at_row_mut(rows);
+        chunks.push((c0, head));
+        rest = tail;
+        c0 += rows;
+    }
+    chunks.into_par_iter().for_each(|(c0, rows)| f(c0, rows));
+}
+
 /// Leading `k` eigenvectors of the scatter matrix, and the sum of their eigenvalues.
 fn covariance_eigen(data: &Data, k: usize, cancel: &Cancel) -> Result<(Mat<f64>, f64), PcaError> {
     let d = data.dims;
-    // Scatter matrix, in parallel over chunks of its columns, each summed over blocks in order.
-    let chunks: Vec<Mat<f64>> = (0..d)
-        .step_by(COLUMN_CHUNK)
-        .collect::<Vec<_>>()
-        .into_par_iter()
-        .map(|c0| {
-            let c1 = (c0 + COLUMN_CHUNK).min(d);
-            let mut out = Mat::zeros(d, c1 - c0);
-            for (start, end) in data.blocks() {
-                cancel.check()?;
-                let block = data.block(start, end, 0, d);
-                let right = block.as_ref().subcols(c0, c1 - c0);
-                matmul(out.as_mut(), Accum::Add, block.transpose(), right, 1.0, PAR);
-            }
-            Ok(out)
-        })
-        .collect::<Result<_, Cancelled>>()?;
+    // The scatter matrix Σ BᵀB over blocks B in order, each block's product split over chunks
+    // of the (symmetric) matrix's rows in parallel.
     let mut scatter = Mat::<f64>::zeros(d, d);
-    for (i, chunk) in chunks.iter().enumerate() {
-        scatter.as_mut().subcols_mut(i * COLUMN_CHUNK, chunk.ncols()).copy_from(chunk.as_ref());
+    for (start, end) in data.blocks() {
+        cancel.check()?;
+        let (block, _) = data.block(start, end);
+        for_column_chunks(d, scatter.as_mut(), |c0, mut rows| {
+            let part = block.as_ref().subcols(c0, rows.nrows());
+            matmul(rows.as_mut(), Accum::Add, part.transpose(), block.as_ref(), 1.0, PAR);
+        });
     }
     cancel.check()?;
     let (values, vectors) = symmetric_eigen(scatter.as_ref())?;
@@ -653,7 +751,18 @@ mod default_fabric_tests {
 
     #[test]
     fn default_fabric_pca_keeps_the_sign_of_visibility() {
-        let (images, _, basis) = default_fabric_pca(20);
+        let (images, ssdfs, basis) = default_fabric_pca(20);
+        // Reading the SSDFs from the images block by block is the same PCA as holding them all,
+        // at one thread and at two.
+        let settings = Quality::Interactive.settings();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let streamed = pool
+                .install(|| compress_images(&images, settings.pca_components, settings.seed, &Cancel::new()))
+                .unwrap();
+            assert_eq!(streamed, basis, "{threads} threads");
+        }
+        assert_eq!(ssdfs.len(), images.segment_count() * images.pixel_count());
         // Measured (every 20th segment, 1037 segments): sign agreement 0.980, RMS error
         // 0.051 rad, explained variance 0.998; bounds set below that.
         assert!(basis.stats.sign_agreement >= 0.95, "{:?}", basis.stats);

@@ -34,9 +34,8 @@ use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
 use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf};
 use super::pattern::PatternMap;
-use super::pca::{PcaBasis, PcaError, compress};
+use super::pca::{PcaBasis, PcaError, compress_images};
 use super::settings::BakeSettings;
-use super::ssdf::ssdf_all;
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
 use super::svf::{SvfError, VisibilityImages, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
@@ -400,10 +399,8 @@ fn bake_stages(
             Some(p) => p.images.clone(),
             None => render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?,
         };
-        let ssdfs = ssdf_all(&images, cancel)?;
-        report(0.8);
-        let dims = s.svf_resolution * s.svf_resolution;
-        let ssdf = compress(&ssdfs, dims, s.pca_components, s.seed, cancel)?;
+        // The SSDFs are computed block by block as PCA reads them, never all held.
+        let ssdf = compress_images(&images, s.pca_components, s.seed, cancel)?;
         report(0.95);
         let sum_of_sg = fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, cancel)?;
         let n = images.segment_count().max(1);

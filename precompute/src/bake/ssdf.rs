@@ -51,6 +51,13 @@ impl SsdfTables {
         Self { n, cos_theta, sin_theta, cos_dphi }
     }
 
+    /// Segment `segment`'s SSDF, rounded to f32, into `out`.
+    fn ssdf_f32(&self, images: &VisibilityImages, segment: usize, out: &mut [f32]) {
+        for (o, v) in out.iter_mut().zip(self.ssdf(|p| images.get_pixel(segment, p))) {
+            *o = v as f32;
+        }
+    }
+
     /// SSDF in f64 of one image given as a pixel predicate.
     fn ssdf(&self, visible: impl Fn(usize) -> bool) -> Vec<f64> {
         let n = self.n;
@@ -160,13 +167,21 @@ pub fn ssdf_all(images: &VisibilityImages, cancel: &Cancel) -> Result<Vec<f32>, 
     let tables = SsdfTables::new(images.resolution);
     out.par_chunks_mut(pixels).enumerate().try_for_each(|(segment, chunk)| {
         cancel.check()?;
-        let d = tables.ssdf(|p| images.get_pixel(segment, p));
-        for (o, v) in chunk.iter_mut().zip(d) {
-            *o = v as f32;
-        }
+        tables.ssdf_f32(images, segment, chunk);
         Ok(())
     })?;
     Ok(out)
+}
+
+/// The SSDFs of segments `first..` into `out` (whole images, row-major as [`ssdf_all`]), in
+/// parallel: what PCA reads block by block instead of holding [`ssdf_all`].
+pub fn ssdf_into(images: &VisibilityImages, first: usize, out: &mut [f32]) {
+    let pixels = images.pixel_count();
+    if pixels == 0 {
+        return;
+    }
+    let tables = SsdfTables::new(images.resolution);
+    out.par_chunks_mut(pixels).enumerate().for_each(|(i, chunk)| tables.ssdf_f32(images, first + i, chunk));
 }
 
 #[cfg(test)]
