@@ -26,8 +26,9 @@
 //! fabric neither holds its matrices in f64 nor copies them to write them.
 //! Determinism: path `p` of cell `c` draws from `pixel_rng(seed ^ mix(c), p)` and each cell's
 //! sums are accumulated in path order by one worker, so results do not depend on threads.
-//! Parallelism: one worker per rayon thread, each owning its own [`PathScene`] (the light is
-//! swapped per path, which needs `&mut`), pulling whole cells from a shared counter.
+//! Parallelism: one worker per rayon thread, all sharing one [`TransferSampler`] (its fiber
+//! scene is read-only; a copy per worker would grow with the machine's core count), pulling
+//! whole cells from a shared counter.
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -41,8 +42,7 @@ use super::{Cancel, Cancelled, Progress};
 use crate::Rgb;
 use crate::bcsdf::Material;
 use crate::fabric::Exemplar;
-use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, pixel_rng, russian_roulette};
-use crate::pathtrace::light::Light;
+use crate::pathtrace::integrator::{pixel_rng, russian_roulette};
 use crate::raycast::{Extent, FiberScene, SceneError};
 use crate::sh::{sh_count, sh_eval};
 
@@ -202,10 +202,11 @@ pub struct TransferSample {
 
 /// Draws [`TransferSample`]s: a fabric tiled over the plane (no ground, no lights).
 pub struct TransferSampler {
-    scene: PathScene,
+    scene: FiberScene,
+    /// Material of each yarn (indexed by `Hit::yarn`).
+    yarn_materials: Vec<Material>,
     midpoints: Vec<DVec3>,
     fibers: Vec<u32>,
-    render: RenderSettings,
     light_domain: LightDomain,
 }
 
@@ -222,39 +223,24 @@ impl TransferSampler {
                 materials: yarn_materials.len(),
             });
         }
-        let fibers = FiberScene::new(exemplar, Extent::Unbounded)?;
-        let offset = fibers.tile_offset(fibers.central_tile());
+        let scene = FiberScene::new(exemplar, Extent::Unbounded)?;
+        let offset = scene.tile_offset(scene.central_tile());
         let segments = exemplar.segments();
         let midpoints = segments.iter().map(|s| s.midpoint().as_dvec3() + offset).collect();
         let fiber_ids = segments.iter().map(|s| s.fiber).collect();
-        let light = Light::Directional { to_light: DVec3::Z, irradiance: Rgb::ONE };
-        let scene = PathScene {
-            fibers,
+        Ok(Self {
+            scene,
             yarn_materials: yarn_materials.to_vec(),
-            lights: vec![light],
-            ground_z: None,
-        };
-        let render = RenderSettings { spp: 1, max_depth: MAX_DEPTH, component: Component::All, seed: 0 };
-        Ok(Self { scene, midpoints, fibers: fiber_ids, render, light_domain })
+            midpoints,
+            fibers: fiber_ids,
+            light_domain,
+        })
     }
 
     /// World position (central copy) of segment k's midpoint.
     #[must_use]
     pub fn midpoint(&self, k: u32) -> DVec3 {
         self.midpoints[k as usize]
-    }
-
-    /// The scene with its light set to a directional light of unit irradiance from `to_light`
-    /// (for checking [`Self::sample`] against the path tracer).
-    pub fn scene_lit_from(&mut self, to_light: DVec3) -> &PathScene {
-        self.scene.lights[0] = Light::Directional { to_light, irradiance: Rgb::ONE };
-        &self.scene
-    }
-
-    /// The path tracer's settings for such checks (one sample, [`MAX_DEPTH`], all orders).
-    #[must_use]
-    pub fn render_settings(&self) -> RenderSettings {
-        self.render
     }
 
     /// Whether light from `to_light` counts (the light domain).
@@ -276,13 +262,13 @@ impl TransferSampler {
     /// domain. The paper instead draws one uniform ω0 per path; the fiber lobes are narrow, so
     /// a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's image mean
     /// moved by ±8% between seeds).
-    pub fn sample(&mut self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
+    pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
         let mut rng = pixel_rng(stream, path);
         let k = cell_segments[rng.random_range(0..cell_segments.len())];
         let view = uniform_sphere(rng.random(), rng.random());
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let mut lights = Vec::new();
-        let fibers = &self.scene.fibers;
+        let fibers = &self.scene;
         let mut hit = fibers.closest_hit(
             self.midpoints[k as usize].as_vec3(),
             view.as_vec3(),
@@ -291,10 +277,10 @@ impl TransferSampler {
         );
         let mut dir = view;
         let mut throughput = Rgb::ONE;
-        for event in 1..=self.render.max_depth {
+        for event in 1..=MAX_DEPTH {
             let Some(h) = hit else { break };
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
-            let material = &self.scene.yarn_materials[h.yarn as usize];
+            let material = &self.yarn_materials[h.yarn as usize];
             let wo = -dir;
             if let Some((to_light, pdf)) =
                 material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
@@ -383,11 +369,9 @@ pub fn bake_iirtf_cells(
     let cells = cells.start.min(grid.cell_count())..cells.end.min(grid.cell_count());
     let nonempty = cells.clone().filter(|&c| !grid.segments_in_cell(c as u32).is_empty()).count();
     let workers = rayon::current_num_threads().clamp(1, nonempty.max(1));
-    let mut samplers = Vec::with_capacity(workers);
-    for _ in 0..workers {
-        cancel.check()?;
-        samplers.push(TransferSampler::new(exemplar, yarn_materials, options.light_domain)?);
-    }
+    cancel.check()?;
+    // One scene shared by every worker (a copy each would grow with the machine's cores).
+    let sampler = TransferSampler::new(exemplar, yarn_materials, options.light_domain)?;
     let paths = settings.iirtf_paths_per_cell;
     let total_paths = (nonempty * paths).max(1) as f64;
     let next_cell = AtomicUsize::new(cells.start);
@@ -397,8 +381,9 @@ pub fn bake_iirtf_cells(
     let order = settings.sh_order;
     let end = cells.end;
     rayon::scope(|scope| {
-        for sampler in &mut samplers {
-            let (next_cell, paths_done, stop, results) = (&next_cell, &paths_done, &stop, &results);
+        for _ in 0..workers {
+            let (sampler, next_cell, paths_done, stop, results) =
+                (&sampler, &next_cell, &paths_done, &stop, &results);
             let first = cells.start;
             scope.spawn(move |_| {
                 loop {
@@ -442,7 +427,7 @@ pub fn bake_iirtf_cells(
 /// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop
 /// (then `None`).
 fn bake_cell(
-    sampler: &mut TransferSampler,
+    sampler: &TransferSampler,
     segments: &[u32],
     order: usize,
     paths: usize,
@@ -508,7 +493,8 @@ mod tests {
     use crate::bake::no_progress;
     use crate::bake::settings::Quality;
     use crate::fabric::presets::fabric_preset;
-    use crate::pathtrace::integrator::radiance_from;
+    use crate::pathtrace::integrator::{Component, PathScene, RenderSettings, radiance_from};
+    use crate::pathtrace::light::Light;
     use crate::raycast::mean_free_path;
     use crate::sh::ShRotation;
     use std::path::Path;
@@ -599,7 +585,16 @@ mod tests {
         let in_cell = grid.segments_in_cell(cell);
         let light = DVec3::new(0.3, -0.4, 0.85).normalize();
         let wo = DVec3::new(-0.5, 0.2, 0.8).normalize();
-        let mut sampler = TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere).unwrap();
+        let sampler = TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere).unwrap();
+        // The path tracer's scene: the same tiled fabric lit by a directional light of unit
+        // irradiance, one sample of every scattering order.
+        let scene = PathScene {
+            fibers: FiberScene::new(&exemplar, Extent::Unbounded).unwrap(),
+            yarn_materials: materials.clone(),
+            lights: vec![Light::Directional { to_light: light, irradiance: Rgb::ONE }],
+            ground_z: None,
+        };
+        let render = RenderSettings { spp: 1, max_depth: MAX_DEPTH, component: Component::All, seed: 0 };
 
         // (a) Reference: E_k ∫ T(ω_d, ωi, μ_k) S(ωi, ωo) cos θi dωi, ωi from the BCSDF sampler.
         let reference_paths = 20_000;
@@ -616,9 +611,7 @@ mod tests {
             if let Some((wi, pdf)) = material.sample(t, n, wo, u) {
                 let weight = material.eval_cos(t, n, wi, wo) / pdf;
                 let origin = sampler.midpoint(k);
-                let render = sampler.render_settings();
-                let scene = sampler.scene_lit_from(light);
-                x = weight * radiance_from(scene, origin, wi, Some(seg.fiber), &render, &mut rng);
+                x = weight * radiance_from(&scene, origin, wi, Some(seg.fiber), &render, &mut rng);
             }
             sum += x;
             sum2 += x * x;
@@ -673,7 +666,7 @@ mod tests {
             ShPrediction { mean, std_error: ((s2 / count - mean * mean) / (count - 1.0)).powf(0.5) }
         };
         // The matrix route gives the same number as the per-path sums (to f32 rounding).
-        let transfer = bake_cell(&mut sampler, in_cell, 4, iirtf_paths, stream, &|_| true).unwrap();
+        let transfer = bake_cell(&sampler, in_cell, 4, iirtf_paths, stream, &|_| true).unwrap();
         let p4 = predict(4);
         {
             let n = sh_count(4);

@@ -312,14 +312,14 @@ pub struct Precomputed {
     pub cells: Vec<CellTransfer>,
 }
 
-/// [`bake`] with the visibility images and the IIRTF cells taken from `precomputed` instead of
-/// computed: the same pipeline on the same data, so the same bake (no stage cache is used).
+/// [`bake`] with the visibility images and the IIRTF cells taken (moved, not copied) from
+/// `precomputed` instead of computed: the same pipeline on the same data, so the same bake (no stage cache is used).
 ///
 /// # Errors
 /// As [`bake`], and when `precomputed` does not fit the inputs.
 pub fn bake_precomputed(
     inputs: &BakeInputs<'_>,
-    precomputed: &Precomputed,
+    precomputed: Precomputed,
     cancel: &Cancel,
     progress: BakeProgress<'_>,
 ) -> Result<BakeOutcome, BakeError> {
@@ -365,8 +365,9 @@ fn bake_stages(
     cancel: &Cancel,
     progress: BakeProgress<'_>,
     keep: Option<&Baked>,
-    precomputed: Option<&Precomputed>,
+    precomputed: Option<Precomputed>,
 ) -> Result<BakeOutcome, BakeError> {
+    let (precomputed_images, precomputed_cells) = precomputed.map(|p| (p.images, p.cells)).unzip();
     let s = &inputs.settings;
     s.validate()?;
     let (materials, yarn_materials) = yarn_materials(inputs)?;
@@ -395,8 +396,8 @@ fn bake_stages(
 
     let visibility = stage_runner.run(Stage::Visibility, keys.visibility, || {
         let report = |f: f64| progress(Stage::Visibility, f);
-        let images = match precomputed {
-            Some(p) => p.images.clone(),
+        let images = match precomputed_images {
+            Some(images) => images,
             None => render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?,
         };
         // The SSDFs are computed block by block as PCA reads them, never all held.
@@ -417,16 +418,16 @@ fn bake_stages(
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
-            let iirtf = match precomputed {
-                Some(p) if p.cells.len() == cells.cell_count() => Iirtf {
+            let iirtf = match precomputed_cells {
+                Some(precomputed) if precomputed.len() == cells.cell_count() => Iirtf {
                     sh_order: s.sh_order,
                     light_domain: IirtfOptions::default().light_domain,
-                    cells: p.cells.clone(),
+                    cells: precomputed,
                 },
-                Some(p) => {
+                Some(precomputed) => {
                     return Err(BakeError::Fabric(format!(
                         "{} precomputed IIRTF cells for a grid of {}",
-                        p.cells.len(),
+                        precomputed.len(),
                         cells.cell_count()
                     )));
                 }

@@ -244,29 +244,32 @@ pub fn merge_parts(
     for (e, input) in inputs.iter().enumerate() {
         let mut images = Vec::with_capacity(count);
         let mut cells = Vec::new();
-        for p in &parts {
+        for p in &mut parts {
+            let shard = p.shard;
             let part =
-                p.exemplars.get(e).ok_or_else(|| set(format!("shard {} has no exemplar {e}", p.shard)))?;
-            let expected = p.shard.slice(input.exemplar.segment_count());
+                p.exemplars.get_mut(e).ok_or_else(|| set(format!("shard {shard} has no exemplar {e}")))?;
+            let expected = shard.slice(input.exemplar.segment_count());
             if part.segments != expected || part.images.segment_count() != expected.len() {
                 return Err(set(format!(
-                    "shard {}, exemplar {e}: segments {:?}, expected {expected:?}",
-                    p.shard, part.segments
+                    "shard {shard}, exemplar {e}: segments {:?}, expected {expected:?}",
+                    part.segments
                 )));
             }
             if part.transfer.len() != part.cells.len() || (cells.len() != part.cells.start) {
                 return Err(set(format!(
-                    "shard {}, exemplar {e}: cells {:?} do not follow the previous shard's",
-                    p.shard, part.cells
+                    "shard {shard}, exemplar {e}: cells {:?} do not follow the previous shard's",
+                    part.cells
                 )));
             }
-            images.push(part.images.clone());
-            cells.extend(part.transfer.iter().cloned());
+            // Moved out of the part, not copied: a merge holds each cell once.
+            let resolution = part.images.resolution;
+            images.push(std::mem::replace(&mut part.images, VisibilityImages::new(resolution, 0)));
+            cells.append(&mut part.transfer);
         }
         let images = VisibilityImages::concat(&images)
             .ok_or_else(|| set(format!("exemplar {e}: the parts' visibility images differ in resolution")))?;
         let precomputed = Precomputed { images, cells };
-        exemplars.push(bake_precomputed(input, &precomputed, cancel, progress)?);
+        exemplars.push(bake_precomputed(input, precomputed, cancel, progress)?);
     }
     Ok(BakeSet { pattern, exemplars })
 }
