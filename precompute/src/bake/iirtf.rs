@@ -262,6 +262,7 @@ impl TransferSampler {
     /// domain. The paper instead draws one uniform ω0 per path; the fiber lobes are narrow, so
     /// a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's image mean
     /// moved by ±8% between seeds).
+    #[must_use]
     pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
         let mut rng = pixel_rng(stream, path);
         let k = cell_segments[rng.random_range(0..cell_segments.len())];
@@ -558,6 +559,30 @@ mod tests {
             &no_progress,
         );
         assert!(matches!(r, Err(IirtfError::Cancelled(_))));
+    }
+
+    #[test]
+    fn stored_cells_are_held_as_read_and_checked_for_size() {
+        let full = |paths| CellTransfer {
+            paths,
+            matrix: vec![[0.5, 0.25, -1.0]; 16],
+            std_error: vec![[0.1; 3]; 16],
+        };
+        let iirtf = Iirtf {
+            sh_order: 1,
+            light_domain: LightDomain::UpperHemisphere,
+            cells: vec![CellTransfer::empty(), full(7)],
+        };
+        let bytes = postcard::to_allocvec(&iirtf).unwrap();
+        assert_eq!(postcard::from_bytes::<Iirtf>(&bytes).unwrap(), iirtf);
+        assert_eq!(iirtf.cells[0].apply(&[1.0; 4]), vec![Rgb::ZERO; 4], "an empty cell transfers nothing");
+        // (SH order 1: 4 x 4 entries.) A cell with paths but the wrong number of entries, and
+        // an empty cell with entries.
+        for cells in [vec![CellTransfer { matrix: vec![[0.0; 3]; 15], ..full(7) }], vec![full(0)]] {
+            let bad = Iirtf { cells, ..iirtf.clone() };
+            let error = postcard::from_bytes::<Iirtf>(&postcard::to_allocvec(&bad).unwrap()).unwrap_err();
+            assert!(matches!(error, postcard::Error::SerdeDeCustom), "{error:?}");
+        }
     }
 
     /// Σ over paths of the SH prediction `c_S · (R_ωo A_C c_d)` averaged over the cell's
