@@ -179,11 +179,12 @@ pub fn bake_slurm(options: &SlurmOptions<'_>) -> Result<()> {
     let quoted = |args: &[String]| args.iter().map(|a| shell_quote(a)).collect::<Vec<_>>().join(" ");
     let part = |i: &str| dir.join(format!("part{i}.twillpart")).to_string_lossy().into_owned();
     let partition = options.partition.map(|p| format!("#SBATCH --partition={p}\n")).unwrap_or_default();
-    // glibc keeps freed big blocks in per-thread arenas, so a bake's memory grows with a node's
-    // cores; a fixed mmap threshold returns them (docs/PRECOMPUTATION.md, "Memory").
-    let partition = format!("{partition}export MALLOC_MMAP_THRESHOLD_={MMAP_THRESHOLD}\n");
+    // What both scripts run before twill. glibc keeps freed big blocks in per-thread arenas, so
+    // a bake's memory grows with a node's cores; a fixed mmap threshold returns them
+    // (docs/PRECOMPUTATION.md, "Memory").
+    let preamble = format!("{partition}export MALLOC_MMAP_THRESHOLD_={MMAP_THRESHOLD}\n");
     let shard_script = format!(
-        "#!/bin/sh\n#SBATCH --job-name=twill-shard\n#SBATCH --array=0-{last}\n#SBATCH --output={log}\n{partition}\
+        "#!/bin/sh\n#SBATCH --job-name=twill-shard\n#SBATCH --array=0-{last}\n#SBATCH --output={log}\n{preamble}\
          exec {exe} {args} --shard \"$SLURM_ARRAY_TASK_ID/{n}\" -o {part}\n",
         last = n - 1,
         log = shell_quote(&dir.join("shard-%a.log").to_string_lossy()),
@@ -193,7 +194,7 @@ pub fn bake_slurm(options: &SlurmOptions<'_>) -> Result<()> {
     );
     let parts: Vec<String> = (0..n).map(|i| part(&i.to_string())).collect();
     let merge_script = format!(
-        "#!/bin/sh\n#SBATCH --job-name=twill-merge\n#SBATCH --output={log}\n{partition}exec {exe} bake merge {parts} -o {out}\n",
+        "#!/bin/sh\n#SBATCH --job-name=twill-merge\n#SBATCH --output={log}\n{preamble}exec {exe} bake merge {parts} -o {out}\n",
         log = shell_quote(&dir.join("merge.log").to_string_lossy()),
         exe = shell_quote(&exe.to_string_lossy()),
         parts = quoted(&parts),
@@ -250,11 +251,11 @@ pub fn bake_slurm(options: &SlurmOptions<'_>) -> Result<()> {
     Ok(())
 }
 
-/// Submits a batch script; returns the job id.
 /// The glibc mmap threshold (bytes) the Slurm scripts set: allocations above it are mapped
 /// and unmapped on their own instead of kept in the allocator's arenas.
 const MMAP_THRESHOLD: usize = 128 * 1024;
 
+/// Submits a batch script; returns the job id.
 fn sbatch(args: &[&std::ffi::OsStr]) -> Result<String> {
     let out = std::process::Command::new("sbatch")
         .arg("--parsable")

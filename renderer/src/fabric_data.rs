@@ -305,8 +305,8 @@ impl FabricArrays {
                         let value = entry[channel];
                         iirtf_values.push(value);
                         if largest > 0.0 && value.abs() >= 1e-3 * largest {
-                            let rounded = f16_round_trip(value);
-                            let rel = f64::from((rounded - value).abs() / value.abs());
+                            let (rounded, value) = (f64::from(f16_round_trip(value)), f64::from(value));
+                            let rel = (rounded - value).abs() / value.abs();
                             out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
                         }
                     }

@@ -65,7 +65,7 @@ pub fn block_rows(dims: usize) -> usize {
 }
 
 /// Where PCA reads its data: `segments` rows of `dims` values, produced on demand.
-pub trait PcaRows: Sync {
+trait PcaRows: Sync {
     fn segments(&self) -> usize;
     fn dims(&self) -> usize;
     /// Rows `start..start + out.len() / dims` into `out`.

@@ -313,7 +313,8 @@ pub struct Precomputed {
 }
 
 /// [`bake`] with the visibility images and the IIRTF cells taken (moved, not copied) from
-/// `precomputed` instead of computed: the same pipeline on the same data, so the same bake (no stage cache is used).
+/// `precomputed` instead of computed: the same pipeline on the same data, so the same bake (no
+/// stage cache is used).
 ///
 /// # Errors
 /// As [`bake`], and when `precomputed` does not fit the inputs.
@@ -625,9 +626,7 @@ pub fn bake_set(
 /// Writes a bake set atomically: the pattern, then for exemplar `i` one section `e{i}.STAGE`
 /// per stage (with that stage's key) and `e{i}.inputs`.
 pub fn write_bake(path: &Path, set: &BakeSet) -> Result<(), BakeError> {
-    let pattern = encode(Stage::Volume, &set.pattern)?;
-    let mut writer =
-        BakeWriter::new(set.key()).section("pattern", set.key(), Array::vector(ArrayData::U8(pattern)));
+    let mut writer = streamed(BakeWriter::new(set.key()), "pattern", Stage::Volume, set.key(), &set.pattern)?;
     for (i, outcome) in set.exemplars.iter().enumerate() {
         let b = &outcome.baked;
         let sections: [(Stage, &dyn erased::Encode); 7] = [
@@ -792,11 +791,6 @@ mod erased {
             Ok(())
         }
     }
-}
-
-fn encode<T: Serialize>(stage: Stage, value: &T) -> Result<Vec<u8>, BakeError> {
-    postcard::to_allocvec(value)
-        .map_err(|e| BakeError::Serialize { stage: stage.name(), message: e.to_string() })
 }
 
 fn decode_section<T: DeserializeOwned>(file: &BakeFile, name: &str) -> Result<T, BakeError> {

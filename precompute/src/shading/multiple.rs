@@ -102,8 +102,8 @@ pub fn add_transferred(transfer: &CellTransfer, c_light: &[Rgb], weight: f64, su
         return;
     }
     assert_eq!(transfer.matrix.len(), n * n, "multiple_scattering: transfer matrix order mismatch");
-    for (out, row) in sum.iter_mut().zip(transfer.matrix.chunks_exact(n)) {
-        let value: Rgb = row.iter().zip(c_light).map(|(a, c)| glam::Vec3::from(*a).as_dvec3() * *c).sum();
+    for (j1, out) in sum.iter_mut().enumerate() {
+        let value: Rgb = transfer.row(j1, n).zip(c_light).map(|(a, c)| a * *c).sum();
         *out += value * weight;
     }
 }
