@@ -453,6 +453,7 @@ fn report_bake(outcome: &BakeOutcome) {
             StageSource::Cached => "cached",
             StageSource::Computed => "computed",
             StageSource::Kept => "kept from the previous bake",
+            StageSource::Recoloured => "recoloured from the basis",
         };
         eprintln!("  {:<16} {how:<8} {:>8.2} s", run.stage.name(), run.seconds);
     }

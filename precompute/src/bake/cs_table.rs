@@ -130,6 +130,24 @@ impl CsTable {
         Ok(Self { sh_order, theta_count, coeffs: rows.concat() })
     }
 
+    /// `self − other`, coefficient by coefficient (tables of one order and row count).
+    #[must_use]
+    pub(crate) fn minus(&self, other: &Self) -> Self {
+        debug_assert_eq!((self.sh_order, self.theta_count), (other.sh_order, other.theta_count));
+        let coeffs = self.coeffs.iter().zip(&other.coeffs).map(|(a, b)| *a - *b).collect();
+        Self { sh_order: self.sh_order, theta_count: self.theta_count, coeffs }
+    }
+
+    /// `self + r b + t c` per channel (tables of one order and row count): a table that is
+    /// affine in two colours, from its parts (`bake::recolour::CsParts`).
+    #[must_use]
+    pub(crate) fn combined(&self, b: &Self, r: Rgb, c: &Self, t: Rgb) -> Self {
+        let coeffs = (self.coeffs.iter().zip(&b.coeffs).zip(&c.coeffs))
+            .map(|((a, b), c)| *a + r * *b + t * *c)
+            .collect();
+        Self { sh_order: self.sh_order, theta_count: self.theta_count, coeffs }
+    }
+
     #[must_use]
     pub fn sh_order(&self) -> usize {
         self.sh_order

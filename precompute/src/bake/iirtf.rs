@@ -40,7 +40,7 @@ use super::cells::CellGrid;
 use super::settings::BakeSettings;
 use super::{Cancel, Cancelled, Progress};
 use crate::Rgb;
-use crate::bcsdf::Material;
+use crate::bcsdf::{COLOUR_FREE_C_R, Lobe, Material};
 use crate::fabric::Exemplar;
 use crate::pathtrace::integrator::{pixel_rng, russian_roulette};
 use crate::raycast::{Extent, FiberScene, SceneError};
@@ -48,6 +48,11 @@ use crate::sh::{sh_count, sh_eval};
 
 /// Most scattering events of an IIRTF path (Russian roulette ends nearly all far earlier).
 pub const MAX_DEPTH: u32 = 1000;
+
+/// The TT factor at which the colour-free walk's Russian roulette weighs paths: high, so that
+/// paths live as long as the whitest yarns need (a weight at TT factor τ is the colour-free
+/// weight times τ^K; at τ = 1 it grows by at most `(1 / 0.95)^K` over the roulette's).
+pub const COLOUR_FREE_ROULETTE_ALBEDO: f64 = 0.95;
 
 /// Where light directions ω0 are drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -205,6 +210,8 @@ pub struct TransferSampler {
     scene: FiberScene,
     /// Material of each yarn (indexed by `Hit::yarn`).
     yarn_materials: Vec<Material>,
+    /// Material slot of each yarn (`Yarn::material`), for the colour-free walk.
+    yarn_slots: Vec<u32>,
     midpoints: Vec<DVec3>,
     fibers: Vec<u32>,
     light_domain: LightDomain,
@@ -231,6 +238,7 @@ impl TransferSampler {
         Ok(Self {
             scene,
             yarn_materials: yarn_materials.to_vec(),
+            yarn_slots: exemplar.yarns.iter().map(|y| y.material).collect(),
             midpoints,
             fibers: fiber_ids,
             light_domain,
@@ -313,6 +321,127 @@ impl TransferSampler {
     }
 }
 
+/// One path of the colour-free walk ([`TransferSampler::sample_colour_free`]), its buffers
+/// reused from path to path.
+#[derive(Debug, Clone, Default)]
+pub struct ColourFreeSample {
+    /// ω1, as in [`TransferSample::view`].
+    pub view: DVec3,
+    /// Per light connection: ω0, its colour-free weight (every event's colour-free weight, R
+    /// events at C_R = [`COLOUR_FREE_C_R`], over p(ω0) p(ω1) and Russian roulette's survival)
+    /// and the number K of TT events it carries (this event's included).
+    pub lights: Vec<(DVec3, f64, u32)>,
+    /// Per light connection, per material slot (`slots` wide): TT events in that slot.
+    pub tt_events: Vec<u32>,
+    /// Per light connection, per material slot: `Σ (1 − m) / (C_R + (1 − C_R) m)` over its R
+    /// events in that slot at C_R = [`COLOUR_FREE_C_R`], the derivative of the log weight in C_R.
+    pub r_log_derivative: Vec<f64>,
+    /// Material slots (the width of the two arrays above).
+    pub slots: usize,
+}
+
+impl TransferSampler {
+    /// Material slots the exemplar's yarns use (one more than the largest).
+    #[must_use]
+    pub fn slot_count(&self) -> usize {
+        self.yarn_slots.iter().max().map_or(0, |&m| m as usize + 1)
+    }
+
+    /// [`Self::sample`] with every colour left out of the walk (`bake::recolour`): lobes are
+    /// chosen and sampled by [`Material::sample_colour_free`] (lobe widths and geometry only),
+    /// Russian roulette follows the colour-free weight at TT factor
+    /// [`COLOUR_FREE_ROULETTE_ALBEDO`], and each light connection records its colour-free
+    /// weight and its event counts, from which the transfer at any colours follows by
+    /// multiplying in the colour factors. The walk does not depend on the materials' colours
+    /// (tested), so differentiating it in the colours is unbiased.
+    pub fn sample_colour_free(
+        &self,
+        cell_segments: &[u32],
+        stream: u64,
+        path: u64,
+        out: &mut ColourFreeSample,
+    ) {
+        let slots = self.slot_count();
+        out.lights.clear();
+        out.tt_events.clear();
+        out.r_log_derivative.clear();
+        out.slots = slots;
+        let mut rng = pixel_rng(stream, path);
+        let k = cell_segments[rng.random_range(0..cell_segments.len())];
+        let view = uniform_sphere(rng.random(), rng.random());
+        out.view = view;
+        let inv_p1 = 4.0 * std::f64::consts::PI;
+        let fibers = &self.scene;
+        let mut hit = fibers.closest_hit(
+            self.midpoints[k as usize].as_vec3(),
+            view.as_vec3(),
+            f32::INFINITY,
+            Some(self.fibers[k as usize]),
+        );
+        let mut dir = view;
+        let mut weight = 1.0;
+        let mut tt_total = 0_u32;
+        let mut tt_events = vec![0_u32; slots];
+        let mut r_log = vec![0.0_f64; slots];
+        let r0 = COLOUR_FREE_C_R;
+        for event in 1..=MAX_DEPTH {
+            let Some(h) = hit else { break };
+            let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
+            let material = &self.yarn_materials[h.yarn as usize];
+            let slot = self.yarn_slots[h.yarn as usize] as usize;
+            let wo = -dir;
+            if let Some(e) = material.sample_colour_free(t, n, wo, [rng.random(), rng.random(), rng.random()])
+                && self.in_domain(e.dir)
+                && !fibers.any_hit(position.as_vec3(), e.dir.as_vec3(), f32::INFINITY, Some(h.fiber))
+            {
+                let at = out.lights.len() * slots;
+                out.tt_events.extend_from_slice(&tt_events);
+                out.r_log_derivative.extend_from_slice(&r_log);
+                let light_weight = match e.lobe {
+                    Lobe::Tt => {
+                        out.tt_events[at + slot] += 1;
+                        weight * e.weight * inv_p1
+                    }
+                    Lobe::R => {
+                        let rho = r0 + (1.0 - r0) * e.schlick;
+                        out.r_log_derivative[at + slot] += (1.0 - e.schlick) / rho;
+                        weight * e.weight * rho * inv_p1
+                    }
+                };
+                out.lights.push((e.dir, light_weight, tt_total + u32::from(e.lobe == Lobe::Tt)));
+            }
+            let Some(e) = material.sample_colour_free(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            else {
+                break;
+            };
+            match e.lobe {
+                Lobe::Tt => {
+                    weight *= e.weight;
+                    tt_total += 1;
+                    tt_events[slot] += 1;
+                }
+                Lobe::R => {
+                    let rho = r0 + (1.0 - r0) * e.schlick;
+                    weight *= e.weight * rho;
+                    r_log[slot] += (1.0 - e.schlick) / rho;
+                }
+            }
+            dir = e.dir;
+            hit = fibers.closest_hit(position.as_vec3(), e.dir.as_vec3(), f32::INFINITY, Some(h.fiber));
+            // Roulette on the weight at TT factor COLOUR_FREE_ROULETTE_ALBEDO: never on the colours.
+            let sampled = weight * COLOUR_FREE_ROULETTE_ALBEDO.powi(tt_total.min(i32::MAX as u32) as i32);
+            if !(sampled > 0.0 && sampled.is_finite()) {
+                break;
+            }
+            let mut roulette = Rgb::splat(sampled);
+            if !russian_roulette(event, &mut roulette, &mut rng) {
+                break;
+            }
+            weight *= roulette.x / sampled;
+        }
+    }
+}
+
 /// A uniform direction on the unit sphere from two uniforms.
 #[must_use]
 pub fn uniform_sphere(u0: f64, u1: f64) -> DVec3 {
@@ -329,7 +458,7 @@ pub fn cell_stream(seed: u64, cell: u32) -> u64 {
 }
 
 /// Paths between cancellation checks and progress reports.
-const CHECK_EVERY: usize = 256;
+pub(crate) const CHECK_EVERY: usize = 256;
 
 /// Bakes the IIRTF of every cell of `grid` with `settings.iirtf_paths_per_cell` paths per
 /// nonempty cell, `settings.sh_order` and `settings.seed`; see the module docs.
@@ -367,24 +496,45 @@ pub fn bake_iirtf_cells(
             exemplar: exemplar.segment_count(),
         });
     }
+    // One scene shared by every worker (a copy each would grow with the machine's cores).
+    let sampler = TransferSampler::new(exemplar, yarn_materials, options.light_domain)?;
+    let order = settings.sh_order;
+    let paths = settings.iirtf_paths_per_cell;
+    Ok(for_each_cell(grid, cells, paths, settings.seed, cancel, progress, &|segments, stream, tick| {
+        bake_cell(&sampler, segments, order, paths, stream, tick)
+    })?)
+}
+
+/// What [`for_each_cell`] runs per cell: `(segments, stream, tick)` to the cell's result, or
+/// `None` when `tick(paths done)` returned false (cancelled).
+pub(crate) type CellJob<'a, T> = &'a (dyn Fn(&[u32], u64, &dyn Fn(usize) -> bool) -> Option<T> + Sync);
+
+/// Runs `job` on every cell of `cells` of `grid` (clamped to the grid) in parallel, one worker
+/// per rayon thread pulling whole cells from a shared counter, and returns the results in cell
+/// order. Cell c draws from [`cell_stream`]`(seed, c)`; `paths` per nonempty cell is what
+/// progress counts.
+pub(crate) fn for_each_cell<T: Send>(
+    grid: &CellGrid,
+    cells: std::ops::Range<usize>,
+    paths: usize,
+    seed: u64,
+    cancel: &Cancel,
+    progress: Progress<'_>,
+    job: CellJob<'_, T>,
+) -> Result<Vec<T>, Cancelled> {
     let cells = cells.start.min(grid.cell_count())..cells.end.min(grid.cell_count());
     let nonempty = cells.clone().filter(|&c| !grid.segments_in_cell(c as u32).is_empty()).count();
     let workers = rayon::current_num_threads().clamp(1, nonempty.max(1));
     cancel.check()?;
-    // One scene shared by every worker (a copy each would grow with the machine's cores).
-    let sampler = TransferSampler::new(exemplar, yarn_materials, options.light_domain)?;
-    let paths = settings.iirtf_paths_per_cell;
     let total_paths = (nonempty * paths).max(1) as f64;
     let next_cell = AtomicUsize::new(cells.start);
     let paths_done = AtomicUsize::new(0);
     let stop = AtomicBool::new(false);
-    let results: Mutex<Vec<Option<CellTransfer>>> = Mutex::new(vec![None; cells.len()]);
-    let order = settings.sh_order;
+    let results: Mutex<Vec<Option<T>>> = Mutex::new((0..cells.len()).map(|_| None).collect());
     let end = cells.end;
     rayon::scope(|scope| {
         for _ in 0..workers {
-            let (sampler, next_cell, paths_done, stop, results) =
-                (&sampler, &next_cell, &paths_done, &stop, &results);
+            let (next_cell, paths_done, stop, results) = (&next_cell, &paths_done, &stop, &results);
             let first = cells.start;
             scope.spawn(move |_| {
                 loop {
@@ -392,22 +542,15 @@ pub fn bake_iirtf_cells(
                     if c >= end || stop.load(Ordering::Relaxed) {
                         return;
                     }
-                    let cell = bake_cell(
-                        sampler,
-                        grid.segments_in_cell(c as u32),
-                        order,
-                        paths,
-                        cell_stream(settings.seed, c as u32),
-                        &|done| {
-                            if cancel.is_cancelled() {
-                                stop.store(true, Ordering::Relaxed);
-                                return false;
-                            }
-                            let all = paths_done.fetch_add(done, Ordering::Relaxed) + done;
-                            progress(all as f64 / total_paths);
-                            true
-                        },
-                    );
+                    let cell = job(grid.segments_in_cell(c as u32), cell_stream(seed, c as u32), &|done| {
+                        if cancel.is_cancelled() {
+                            stop.store(true, Ordering::Relaxed);
+                            return false;
+                        }
+                        let all = paths_done.fetch_add(done, Ordering::Relaxed) + done;
+                        progress(all as f64 / total_paths);
+                        true
+                    });
                     let Some(cell) = cell else { return };
                     results.lock().expect("a worker panicked")[c - first] = Some(cell);
                 }

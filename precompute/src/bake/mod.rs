@@ -24,6 +24,7 @@ pub mod iirtf;
 pub mod pattern;
 pub mod pca;
 pub mod pipeline;
+pub mod recolour;
 pub mod settings;
 pub mod shard;
 pub mod ssdf;

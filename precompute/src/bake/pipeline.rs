@@ -35,13 +35,15 @@ use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, 
 use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress_images};
+use super::recolour::{RecolourBasis, RecolourError, SlotColour, bake_recolour_basis};
 use super::settings::BakeSettings;
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
 use super::svf::{SvfError, VisibilityImages, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
 use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
-use crate::bcsdf::{Material, MaterialDesc};
+use crate::Rgb;
+use crate::bcsdf::{FiberParams, Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::ParamError;
 use crate::raycast::{Extent, FiberScene, mean_free_path};
@@ -199,6 +201,9 @@ pub enum StageSource {
     Cached,
     /// Kept from the previous bake ([`bake_material_preview`]): stale on purpose.
     Kept,
+    /// Evaluated at the new colours from a recolouring basis ([`bake_material_preview`] with a
+    /// [`RecolourBasis`]): an approximation until the full bake replaces it.
+    Recoloured,
 }
 
 /// One stage of one bake: its key, where its result came from and how long it took.
@@ -247,6 +252,8 @@ pub enum BakeError {
     Iirtf(#[from] IirtfError),
     #[error("C_S table: {0}")]
     CsTable(#[from] CsTableError),
+    #[error("recolouring: {0}")]
+    Recolour(#[from] RecolourError),
     #[error("volume: {0}")]
     Volume(#[from] VolumeError),
     #[error(transparent)]
@@ -282,15 +289,20 @@ pub fn bake(
 }
 
 /// A quick preview of a material edit: every stage of `inputs` except the two that carry
-/// multiple scattering, transfer (the IIRTF, seconds to minutes) and the C_S tables, which are
-/// kept from `previous`. Single scattering (the Gn tables) is exact for the new materials, while
-/// multiple scattering stays as it was until the full [`bake`] finishes: what an interactive
-/// editor shows in the meantime. `previous` must have been baked from the same geometry with the
-/// same settings and material count (the geometry is the caller's promise; settings and count
-/// are checked). The result's key marks it as a preview; never store it as a bake file.
+/// multiple scattering, transfer (the IIRTF, seconds to minutes) and the C_S tables. Without a
+/// `recolour` basis they are kept from `previous`: single scattering (the Gn tables) is exact
+/// for the new materials while multiple scattering stays as it was. With the basis of this
+/// geometry and these settings ([`recolour_basis`]) they are evaluated at the new colours
+/// (`bake::recolour`, milliseconds): multiple scattering follows the edit too, as an
+/// approximation of the full bake. Either way the full [`bake`] replaces it when it finishes:
+/// what an interactive editor shows in the meantime. `previous` must have been baked from the
+/// same geometry with the same settings and material count (the geometry is the caller's
+/// promise; settings and count are checked, and the basis's cell and slot counts). The result's
+/// key marks it as a preview; never store it as a bake file.
 pub fn bake_material_preview(
     inputs: &BakeInputs<'_>,
     previous: &Baked,
+    recolour: Option<&RecolourBasis>,
     cache: Option<&Cache>,
     cancel: &Cancel,
     progress: BakeProgress<'_>,
@@ -302,7 +314,119 @@ pub fn bake_material_preview(
             previous.materials.len()
         )));
     }
-    bake_stages(inputs, cache, cancel, progress, Some(previous), None)
+    if let Some(basis) = recolour
+        && (basis.cells.len() != previous.transfer.iirtf.cells.len()
+            || basis.slot_count != inputs.materials.len()
+            || basis.sh_order != previous.settings.sh_order)
+    {
+        return Err(BakeError::Fabric(format!(
+            "the recolouring basis ({} cells, {} slots, SH order {}) was not made for this bake ({} cells, {} slots, SH order {})",
+            basis.cells.len(),
+            basis.slot_count,
+            basis.sh_order,
+            previous.transfer.iirtf.cells.len(),
+            inputs.materials.len(),
+            previous.settings.sh_order
+        )));
+    }
+    bake_stages(inputs, cache, cancel, progress, Some((previous, recolour)), None)
+}
+
+/// The recolouring basis of `inputs` (`bake::recolour`): what [`bake_material_preview`] needs to
+/// follow a colour edit with multiple scattering. Cached like a stage, under a key of the
+/// geometry, the materials with their colours left out (the basis does not depend on them), the
+/// mean free path and the transfer settings, so every recolouring of a fabric shares one.
+///
+/// # Errors
+/// As [`bake`].
+pub fn recolour_basis(
+    inputs: &BakeInputs<'_>,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+    progress: &(dyn Fn(f64) + Sync),
+) -> Result<RecolourBasis, BakeError> {
+    let s = &inputs.settings;
+    s.validate()?;
+    yarn_materials(inputs)?;
+    let keys = StageKeys::new(inputs)?;
+    let mfp = bake_stages_mfp(inputs, cache, cancel)?;
+    let colour_free: Vec<MaterialDesc> = inputs.materials.iter().map(without_colours).collect();
+    let free_hash = Hasher::new("twill.materials.colour_free")
+        .serde(&colour_free)
+        .map_err(|e| BakeError::Serialize { stage: "recolour key", message: e.to_string() })?
+        .finish();
+    let mut h = Hasher::new("twill.recolour");
+    h.u32(RECOLOUR_VERSION)
+        .hash(&keys.geometry)
+        .hash(&free_hash)
+        .f64(mfp.mean_cm)
+        .f64(s.cell_size_mfp)
+        .f64(s.cell_depth_mfp)
+        .usize(s.iirtf_paths_per_cell)
+        .usize(s.sh_order)
+        .usize(s.cs_theta_count)
+        .u64(s.seed);
+    let key = h.finish();
+    let name = "recolour_basis";
+    if let Some(file) = cache.and_then(|c| c.load(key)) {
+        match decode_section(&file, name) {
+            Ok(basis) => return Ok(basis),
+            Err(e) => log::warn!("ignoring cached {name}: {e}"),
+        }
+    }
+    let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
+    let basis =
+        bake_recolour_basis(inputs.exemplar, inputs.materials, &cells, s, cancel, progress).map_err(|e| {
+            match e {
+                RecolourError::Iirtf(IirtfError::Cancelled(_)) => BakeError::Cancelled,
+                e => BakeError::Recolour(e),
+            }
+        })?;
+    if let Some(cache) = cache {
+        cache.store(&streamed(BakeWriter::new(key), name, name, key, &basis)?)?;
+    }
+    Ok(basis)
+}
+
+/// Version of the recolouring basis's code and layout: part of its cache key.
+const RECOLOUR_VERSION: u32 = 1;
+
+/// A material with its colours zeroed: what the recolouring basis depends on.
+fn without_colours(m: &MaterialDesc) -> MaterialDesc {
+    match *m {
+        MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_r: Rgb::ZERO, c_tt: Rgb::ZERO, ..p }),
+        MaterialDesc::Lambert { .. } => MaterialDesc::Lambert { albedo: Rgb::ZERO },
+    }
+}
+
+/// The mean free path stage alone, through the cache.
+fn bake_stages_mfp(
+    inputs: &BakeInputs<'_>,
+    cache: Option<&Cache>,
+    cancel: &Cancel,
+) -> Result<MeanFreePathData, BakeError> {
+    let keys = StageKeys::new(inputs)?;
+    let mut runs = Vec::new();
+    StageRunner { cache, runs: &mut runs }.run(Stage::MeanFreePath, keys.mfp, || measure_mfp(inputs, cancel))
+}
+
+/// Measures the mean free path of `inputs`' fabric (the mean free path stage).
+fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
+    cancel.check()?;
+    let fibers =
+        FiberScene::new(inputs.exemplar, Extent::Unbounded).map_err(|e| BakeError::Fabric(e.to_string()))?;
+    let m = mean_free_path(&fibers, inputs.settings.mfp_samples, inputs.settings.seed);
+    if !(m.mean_cm.is_finite() && m.mean_cm > 0.0) {
+        return Err(BakeError::Fabric(format!(
+            "no mean free path could be measured ({:.0}% of rays escaped the fabric)",
+            100.0 * m.escaped_fraction
+        )));
+    }
+    Ok(MeanFreePathData {
+        mean_cm: m.mean_cm,
+        std_error_cm: m.std_error_cm,
+        escaped_fraction: m.escaped_fraction,
+    })
 }
 
 /// The raw results of the two expensive stages, computed elsewhere (the shards of a sharded
@@ -365,7 +489,7 @@ fn bake_stages(
     cache: Option<&Cache>,
     cancel: &Cancel,
     progress: BakeProgress<'_>,
-    keep: Option<&Baked>,
+    keep: Option<(&Baked, Option<&RecolourBasis>)>,
     precomputed: Option<Precomputed>,
 ) -> Result<BakeOutcome, BakeError> {
     let (precomputed_images, precomputed_cells) = precomputed.map(|p| (p.images, p.cells)).unzip();
@@ -376,23 +500,10 @@ fn bake_stages(
     let mut runs = Vec::new();
     let mut stage_runner = StageRunner { cache, runs: &mut runs };
 
-    let fibers =
-        || FiberScene::new(inputs.exemplar, Extent::Unbounded).map_err(|e| BakeError::Fabric(e.to_string()));
     let mfp = stage_runner.run(Stage::MeanFreePath, keys.mfp, || {
-        cancel.check()?;
-        let m = mean_free_path(&fibers()?, s.mfp_samples, s.seed);
+        let m = measure_mfp(inputs, cancel)?;
         progress(Stage::MeanFreePath, 1.0);
-        if !(m.mean_cm.is_finite() && m.mean_cm > 0.0) {
-            return Err(BakeError::Fabric(format!(
-                "no mean free path could be measured ({:.0}% of rays escaped the fabric)",
-                100.0 * m.escaped_fraction
-            )));
-        }
-        Ok(MeanFreePathData {
-            mean_cm: m.mean_cm,
-            std_error_cm: m.std_error_cm,
-            escaped_fraction: m.escaped_fraction,
-        })
+        Ok(m)
     })?;
 
     let visibility = stage_runner.run(Stage::Visibility, keys.visibility, || {
@@ -413,9 +524,15 @@ fn bake_stages(
     })?;
 
     let transfer_key = keys.transfer(&mfp);
-    let transfer = if let Some(previous) = keep {
-        stage_runner.keep(Stage::Transfer, transfer_key);
-        previous.transfer.clone()
+    let transfer = if let Some((previous, recolour)) = keep {
+        if let Some(basis) = recolour {
+            stage_runner.recoloured(Stage::Transfer, transfer_key);
+            let colours: Vec<SlotColour> = materials.iter().map(SlotColour::of).collect();
+            TransferData { cells: previous.transfer.cells.clone(), iirtf: basis.iirtf(&colours)? }
+        } else {
+            stage_runner.keep(Stage::Transfer, transfer_key);
+            previous.transfer.clone()
+        }
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
@@ -446,9 +563,14 @@ fn bake_stages(
         })?
     };
 
-    let cs_tables = if let Some(previous) = keep {
-        stage_runner.keep(Stage::CsTables, keys.cs);
-        previous.cs_tables.clone()
+    let cs_tables = if let Some((previous, recolour)) = keep {
+        if let Some(basis) = recolour {
+            stage_runner.recoloured(Stage::CsTables, keys.cs);
+            basis.cs_tables(inputs.materials)
+        } else {
+            stage_runner.keep(Stage::CsTables, keys.cs);
+            previous.cs_tables.clone()
+        }
     } else {
         stage_runner.run(Stage::CsTables, keys.cs, || {
             let mut tables = Vec::with_capacity(materials.len());
@@ -626,7 +748,7 @@ pub fn bake_set(
 /// Writes a bake set atomically: the pattern, then for exemplar `i` one section `e{i}.STAGE`
 /// per stage (with that stage's key) and `e{i}.inputs`.
 pub fn write_bake(path: &Path, set: &BakeSet) -> Result<(), BakeError> {
-    let mut writer = streamed(BakeWriter::new(set.key()), "pattern", Stage::Volume, set.key(), &set.pattern)?;
+    let mut writer = streamed(BakeWriter::new(set.key()), "pattern", "pattern", set.key(), &set.pattern)?;
     for (i, outcome) in set.exemplars.iter().enumerate() {
         let b = &outcome.baked;
         let sections: [(Stage, &dyn erased::Encode); 7] = [
@@ -640,7 +762,7 @@ pub fn write_bake(path: &Path, set: &BakeSet) -> Result<(), BakeError> {
         ];
         for (stage, value) in sections {
             let key = outcome.stages.iter().find(|r| r.stage == stage).map_or(outcome.key, |r| r.key);
-            writer = streamed(writer, &format!("e{i}.{}", stage.name()), stage, key, value)?;
+            writer = streamed(writer, &format!("e{i}.{}", stage.name()), stage.name(), key, value)?;
         }
         writer = writer.section(
             &format!("e{i}.inputs"),
@@ -722,13 +844,13 @@ fn decode_inputs(file: &BakeFile, name: &str) -> Result<InputsRecord, BakeError>
 fn streamed<'a>(
     writer: BakeWriter<'a>,
     name: &str,
-    stage: Stage,
+    what: &'static str,
     key: ContentHash,
     value: &'a dyn erased::Encode,
 ) -> Result<BakeWriter<'a>, BakeError> {
     let len = value
         .encode_into(&mut std::io::sink())
-        .map_err(|e| BakeError::Serialize { stage: stage.name(), message: e.to_string() })?;
+        .map_err(|e| BakeError::Serialize { stage: what, message: e.to_string() })?;
     Ok(writer.streamed_section(name, key, len, move |w| value.encode_into(w).map(|_| ())))
 }
 
@@ -836,7 +958,7 @@ impl StageRunner<'_, '_> {
         }
         let value = compute()?;
         if let Some(cache) = self.cache {
-            cache.store(&streamed(BakeWriter::new(key), stage.name(), stage, key, &value)?)?;
+            cache.store(&streamed(BakeWriter::new(key), stage.name(), stage.name(), key, &value)?)?;
         }
         self.record(stage, key, StageSource::Computed, started);
         Ok(value)
@@ -847,6 +969,12 @@ impl StageRunner<'_, '_> {
     fn keep(&mut self, stage: Stage, key: ContentHash) {
         let kept = Hasher::new("twill.kept_from_previous").hash(&key).finish();
         self.record(stage, kept, StageSource::Kept, Instant::now());
+    }
+
+    /// Records a stage evaluated from a recolouring basis (a preview), keyed like [`Self::keep`].
+    fn recoloured(&mut self, stage: Stage, key: ContentHash) {
+        let recoloured = Hasher::new("twill.recoloured_from_basis").hash(&key).finish();
+        self.record(stage, recoloured, StageSource::Recoloured, Instant::now());
     }
 
     fn record(&mut self, stage: Stage, key: ContentHash, source: StageSource, started: Instant) {
@@ -1034,7 +1162,8 @@ pub(crate) mod tests {
         };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings };
         let preview =
-            bake_material_preview(&inputs, &before.baked, Some(&cache), &Cancel::new(), &|_, _| {}).unwrap();
+            bake_material_preview(&inputs, &before.baked, None, Some(&cache), &Cancel::new(), &|_, _| {})
+                .unwrap();
         // Only the Gn tables are computed; transfer and C_S are the old ones, on purpose.
         assert_eq!(preview.computed(), vec![GnTables]);
         let kept: Vec<Stage> =
@@ -1055,7 +1184,7 @@ pub(crate) mod tests {
         // A preview from a bake with other settings is refused.
         let other = BakeSettings { sh_order: 3, ..settings };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings: other };
-        let refused = bake_material_preview(&inputs, &before.baked, None, &Cancel::new(), &|_, _| {});
+        let refused = bake_material_preview(&inputs, &before.baked, None, None, &Cancel::new(), &|_, _| {});
         assert!(matches!(refused, Err(BakeError::Fabric(_))), "{refused:?}");
     }
 

@@ -77,6 +77,31 @@ impl FiberFrame {
     }
 }
 
+/// The Schlick reflectance at normal incidence [`FiberScattering::sample_colour_free`] chooses
+/// its lobes with (the presets' C_R lie between 0.03 and 0.09).
+pub const COLOUR_FREE_C_R: f64 = 0.05;
+
+/// Which lobe a colour-free event took.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lobe {
+    /// The R lobe (colour factor `C_R + (1 − C_R) m`).
+    R,
+    /// The TT lobe, or a Lambertian surface (colour factor τ).
+    Tt,
+}
+
+/// A scattering event with its colours left out ([`FiberScattering::sample_colour_free`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColourFreeEvent {
+    /// The sampled light-side direction ωi.
+    pub dir: DVec3,
+    pub lobe: Lobe,
+    /// Lobe value × cos θi / (choice probability × lobe pdf), colours left out.
+    pub weight: f64,
+    /// `m = (1 − cos θi)^5`, the Schlick term of ωi.
+    pub schlick: f64,
+}
+
 /// The R + TT fiber scattering model with its Gn tables, ready to evaluate and sample.
 #[derive(Debug, Clone)]
 pub struct FiberScattering {
@@ -133,6 +158,13 @@ impl FiberScattering {
     pub fn albedo(&self, theta_i: f64) -> Rgb {
         let f = self.fresnel(theta_i.cos());
         f + (Rgb::ONE - f) * self.c_tt
+    }
+
+    /// `(τ, C_R)` with `τ = (1 − C_R) C_TT`: the colour factors of a TT and an R event
+    /// ([`Self::sample_colour_free`]).
+    #[must_use]
+    pub fn colour_variables(&self) -> (Rgb, Rgb) {
+        ((Rgb::ONE - self.c_r) * self.c_tt, self.c_r)
     }
 
     /// Albedo at normal incidence, `C_R + (1 - C_R) C_TT` (a hint for Russian roulette).
@@ -207,6 +239,56 @@ impl FiberScattering {
         let dir = frame.direction(theta, phi);
         // Same cut-off as `pdf`, measured the same way.
         (frame.angles(dir).0.cos() > MIN_COS_THETA && dir.is_finite()).then_some(dir)
+    }
+
+    /// One lobe of S sampled on its own, chosen without looking at the colours: what a
+    /// recolouring reweighs (`bake::recolour`). `wo` is the fixed (viewer-side) direction and
+    /// the result is the light-side ωi. R is chosen with probability
+    /// `clamp(F_ref(θo), 0.1, 0.9)` (`F_ref` the Schlick form at [`COLOUR_FREE_C_R`]), so the
+    /// choice depends on the lobe widths and the geometry only. The event's weight is the
+    /// chosen lobe's value times `cos θi` over (choice probability × the lobe's own pdf), with
+    /// every colour factor left out: `(1 − m)` stays in the TT weight and the R weight is
+    /// multiplied by `C_R + (1 − C_R) m` by the caller, `m = (1 − cos θi)^5`, while TT is
+    /// multiplied by `τ = (1 − C_R) C_TT`. Summing the two lobes' estimates is S exactly, so
+    /// the estimate is unbiased for every colour.
+    #[must_use]
+    pub fn sample_colour_free(&self, tangent: DVec3, wo: DVec3, u: [f64; 3]) -> Option<ColourFreeEvent> {
+        let frame = FiberFrame::new(tangent);
+        let (theta_f, phi_f) = frame.angles(wo);
+        let m_fixed = (1.0 - theta_f.cos().clamp(0.0, 1.0)).powi(5);
+        let p_r = (COLOUR_FREE_C_R + (1.0 - COLOUR_FREE_C_R) * m_fixed).clamp(0.1, 0.9);
+        let (lobe, theta, phi, choice) = if u[0] < p_r {
+            let theta = TruncGauss::new(-theta_f, self.beta_r).sample(u[1]);
+            (Lobe::R, theta, phi_f + 2.0 * PI * u[2], p_r)
+        } else {
+            let reuse = ((u[0] - p_r) / (1.0 - p_r)).clamp(0.0, 1.0);
+            let theta = TruncGauss::new(-theta_f, self.beta_tt).sample(u[1]);
+            (Lobe::Tt, theta, phi_f + PI + self.von_mises.sample(u[2], reuse), 1.0 - p_r)
+        };
+        let dir = frame.direction(theta, phi);
+        let (theta_i, phi_i) = frame.angles(dir);
+        let cos_i = theta_i.cos();
+        if cos_i <= MIN_COS_THETA || !dir.is_finite() {
+            return None;
+        }
+        let schlick = (1.0 - cos_i.clamp(0.0, 1.0)).powi(5);
+        let sum = theta_i + theta_f;
+        let weight = match lobe {
+            Lobe::R => {
+                let pdf = TruncGauss::new(-theta_f, self.beta_r).pdf(theta_i) / (2.0 * PI) / cos_i;
+                let m_r =
+                    (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
+                m_r / (2.0 * PI) * cos_i / (choice * pdf)
+            }
+            Lobe::Tt => {
+                let azimuth = self.von_mises.pdf(phi_f - phi_i - PI);
+                let pdf = TruncGauss::new(-theta_f, self.beta_tt).pdf(theta_i) * azimuth / cos_i;
+                let m_tt =
+                    (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+                (1.0 - schlick) * m_tt * azimuth * cos_i / (choice * pdf)
+            }
+        };
+        (weight.is_finite() && weight > 0.0).then_some(ColourFreeEvent { dir, lobe, weight, schlick })
     }
 
     /// Solid-angle density with which [`Self::sample`] returns `dir` given `fixed`.

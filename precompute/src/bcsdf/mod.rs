@@ -18,7 +18,9 @@ mod sampling;
 #[cfg(test)]
 mod tests;
 
-pub use fiber::{BETA_RANGE_DEG, FiberFrame, FiberScattering, GAMMA_RANGE_DEG};
+pub use fiber::{
+    BETA_RANGE_DEG, COLOUR_FREE_C_R, ColourFreeEvent, FiberFrame, FiberScattering, GAMMA_RANGE_DEG, Lobe,
+};
 pub use gn_table::{GN_TABLE_INTERVALS, GnTable as LobeGnTable};
 pub use lambert::Lambertian;
 
@@ -103,6 +105,37 @@ impl Material {
         match self {
             Self::Fiber(f) => f.pdf(t, wo, wi),
             Self::Lambert(l) => l.pdf(n, wo, wi),
+        }
+    }
+
+    /// A scattering event sampled and weighed without the material's colours (see
+    /// [`FiberScattering::sample_colour_free`]); a Lambertian surface samples its cosine lobe,
+    /// weight 1, colour factor its albedo (reported as [`Lobe::Tt`]).
+    #[must_use]
+    pub fn sample_colour_free(&self, t: DVec3, n: DVec3, wo: DVec3, u: [f64; 3]) -> Option<ColourFreeEvent> {
+        match self {
+            Self::Fiber(f) => f.sample_colour_free(t, wo, u),
+            Self::Lambert(l) => {
+                let dir = l.sample(n, wo, [u[1], u[2]])?;
+                let pdf = l.pdf(n, wo, dir);
+                let value = dir.dot(n).max(0.0) * std::f64::consts::FRAC_1_PI;
+                (pdf > 0.0).then(|| ColourFreeEvent {
+                    dir,
+                    lobe: Lobe::Tt,
+                    weight: value / pdf,
+                    schlick: 0.0,
+                })
+            }
+        }
+    }
+
+    /// The colour variables a recolouring works in: `(τ, C_R)` with `τ = (1 − C_R) C_TT` the
+    /// factor of a TT event (a Lambertian surface: its albedo, and C_R = 0).
+    #[must_use]
+    pub fn colour_variables(&self) -> (Rgb, Rgb) {
+        match self {
+            Self::Fiber(f) => f.colour_variables(),
+            Self::Lambert(l) => (l.albedo, Rgb::ZERO),
         }
     }
 
