@@ -675,11 +675,18 @@ fn random_recolourings(base: &SceneFile, count: usize, seed: u64) -> Vec<SceneFi
 }
 
 /// `twill bench recolor`: the time from a colour edit to its full picture at `quality`, over
-/// random recolourings (near-black and near-white included) of the scene's yarns, on today's
-/// path: the material stages rebake through the stage cache (geometry stages are cached), the
-/// bake is written into the GPU fabric in place, and one frame of `spp` renders. The picture is
-/// the rebake's own, so its error against the rebake is zero by construction; a live
-/// recolouring (the colourways issue, part 2) will add its error here.
+/// random recolourings (near-black and near-white included) of the scene's yarns, on both
+/// paths, and the live path's error against the rebake:
+/// - **live**: the IIRTF and C_S tables evaluated from the recolouring basis
+///   (`bake::recolour`) and written into the GPU fabric in place
+///   (`Renderer::recolour`), then one frame of `spp`;
+/// - **rebake**: the material stages rebake through the stage cache (the geometry stages are
+///   cached), the bake is written in place, one frame.
+///
+/// The error of the live picture against the rebake's is the relative difference of the image
+/// mean (the largest over channels) and the per-pixel RMS difference over the rebake's mean.
+/// Beside it, the same per-pixel figure between two rebakes that differ only in their seed:
+/// how much the method's own picture moves with its Monte Carlo precomputation.
 pub fn bench_recolor(
     scene: Option<&Path>,
     (width, height): (usize, usize),
@@ -688,56 +695,122 @@ pub fn bench_recolor(
     count: usize,
     seed: u64,
 ) -> Result<()> {
+    use twill_precompute::bake::pipeline::recolour_basis;
     anyhow::ensure!((1..=1000).contains(&count), "--colourways {count}: expected 1..=1000");
     let base = SceneFile::load_or_default(scene)?;
     let cache = open_cache(None, false)?;
     let scene0 = base.build()?;
+    let settings0 = quality.settings();
     let started = Instant::now();
-    let (exemplars, pattern) = bake_scene(&scene0, quality.settings(), cache.as_ref())?;
+    let (exemplars, pattern) = bake_scene(&scene0, settings0, cache.as_ref())?;
     let warm_bake = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    let bases = scene0
+        .bake_inputs(settings0)
+        .iter()
+        .map(|inputs| recolour_basis(inputs, cache.as_ref(), &Cancel::new(), &|_| {}))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("recolouring basis: {e}"))?;
+    let basis_seconds = started.elapsed().as_secs_f64();
     let refs: Vec<&Baked> = exemplars.iter().collect();
     let mut session = SceneRenderer::new(&scene0, &refs, &pattern)?;
     let mut settings = frame_settings(&scene0, Components::All);
     (settings.width, settings.height, settings.spp) = (width as u32, height as u32, spp);
     session.render(&scene0, &settings)?;
     println!(
-        "{} on {}: {quality:?} bake (first, filling the stage cache: {warm_bake:.1} s), {width}x{height}, {spp} spp",
+        "{} on {}: {quality:?} bake (first, filling the stage cache: {warm_bake:.1} s), recolouring basis {basis_seconds:.1} s \
+         (from the cache if it held it), {width}x{height}, {spp} spp",
         base.path.display(),
         session.renderer.adapter()
     );
-    println!("| colourway | material rebake ms | upload ms | frame ms | edit to picture ms | upload path |");
-    println!("|---|---|---|---|---|---|");
-    let mut totals = Vec::with_capacity(count);
+    println!(
+        "| colourway | live: evaluate + write ms | live: frame ms | live: edit to picture ms | rebake: material stages ms \
+         | rebake: upload ms | rebake: edit to picture ms | live vs rebake: image mean | live vs rebake: per-pixel RMS \
+         | rebake vs rebake (seed): per-pixel RMS |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let reseeded = BakeSettings { seed: settings0.seed.wrapping_add(1), ..settings0 };
+    let (mut live_totals, mut rebake_totals, mut worst_mean, mut worst_excess) =
+        (Vec::with_capacity(count), Vec::with_capacity(count), 0.0_f64, f64::NEG_INFINITY);
     for (k, file) in random_recolourings(&base, count, seed).iter().enumerate() {
+        // Live: the basis evaluated at the new colours.
         let t0 = Instant::now();
         let scene = file.build()?;
-        let (exemplars, pattern) = bake_scene(&scene, quality.settings(), cache.as_ref())?;
+        for (e, inputs) in scene.bake_inputs(settings0).iter().enumerate() {
+            session.renderer.recolour(e, &bases[e], inputs.materials)?;
+        }
+        let t_write = t0.elapsed().as_secs_f64();
+        let live = session.render(&scene, &settings)?.radiance_image();
+        let t_live = t0.elapsed().as_secs_f64();
+        live_totals.push(t_live * 1e3);
+        // Rebake.
+        let t0 = Instant::now();
+        let (exemplars, pattern) = bake_scene(&scene, settings0, cache.as_ref())?;
         let t_bake = t0.elapsed().as_secs_f64();
         let refs: Vec<&Baked> = exemplars.iter().collect();
-        let in_place;
-        (session, in_place) = upload_to(Some(session), &scene, &refs, &pattern)?;
-        let path = if in_place { "in place" } else { "new renderer" };
+        (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
         let t_upload = t0.elapsed().as_secs_f64();
-        session.render(&scene, &settings)?;
-        let t_total = t0.elapsed().as_secs_f64();
-        totals.push(t_total * 1e3);
+        let rebaked = session.render(&scene, &settings)?.radiance_image();
+        let t_rebake = t0.elapsed().as_secs_f64();
+        rebake_totals.push(t_rebake * 1e3);
+        // The same colours baked with another seed: the method's own per-pixel noise.
+        let (exemplars, pattern) = bake_scene(&scene, reseeded, cache.as_ref())?;
+        let refs: Vec<&Baked> = exemplars.iter().collect();
+        (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
+        let reseeded_image = session.render(&scene, &settings)?.radiance_image();
+        let mean_error = image_mean_error(&live, &rebaked);
+        let (live_rms, floor_rms) =
+            (per_pixel_rms(&live, &rebaked), per_pixel_rms(&reseeded_image, &rebaked));
+        worst_mean = worst_mean.max(mean_error.abs());
+        worst_excess = worst_excess.max(live_rms - floor_rms);
         println!(
-            "| {} | {:.0} | {:.1} | {:.1} | {:.0} | {path} |",
+            "| {} | {:.1} | {:.1} | {:.0} | {:.0} | {:.1} | {:.0} | {:+.2}% | {:.2}% | {:.2}% |",
             k + 1,
+            t_write * 1e3,
+            (t_live - t_write) * 1e3,
+            t_live * 1e3,
             t_bake * 1e3,
             (t_upload - t_bake) * 1e3,
-            (t_total - t_upload) * 1e3,
-            t_total * 1e3
+            t_rebake * 1e3,
+            100.0 * mean_error,
+            100.0 * live_rms,
+            100.0 * floor_rms
         );
     }
-    totals.sort_by(f64::total_cmp);
+    let median_and_max = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2], v[v.len() - 1])
+    };
+    let (live_median, live_max) = median_and_max(&mut live_totals);
+    let (rebake_median, rebake_max) = median_and_max(&mut rebake_totals);
     println!(
-        "edit to picture: median {:.0} ms, max {:.0} ms over {count} colourways (target 100 ms); error against \
-         the rebake: 0 (this path is the rebake)",
-        totals[totals.len() / 2],
-        totals[totals.len() - 1]
+        "edit to picture: live median {live_median:.0} ms, max {live_max:.0} ms; rebake median {rebake_median:.0} ms, \
+         max {rebake_max:.0} ms, over {count} colourways (target 100 ms)"
+    );
+    println!(
+        "live against the rebake: worst image-mean error {:.2}% (target 2%); per-pixel RMS at most {:+.2} points \
+         above the rebake's own seed-to-seed difference",
+        100.0 * worst_mean,
+        100.0 * worst_excess
     );
     Ok(())
+}
+
+/// Relative difference of the image means, the channel where it is largest (signed).
+fn image_mean_error(image: &Image, reference: &Image) -> f64 {
+    let (a, b) = (image.mean(), reference.mean());
+    (0..3)
+        .map(|ch| (a[ch] - b[ch]) / b[ch].max(1e-12))
+        .fold(0.0, |m: f64, e| if e.abs() > m.abs() { e } else { m })
+}
+
+/// Per-pixel RMS difference (all channels) over the reference's mean value.
+fn per_pixel_rms(image: &Image, reference: &Image) -> f64 {
+    let n = (reference.pixels.len() * 3).max(1) as f64;
+    let squares: f64 =
+        image.pixels.iter().zip(&reference.pixels).map(|(a, b)| (*a - *b).length_squared()).sum();
+    let mean = reference.pixels.iter().map(|p| p.x + p.y + p.z).sum::<f64>() / n;
+    (squares / n).sqrt() / mean.max(1e-12)
 }
 
 /// `exemplars` on the GPU for `scene`: written into `session`'s fabric in place when the bake

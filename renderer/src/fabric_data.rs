@@ -575,6 +575,109 @@ impl FabricData {
     }
 }
 
+/// A recolouring of one exemplar, ready to write ([`FabricData::write_recolouring`]).
+pub struct Recolouring<'a> {
+    /// The exemplar (pattern order).
+    pub exemplar: usize,
+    /// The exemplar's material slots at their new colours.
+    pub materials: &'a [MaterialDesc],
+    /// The exemplar's C_S tables at the new colours (`None` for Lambertian slots).
+    pub cs_tables: &'a [Option<twill_precompute::bake::cs_table::CsTable>],
+    /// Every cell of the exemplar's IIRTF, channel-planar f32 (`3 n²` values per cell, what
+    /// `RecolourBasis::write_planar` writes).
+    pub iirtf: &'a [f32],
+}
+
+impl FabricData {
+    /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows and
+    /// IIRTF cells (as f16), nothing else. Returns the buffers written.
+    ///
+    /// # Errors
+    /// When the recolouring does not fit the exemplar's slots in the buffers.
+    pub fn write_recolouring(
+        &mut self,
+        queue: &wgpu::Queue,
+        r: &Recolouring<'_>,
+    ) -> Result<Vec<&'static str>, FabricDataError> {
+        let (materials_buffer, cs_buffer, iirtf_buffer) =
+            (self.buffer("materials").clone(), self.buffer("cs_table").clone(), self.buffer("iirtf").clone());
+        let a = &mut self.arrays;
+        let exemplars = a.exemplars.len();
+        let slots = a.materials.len() / exemplars.max(1);
+        let sh_count = a.header.sh_count as usize;
+        let theta_count = a.header.cs_theta_count as usize;
+        let cell_values = 3 * sh_count * sh_count;
+        let Some(ex) = a.exemplars.get(r.exemplar) else {
+            return Err(FabricDataError::Inconsistent(format!("no exemplar {} to recolour", r.exemplar)));
+        };
+        let (first_cell, cells) = (ex.cell_offset as usize, (ex.cell_dims.iter().product::<u32>()) as usize);
+        if r.materials.len() != slots
+            || r.cs_tables.len() != slots
+            || r.iirtf.len() != cells * cell_values
+            || a.materials.len() != slots * exemplars
+        {
+            return Err(FabricDataError::Inconsistent(format!(
+                "a recolouring of {} slots and {} IIRTF values for an exemplar of {slots} slots and {}",
+                r.materials.len(),
+                r.iirtf.len(),
+                cells * cell_values
+            )));
+        }
+        let mut written = Vec::new();
+        // Materials.
+        let materials: Vec<MaterialGpu> = r.materials.iter().map(material_gpu).collect();
+        let slot_range = r.exemplar * slots..(r.exemplar + 1) * slots;
+        if a.materials[slot_range.clone()] != materials[..] {
+            a.materials[slot_range.clone()].copy_from_slice(&materials);
+            let size = std::mem::size_of::<MaterialGpu>();
+            let bytes = bytemuck::cast_slice(&a.materials[slot_range.clone()]);
+            queue.write_buffer(&materials_buffer, (slot_range.start * size) as u64, bytes);
+            written.push("materials");
+        }
+        // C_S rows.
+        let row_values = theta_count * sh_count * 3;
+        let mut cs = Vec::with_capacity(slots * row_values);
+        for table in r.cs_tables {
+            match table {
+                Some(t) if t.sh_order() == a.header.sh_order as usize && t.theta_count() == theta_count => {
+                    cs.extend(t.coefficients().iter().flat_map(|c| c.as_vec3().to_array()));
+                }
+                Some(_) => {
+                    return Err(FabricDataError::Inconsistent(
+                        "a recoloured C_S table of another size".into(),
+                    ));
+                }
+                None => cs.extend(std::iter::repeat_n(0.0, row_values)),
+            }
+        }
+        let cs_range = r.exemplar * slots * row_values..(r.exemplar + 1) * slots * row_values;
+        a.cs_table[cs_range.clone()].copy_from_slice(&cs);
+        queue.write_buffer(&cs_buffer, (cs_range.start * 4) as u64, bytemuck::cast_slice(&cs));
+        written.push("cs_table");
+        // IIRTF cells, as f16 halves spliced into the packed pairs; written on whole words.
+        let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
+        let start = first_cell * cell_values;
+        for (h, &v) in halves[start..start + r.iirtf.len()].iter_mut().zip(r.iirtf) {
+            *h = f32_to_f16_bits(v);
+        }
+        let (word_start, word_end) = (start / 2, (start + r.iirtf.len()).div_ceil(2));
+        queue.write_buffer(
+            &iirtf_buffer,
+            (word_start * 4) as u64,
+            bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
+        );
+        written.push("iirtf");
+        Ok(written)
+    }
+
+    /// The storage buffer named `name` (one of [`FabricArrays::storage_buffers`]).
+    fn buffer(&self, name: &str) -> &wgpu::Buffer {
+        let index =
+            self.arrays.storage_buffers().iter().position(|(n, _)| *n == name).expect("a fabric buffer");
+        &self.buffers[index]
+    }
+}
+
 #[must_use]
 /// A buffer holding `bytes` (at least 16 bytes, padded to a multiple of 4, so empty arrays
 /// still bind).

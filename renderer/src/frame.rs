@@ -396,6 +396,41 @@ impl Renderer {
         Ok(self.fabric.update_in_place(&self.queue, exemplars, pattern)?)
     }
 
+    /// Recolours exemplar `exemplar` (pattern order) to `materials` without a rebake: its IIRTF
+    /// is evaluated from `basis` (`bake::recolour`, the cells in parallel) and written in place
+    /// with the C_S tables and materials (`FabricData::write_recolouring`); every other buffer
+    /// stays. Returns the buffers written.
+    ///
+    /// # Errors
+    /// Materials that are invalid or do not match the basis's and the exemplar's slots.
+    pub fn recolour(
+        &mut self,
+        exemplar: usize,
+        basis: &twill_precompute::bake::recolour::RecolourBasis,
+        materials: &[twill_precompute::bcsdf::MaterialDesc],
+    ) -> Result<Vec<&'static str>, RenderError> {
+        use rayon::prelude::*;
+        use twill_precompute::bake::recolour::SlotColour;
+        use twill_precompute::bcsdf::Material;
+        let colours: Vec<SlotColour> = materials
+            .iter()
+            .map(|m| Material::from_desc(m).map(|m| SlotColour::of(&m)))
+            .collect::<Result<_, _>>()
+            .map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
+        basis.check_colours(&colours).map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
+        let cell_values = 3 * twill_precompute::sh::sh_count(basis.sh_order).pow(2);
+        let mut iirtf = vec![0.0_f32; basis.cells.len() * cell_values];
+        iirtf
+            .par_chunks_mut(cell_values)
+            .enumerate()
+            .for_each(|(c, out)| basis.write_planar(c, &colours, out));
+        let cs_tables = basis.cs_tables(materials);
+        self.progressive = None;
+        let recolouring =
+            crate::fabric_data::Recolouring { exemplar, materials, cs_tables: &cs_tables, iirtf: &iirtf };
+        Ok(self.fabric.write_recolouring(&self.queue, &recolouring)?)
+    }
+
     /// The baked fabric slab's depth range (cm), which a shell must span.
     #[must_use]
     pub fn fabric_z_range(&self) -> [f32; 2] {

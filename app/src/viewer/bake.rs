@@ -376,7 +376,9 @@ fn run_bakes(
             let previews: Result<Vec<_>, BakeError> = all_inputs
                 .iter()
                 .zip(&previous.exemplars)
-                .map(|(inputs, prev)| bake_material_preview(inputs, prev, None, cache.as_ref(), cancel, &|_, _| {}))
+                .map(|(inputs, prev)| {
+                    bake_material_preview(inputs, prev, None, cache.as_ref(), cancel, &|_, _| {})
+                })
                 .collect();
             match previews {
                 Ok(outcomes) if outcomes.len() == all_inputs.len() => {
