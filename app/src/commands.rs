@@ -712,6 +712,7 @@ pub fn bench_recolor(
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| anyhow::anyhow!("recolouring basis: {e}"))?;
     let basis_seconds = started.elapsed().as_secs_f64();
+    let (basis_bytes, mean_rank) = bases.iter().map(|b| b.size()).fold((0, 0.0), |(b, r), (b1, r1)| (b + b1, r.max(r1)));
     let refs: Vec<&Baked> = exemplars.iter().collect();
     let mut session = SceneRenderer::new(&scene0, &refs, &pattern)?;
     let mut settings = frame_settings(&scene0, Components::All);
@@ -719,9 +720,10 @@ pub fn bench_recolor(
     session.render(&scene0, &settings)?;
     println!(
         "{} on {}: {quality:?} bake (first, filling the stage cache: {warm_bake:.1} s), recolouring basis {basis_seconds:.1} s \
-         (from the cache if it held it), {width}x{height}, {spp} spp",
+         (from the cache if it held it; {:.0} MB, {mean_rank:.1} curves per class), {width}x{height}, {spp} spp",
         base.path.display(),
-        session.renderer.adapter()
+        session.renderer.adapter(),
+        basis_bytes as f64 / 1e6
     );
     println!(
         "| colourway | live: evaluate + write ms | live: frame ms | live: edit to picture ms | rebake: material stages ms \
@@ -730,6 +732,7 @@ pub fn bench_recolor(
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let reseeded = BakeSettings { seed: settings0.seed.wrapping_add(1), ..settings0 };
+    let mut floor_session: Option<SceneRenderer> = None;
     let (mut live_totals, mut rebake_totals, mut worst_mean, mut worst_excess) =
         (Vec::with_capacity(count), Vec::with_capacity(count), 0.0_f64, f64::NEG_INFINITY);
     for (k, file) in random_recolourings(&base, count, seed).iter().enumerate() {
@@ -753,11 +756,25 @@ pub fn bench_recolor(
         let rebaked = session.render(&scene, &settings)?.radiance_image();
         let t_rebake = t0.elapsed().as_secs_f64();
         rebake_totals.push(t_rebake * 1e3);
-        // The same colours baked with another seed: the method's own per-pixel noise.
+        // The same colours baked with another seed: the method's own per-pixel noise. Its own
+        // renderer on the same device (another seed measures another mean free path, so another
+        // cell grid, which the basis does not fit).
         let (exemplars, pattern) = bake_scene(&scene, reseeded, cache.as_ref())?;
         let refs: Vec<&Baked> = exemplars.iter().collect();
-        (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
-        let reseeded_image = session.render(&scene, &settings)?.radiance_image();
+        let mut floor = match floor_session.take() {
+            Some(floor) => upload_to(Some(floor), &scene, &refs, &pattern)?.0,
+            None => {
+                let g = &session.gpu;
+                let gpu = twill_renderer::gpu::Gpu {
+                    adapter_info: g.adapter_info.clone(),
+                    device: g.device.clone(),
+                    queue: g.queue.clone(),
+                };
+                SceneRenderer::with_gpu(gpu, &scene, &refs, &pattern)?
+            }
+        };
+        let reseeded_image = floor.render(&scene, &settings)?.radiance_image();
+        floor_session = Some(floor);
         let mean_error = image_mean_error(&live, &rebaked);
         let (live_rms, floor_rms) =
             (per_pixel_rms(&live, &rebaked), per_pixel_rms(&reseeded_image, &rebaked));

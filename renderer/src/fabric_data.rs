@@ -583,14 +583,16 @@ pub struct Recolouring<'a> {
     pub materials: &'a [MaterialDesc],
     /// The exemplar's C_S tables at the new colours (`None` for Lambertian slots).
     pub cs_tables: &'a [Option<twill_precompute::bake::cs_table::CsTable>],
-    /// Every cell of the exemplar's IIRTF, channel-planar f32 (`3 n²` values per cell, what
-    /// `RecolourBasis::write_planar` writes).
-    pub iirtf: &'a [f32],
+    /// Writes cell `c`'s IIRTF as f16 bits, channel-planar (`3 n²` values: what
+    /// `RecolourBasis::write_planar` writes, converted), into the slice it is given. Called for
+    /// every cell of the exemplar, in parallel.
+    pub write_cell: &'a (dyn Fn(usize, &mut [u16]) + Sync),
 }
 
 impl FabricData {
     /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows and
-    /// IIRTF cells (as f16), nothing else. Returns the buffers written.
+    /// IIRTF cells (as f16, written straight into the packed array by `write_cell`), nothing
+    /// else. Returns the buffers written.
     ///
     /// # Errors
     /// When the recolouring does not fit the exemplar's slots in the buffers.
@@ -599,6 +601,7 @@ impl FabricData {
         queue: &wgpu::Queue,
         r: &Recolouring<'_>,
     ) -> Result<Vec<&'static str>, FabricDataError> {
+        use rayon::prelude::*;
         let (materials_buffer, cs_buffer, iirtf_buffer) =
             (self.buffer("materials").clone(), self.buffer("cs_table").clone(), self.buffer("iirtf").clone());
         let a = &mut self.arrays;
@@ -611,16 +614,10 @@ impl FabricData {
             return Err(FabricDataError::Inconsistent(format!("no exemplar {} to recolour", r.exemplar)));
         };
         let (first_cell, cells) = (ex.cell_offset as usize, (ex.cell_dims.iter().product::<u32>()) as usize);
-        if r.materials.len() != slots
-            || r.cs_tables.len() != slots
-            || r.iirtf.len() != cells * cell_values
-            || a.materials.len() != slots * exemplars
-        {
+        if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars {
             return Err(FabricDataError::Inconsistent(format!(
-                "a recolouring of {} slots and {} IIRTF values for an exemplar of {slots} slots and {}",
-                r.materials.len(),
-                r.iirtf.len(),
-                cells * cell_values
+                "a recolouring of {} slots for an exemplar of {slots}",
+                r.materials.len()
             )));
         }
         let mut written = Vec::new();
@@ -654,13 +651,14 @@ impl FabricData {
         a.cs_table[cs_range.clone()].copy_from_slice(&cs);
         queue.write_buffer(&cs_buffer, (cs_range.start * 4) as u64, bytemuck::cast_slice(&cs));
         written.push("cs_table");
-        // IIRTF cells, as f16 halves spliced into the packed pairs; written on whole words.
-        let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
+        // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words.
         let start = first_cell * cell_values;
-        for (h, &v) in halves[start..start + r.iirtf.len()].iter_mut().zip(r.iirtf) {
-            *h = f32_to_f16_bits(v);
-        }
-        let (word_start, word_end) = (start / 2, (start + r.iirtf.len()).div_ceil(2));
+        let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
+        let Some(exemplar_halves) = halves.get_mut(start..start + cells * cell_values) else {
+            return Err(FabricDataError::Inconsistent("the exemplar's IIRTF cells lie outside the buffer".into()));
+        };
+        exemplar_halves.par_chunks_mut(cell_values).enumerate().for_each(|(c, out)| (r.write_cell)(c, out));
+        let (word_start, word_end) = (start / 2, (start + cells * cell_values).div_ceil(2));
         queue.write_buffer(
             &iirtf_buffer,
             (word_start * 4) as u64,

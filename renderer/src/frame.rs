@@ -409,7 +409,6 @@ impl Renderer {
         basis: &twill_precompute::bake::recolour::RecolourBasis,
         materials: &[twill_precompute::bcsdf::MaterialDesc],
     ) -> Result<Vec<&'static str>, RenderError> {
-        use rayon::prelude::*;
         use twill_precompute::bake::recolour::SlotColour;
         use twill_precompute::bcsdf::Material;
         let colours: Vec<SlotColour> = materials
@@ -419,15 +418,30 @@ impl Renderer {
             .map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
         basis.check_colours(&colours).map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
         let cell_values = 3 * twill_precompute::sh::sh_count(basis.sh_order).pow(2);
-        let mut iirtf = vec![0.0_f32; basis.cells.len() * cell_values];
-        iirtf
-            .par_chunks_mut(cell_values)
-            .enumerate()
-            .for_each(|(c, out)| basis.write_planar(c, &colours, out));
+        if basis.cells.len() * cell_values
+            != self.fabric.arrays.exemplars.get(exemplar).map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize)
+                * cell_values
+        {
+            return Err(RenderError::Settings(format!(
+                "recolouring: the basis has {} cells, the GPU fabric's exemplar {exemplar} another count",
+                basis.cells.len()
+            )));
+        }
+        let write_cell = |c: usize, out: &mut [u16]| {
+            if basis.cells[c].paths == 0 {
+                out.fill(0);
+                return;
+            }
+            let mut values = vec![0.0_f32; out.len()];
+            basis.write_planar(c, &colours, &mut values);
+            for (h, v) in out.iter_mut().zip(&values) {
+                *h = crate::fabric_data::f32_to_f16_bits(*v);
+            }
+        };
         let cs_tables = basis.cs_tables(materials);
         self.progressive = None;
         let recolouring =
-            crate::fabric_data::Recolouring { exemplar, materials, cs_tables: &cs_tables, iirtf: &iirtf };
+            crate::fabric_data::Recolouring { exemplar, materials, cs_tables: &cs_tables, write_cell: &write_cell };
         Ok(self.fabric.write_recolouring(&self.queue, &recolouring)?)
     }
 

@@ -501,7 +501,7 @@ fn covariance_eigen(data: &Data, k: usize, cancel: &Cancel) -> Result<(Mat<f64>,
 
 /// Eigenvalues (nondecreasing) and eigenvectors of a symmetric matrix (lower triangle read),
 /// by faer, sequentially.
-fn symmetric_eigen(a: MatRef<'_, f64>) -> Result<(Vec<f64>, Mat<f64>), PcaError> {
+pub(crate) fn symmetric_eigen(a: MatRef<'_, f64>) -> Result<(Vec<f64>, Mat<f64>), PcaError> {
     use faer::linalg::evd::{ComputeEigenvectors, self_adjoint_evd, self_adjoint_evd_scratch};
     let n = a.nrows();
     let mut u = Mat::zeros(n, n);
