@@ -195,6 +195,10 @@ enum BenchCommand {
         colourways: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// IIRTF paths per cell of the basis and the rebakes (default: the quality's), to see
+        /// the recolouring's own error below the transfer's noise.
+        #[arg(long)]
+        iirtf_paths: Option<usize>,
     },
     /// The viewer's own frame times while a bake runs in the background (needs a display:
     /// run under `xvfb-run -a` without one). The bake starts from an empty stage cache.
@@ -591,8 +595,14 @@ fn run(cli: Cli) -> Result<()> {
                 println!("UI frame times (orbiting every frame; bake: {quality:?}, {seconds} s):\n{report}");
                 Ok(())
             }
-            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed } => {
-                commands::bench_recolor(scene.as_deref(), size, spp, quality_of(quality), colourways, seed)
+            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed, iirtf_paths } => {
+                commands::bench_recolor(
+                    scene.as_deref(),
+                    size,
+                    spp,
+                    quality_of(quality),
+                    commands::RecolorRun { count: colourways, seed, iirtf_paths },
+                )
             }
             BenchCommand::Raycast { scene, swatch_cm, rays, seconds, embree } => {
                 commands::bench_raycast(scene.as_deref(), swatch_cm, rays, seconds, embree)

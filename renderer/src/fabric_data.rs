@@ -614,7 +614,8 @@ impl FabricData {
             return Err(FabricDataError::Inconsistent(format!("no exemplar {} to recolour", r.exemplar)));
         };
         let (first_cell, cells) = (ex.cell_offset as usize, (ex.cell_dims.iter().product::<u32>()) as usize);
-        if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars {
+        if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars
+        {
             return Err(FabricDataError::Inconsistent(format!(
                 "a recolouring of {} slots for an exemplar of {slots}",
                 r.materials.len()
@@ -655,7 +656,9 @@ impl FabricData {
         let start = first_cell * cell_values;
         let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
         let Some(exemplar_halves) = halves.get_mut(start..start + cells * cell_values) else {
-            return Err(FabricDataError::Inconsistent("the exemplar's IIRTF cells lie outside the buffer".into()));
+            return Err(FabricDataError::Inconsistent(
+                "the exemplar's IIRTF cells lie outside the buffer".into(),
+            ));
         };
         exemplar_halves.par_chunks_mut(cell_values).enumerate().for_each(|(c, out)| (r.write_cell)(c, out));
         let (word_start, word_end) = (start / 2, (start + cells * cell_values).div_ceil(2));

@@ -419,7 +419,12 @@ impl Renderer {
         basis.check_colours(&colours).map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
         let cell_values = 3 * twill_precompute::sh::sh_count(basis.sh_order).pow(2);
         if basis.cells.len() * cell_values
-            != self.fabric.arrays.exemplars.get(exemplar).map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize)
+            != self
+                .fabric
+                .arrays
+                .exemplars
+                .get(exemplar)
+                .map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize)
                 * cell_values
         {
             return Err(RenderError::Settings(format!(
@@ -440,8 +445,12 @@ impl Renderer {
         };
         let cs_tables = basis.cs_tables(materials);
         self.progressive = None;
-        let recolouring =
-            crate::fabric_data::Recolouring { exemplar, materials, cs_tables: &cs_tables, write_cell: &write_cell };
+        let recolouring = crate::fabric_data::Recolouring {
+            exemplar,
+            materials,
+            cs_tables: &cs_tables,
+            write_cell: &write_cell,
+        };
         Ok(self.fabric.write_recolouring(&self.queue, &recolouring)?)
     }
 

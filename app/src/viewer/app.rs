@@ -190,6 +190,9 @@ pub struct ViewerApp {
     fabric: Option<FabricInfo>,
     /// The bake on screen (a material edit previews from it).
     shown_bake: Option<Arc<BakedSet>>,
+    /// The recolouring bases of the fabric's geometry and the quality they were made at
+    /// (`bake::recolour`): colour edits evaluate them for their preview.
+    recolour: Option<(Quality, super::bake::RecolourBases)>,
     /// The scene whose fabric and materials the last bake was started for.
     baked_scene: Option<SceneFile>,
     /// A fabric edit waiting for [`FABRIC_EDIT_SETTLE`], and since when.
@@ -310,6 +313,7 @@ impl ViewerApp {
             uploading: Vec::new(),
             fabric: None,
             shown_bake: None,
+            recolour: None,
             baked_scene: baked_scene.clone(),
             pending_fabric: None,
             mesh_sent: baked_scene.as_ref().map(|f| (f.mesh.clone(), f.swatch.size_cm)),
@@ -399,11 +403,14 @@ impl ViewerApp {
             return;
         }
         let scene = scene.clone();
-        match (&self.shown_bake, geometry_changed) {
-            (Some(previous), false) => {
-                self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous));
-            }
-            _ => self.baker.start(scene.clone(), bake_sequence(self.final_quality)),
+        if let (Some(previous), false) = (&self.shown_bake, geometry_changed) {
+            let recolour = (self.recolour.as_ref())
+                .filter(|(quality, _)| *quality == self.final_quality)
+                .map(|(_, bases)| Arc::clone(bases));
+            self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous), recolour);
+        } else {
+            self.recolour = None;
+            self.baker.start(scene.clone(), bake_sequence(self.final_quality));
         }
         self.baked_scene = Some(scene);
         self.pending_fabric = None;
@@ -502,6 +509,7 @@ impl ViewerApp {
         self.source_path = path.to_path_buf();
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
+        self.recolour = None;
         self.fabric = None;
         self.baker.start(file.clone(), bake_sequence(self.final_quality));
         self.baked_scene = Some(file);
@@ -533,6 +541,13 @@ impl ViewerApp {
                         baked: bake.baked,
                         scene: bake.scene,
                     });
+                }
+                BakeEvent::RecolourReady { quality, bases, seconds } => {
+                    self.messages.info(format!(
+                        "colour edits now update multiple scattering at once (recolouring basis ready in \
+                         {seconds:.1} s)"
+                    ));
+                    self.recolour = Some((quality, bases));
                 }
                 BakeEvent::Failed { message } => self.messages.error(message),
             }

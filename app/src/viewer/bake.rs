@@ -18,10 +18,15 @@
 //! bake), the bake thread holds until the viewer says that bake's picture is on screen
 //! ([`Baker::picture_shown`]), at most [`MAX_PICTURE_HOLD`], and only then starts the next.
 //!
-//! A material edit ([`Baker::start_material_edit`]) first hands over a preview that recomputes
-//! only the single-scattering tables and keeps the previous bake's multiple scattering
+//! A material edit ([`Baker::start_material_edit`]) first hands over a preview
 //! (`bake_material_preview`: a fraction of a second), then the full bake, whose transfer stage
-//! is the only slow one left (the geometry stages come from the stage cache).
+//! is the only slow one left (the geometry stages come from the stage cache). The preview
+//! recomputes the single-scattering tables; its multiple scattering is the previous bake's, or,
+//! once the fabric has a recolouring basis (`bake::recolour`), evaluated at the new colours from
+//! it. The basis is made lazily: the full bake after the first material edit of a geometry goes
+//! on to make it ([`BakeEvent::RecolourReady`]; cached like a stage, seconds at interactive
+//! quality), so every later colour edit follows with multiple scattering at once, and a
+//! designer who never edits a colour never pays for it.
 
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
@@ -30,7 +35,10 @@ use std::time::{Duration, Instant};
 use eframe::egui;
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::pattern::PatternMap;
-use twill_precompute::bake::pipeline::{BakeError, BakeOutcome, Baked, Stage, bake, bake_material_preview};
+use twill_precompute::bake::pipeline::{
+    BakeError, BakeOutcome, Baked, Stage, bake, bake_material_preview, recolour_basis,
+};
+use twill_precompute::bake::recolour::RecolourBasis;
 use twill_precompute::bake::settings::Quality;
 use twill_precompute::scene::{Scene, SceneFile};
 
@@ -58,10 +66,21 @@ pub struct FabricBake {
     pub preview: bool,
 }
 
+/// The recolouring basis of every exemplar of a fabric (`bake::recolour`).
+pub type RecolourBases = Arc<Vec<RecolourBasis>>;
+
 /// What the bake thread reports.
 pub enum BakeEvent {
     Ready(FabricBake),
-    Failed { message: String },
+    /// The recolouring basis of every exemplar of the fabric just baked at `quality`.
+    RecolourReady {
+        quality: Quality,
+        bases: Arc<Vec<RecolourBasis>>,
+        seconds: f64,
+    },
+    Failed {
+        message: String,
+    },
 }
 
 /// Where the bake in flight is.
@@ -161,12 +180,24 @@ impl Baker {
     }
 
     /// After a material edit: a preview from `previous` (a bake of the same geometry at
-    /// `quality`), then the full bake at `quality`.
-    pub fn start_material_edit(&mut self, scene: SceneFile, quality: Quality, previous: Arc<BakedSet>) {
-        self.spawn(scene, vec![quality], Some(previous));
+    /// `quality`), recoloured from `recolour` (that geometry's bases at `quality`) when given,
+    /// then the full bake at `quality`, and then, without `recolour`, the bases.
+    pub fn start_material_edit(
+        &mut self,
+        scene: SceneFile,
+        quality: Quality,
+        previous: Arc<BakedSet>,
+        recolour: Option<RecolourBases>,
+    ) {
+        self.spawn(scene, vec![quality], Some((previous, recolour)));
     }
 
-    fn spawn(&mut self, scene: SceneFile, qualities: Vec<Quality>, preview_from: Option<Arc<BakedSet>>) {
+    fn spawn(
+        &mut self,
+        scene: SceneFile,
+        qualities: Vec<Quality>,
+        preview_from: Option<(Arc<BakedSet>, Option<RecolourBases>)>,
+    ) {
         log::info!("bake {qualities:?} (material preview first: {})", preview_from.is_some());
         self.cancel();
         let id = self.next_id;
@@ -185,10 +216,14 @@ impl Baker {
         let released = Arc::clone(&self.released);
         let cache_dir = self.cache_dir.clone();
         let spawned = std::thread::Builder::new().name("twill-bake".into()).spawn(move || {
+            let (previous, recolour) = preview_from.unzip();
+            let recolour = recolour.flatten();
             let job = BakeJob {
                 id,
                 qualities: &qualities,
-                preview_from: preview_from.as_deref(),
+                preview_from: previous.as_deref(),
+                recolour: recolour.as_deref().map(Vec::as_slice),
+                make_recolour: previous.is_some() && recolour.is_none(),
                 cache_dir: cache_dir.as_deref(),
                 released: &released,
             };
@@ -269,6 +304,10 @@ struct BakeJob<'a> {
     qualities: &'a [Quality],
     /// Start with a material preview from this bake.
     preview_from: Option<&'a BakedSet>,
+    /// The recolouring bases the preview evaluates (one per exemplar).
+    recolour: Option<&'a [RecolourBasis]>,
+    /// After the last bake, make the recolouring bases and report them.
+    make_recolour: bool,
     cache_dir: Option<&'a std::path::Path>,
     released: &'a Condvar,
 }
@@ -376,8 +415,10 @@ fn run_bakes(
             let previews: Result<Vec<_>, BakeError> = all_inputs
                 .iter()
                 .zip(&previous.exemplars)
-                .map(|(inputs, prev)| {
-                    bake_material_preview(inputs, prev, None, cache.as_ref(), cancel, &|_, _| {})
+                .enumerate()
+                .map(|(i, (inputs, prev))| {
+                    let basis = job.recolour.and_then(|b| b.get(i));
+                    bake_material_preview(inputs, prev, basis, cache.as_ref(), cancel, &|_, _| {})
                 })
                 .collect();
             match previews {
@@ -416,17 +457,43 @@ fn run_bakes(
             }
         }
         let ready = BakeEvent::Ready(set(exemplars, union_of(computed.into_iter()), false));
-        match next {
-            Some(next) => {
-                if !report_and_hold(ready, next) {
-                    return;
-                }
+        if let Some(next) = next {
+            if !report_and_hold(ready, next) {
+                return;
             }
-            None => report(ready),
+        } else {
+            report(ready);
+            if job.make_recolour {
+                make_recolour_bases(quality, &all_inputs, cache.as_ref(), cancel, &report);
+            }
         }
     }
     set_progress(None);
     repaint.request_repaint();
+}
+
+/// Makes (or loads from the stage cache) the recolouring basis of every exemplar of `inputs`
+/// and reports them; a failure is logged (colour edits then keep the previous multiple
+/// scattering until their full bake, as before).
+fn make_recolour_bases(
+    quality: Quality,
+    inputs: &[twill_precompute::bake::pipeline::BakeInputs<'_>],
+    cache: Option<&twill_precompute::bake::file::Cache>,
+    cancel: &Cancel,
+    report: &dyn Fn(BakeEvent),
+) {
+    let started = Instant::now();
+    let bases: Result<Vec<RecolourBasis>, BakeError> =
+        inputs.iter().map(|inputs| recolour_basis(inputs, cache, cancel, &|_| {})).collect();
+    match bases {
+        Ok(bases) => {
+            let seconds = started.elapsed().as_secs_f64();
+            log::info!("recolouring bases ready in {seconds:.1} s");
+            report(BakeEvent::RecolourReady { quality, bases: Arc::new(bases), seconds });
+        }
+        Err(BakeError::Cancelled) => {}
+        Err(e) => log::warn!("no recolouring basis: {e}"),
+    }
 }
 
 #[cfg(test)]

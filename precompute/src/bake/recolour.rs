@@ -97,15 +97,19 @@ pub struct CellBasis {
     /// W of each mixed class (one per slot met, the slot holding most of its connections' TT
     /// events) per slot met, class-major; each class's weights sum to 1.
     pub mixed_weights: Vec<f32>,
+    /// Each mixed class's C_R gradient per slot met, normalized like W: how a change of C_R
+    /// in each slot moves the class.
+    pub mixed_r_weights: Vec<f32>,
     /// Per class (each slot met's single class, then its mixed class): the pole ρ of its curves.
     pub poles: Vec<f32>,
-    /// Per class: how many basis curves it has (its rank over the cell's entries).
+    /// Per curve set (each class's value curve, then its C_R curve): how many basis curves it
+    /// has (its rank over the cell's entries).
     pub ranks: Vec<u32>,
-    /// The classes' basis curves, in class order: each the values at [`CURVE_ALBEDOS`] and then
-    /// the slopes there.
+    /// The basis curves, in set order: each the values at [`CURVE_ALBEDOS`] and then the
+    /// slopes there.
     pub curves: Vec<f32>,
     /// Per IIRTF entry (`j1 * n + j0`), [`CellBasis::stride`] values: the coefficient of every
-    /// basis curve (class order), the standard error at a0, and G per slot met.
+    /// basis curve (set order), then the standard error at a0.
     pub data: Vec<f32>,
 }
 
@@ -115,6 +119,7 @@ impl CellBasis {
             paths: 0,
             slots: Vec::new(),
             mixed_weights: Vec::new(),
+            mixed_r_weights: Vec::new(),
             poles: Vec::new(),
             ranks: Vec::new(),
             curves: Vec::new(),
@@ -125,86 +130,89 @@ impl CellBasis {
     /// Values per entry.
     #[must_use]
     pub fn stride(&self) -> usize {
-        self.coefficient_count() + 1 + self.slots.len()
+        self.coefficient_count() + 1
     }
 
-    /// Basis curves over all classes (coefficients per entry).
+    /// Basis curves over all sets (coefficients per entry).
     fn coefficient_count(&self) -> usize {
         self.ranks.iter().map(|&r| r as usize).sum()
     }
 
-    /// Each class's albedo per channel at `colours` (indexed by slot): τ of its slot for a
-    /// single class, the weighted geometric mean of the slots' τ for a mixed class.
-    fn class_albedos(&self, colours: &[SlotColour]) -> Vec<[f64; 3]> {
+    /// Each class's albedo and C_R change per channel at `colours` (indexed by slot): τ and
+    /// `C_R − COLOUR_FREE_C_R` of its slot for a single class; the weighted geometric mean of
+    /// the slots' τ and the weighted mean of their C_R changes for a mixed class.
+    fn class_colours(&self, colours: &[SlotColour]) -> Vec<([f64; 3], [f64; 3])> {
         let black = SlotColour { tau: Rgb::ZERO, c_r: Rgb::ZERO };
         let colour = |s: u32| colours.get(s as usize).copied().unwrap_or(black);
+        let delta = |s: u32, ch: usize| colour(s).c_r[ch] - COLOUR_FREE_C_R;
         let k = self.slots.len();
-        let mut albedos: Vec<[f64; 3]> =
-            self.slots.iter().map(|&s| [0, 1, 2].map(|ch| colour(s).tau[ch].clamp(0.0, 1.0))).collect();
-        for weights in self.mixed_weights.chunks_exact(k.max(1)).take(k) {
-            albedos.push([0, 1, 2].map(|ch| {
+        let mut out: Vec<([f64; 3], [f64; 3])> = (self.slots.iter())
+            .map(|&s| {
+                ([0, 1, 2].map(|ch| colour(s).tau[ch].clamp(0.0, 1.0)), [0, 1, 2].map(|ch| delta(s, ch)))
+            })
+            .collect();
+        let per_class = |w: &[f32]| w.chunks_exact(k.max(1)).take(k).map(<[f32]>::to_vec).collect::<Vec<_>>();
+        for (weights, r_weights) in
+            per_class(&self.mixed_weights).iter().zip(per_class(&self.mixed_r_weights))
+        {
+            let albedo = [0, 1, 2].map(|ch| {
                 let log_mixed: f64 = (self.slots.iter().zip(weights))
                     .map(|(&s, &w)| f64::from(w) * colour(s).tau[ch].clamp(MIN_TAU, 1.0).ln())
                     .sum();
                 log_mixed.exp().clamp(0.0, 1.0)
-            }));
+            });
+            let dr = [0, 1, 2].map(|ch| {
+                self.slots.iter().zip(&r_weights).map(|(&s, &u)| f64::from(u) * delta(s, ch)).sum()
+            });
+            out.push((albedo, dr));
         }
-        albedos
+        out
     }
 
     /// What [`Self::entry`] needs at `colours` (indexed by slot), computed once per cell: every
-    /// basis curve read at its class's albedo, per channel.
+    /// basis curve read at its class's albedo (a C_R curve times its class's C_R change), per
+    /// channel.
     #[must_use]
     pub fn prepare(&self, colours: &[SlotColour]) -> CellColours {
-        let black = SlotColour { tau: Rgb::ZERO, c_r: Rgb::ZERO };
         let mut basis_values = Vec::with_capacity(self.coefficient_count());
         let mut curves = self.curves.chunks_exact(2 * POINTS);
-        for ((albedo, &rank), &pole) in self.class_albedos(colours).iter().zip(&self.ranks).zip(&self.poles) {
+        let mut ranks = self.ranks.iter();
+        for ((albedo, dr), &pole) in self.class_colours(colours).iter().zip(&self.poles) {
             let weights = albedo.map(|a| HermiteWeights::at(a, f64::from(pole)));
-            for curve in curves.by_ref().take(rank as usize) {
-                let (values, slopes) = curve.split_at(POINTS);
-                basis_values.push(weights.map(|w| w.apply(values, slopes)));
+            for scale in [[1.0; 3], *dr] {
+                let rank = ranks.next().copied().unwrap_or(0);
+                for curve in curves.by_ref().take(rank as usize) {
+                    let (values, slopes) = curve.split_at(POINTS);
+                    basis_values
+                        .push([0, 1, 2].map(|ch| weights[ch].apply(values, slopes) * scale[ch] as f32));
+                }
             }
         }
-        let delta_c_r = (self.slots.iter())
-            .map(|&s| {
-                let c = colours.get(s as usize).copied().unwrap_or(black);
-                [0, 1, 2].map(|ch| (c.c_r[ch] - COLOUR_FREE_C_R) as f32)
-            })
-            .collect();
-        CellColours { basis_values, delta_c_r }
+        CellColours { basis_values }
     }
 
     /// Entry `e`'s transfer (per channel) at the colours `prepared` holds, and its standard
-    /// error at the expansion point: every class's curve (its coefficients times the basis
-    /// curves' values) and the C_R term.
+    /// error at the expansion point: its coefficients times the basis curves' values.
     #[must_use]
     pub fn entry(&self, e: usize, prepared: &CellColours) -> ([f32; 3], f32) {
         let stride = self.stride();
         let d = &self.data[e * stride..(e + 1) * stride];
-        let (coefficients, rest) = d.split_at(self.coefficient_count());
-        let (std_error, g) = (rest[0], &rest[1..]);
+        let (coefficients, std_error) = d.split_at(stride - 1);
         let mut out = [0.0_f32; 3];
         for (c, values) in coefficients.iter().zip(&prepared.basis_values) {
             for (o, v) in out.iter_mut().zip(values) {
                 *o += c * v;
             }
         }
-        for (g, dr) in g.iter().zip(&prepared.delta_c_r) {
-            for (o, dr) in out.iter_mut().zip(dr) {
-                *o += g * dr;
-            }
-        }
-        (out, std_error)
+        (out, std_error[0])
     }
 }
 
 /// A cell's colours, prepared for [`CellBasis::entry`]: every basis curve's value at its
-/// class's albedo per channel, and `C_R − COLOUR_FREE_C_R` per slot met.
+/// class's colours, per channel.
 #[derive(Debug, Clone)]
 pub struct CellColours {
     basis_values: Vec<[f32; 3]>,
-    delta_c_r: Vec<[f32; 3]>,
 }
 
 /// The pole ρ of a curve (module docs) from its value I and slope I' at a = 1:
@@ -238,7 +246,8 @@ impl HermiteWeights {
         let h = x1 - x0;
         let t = (a - x0) / h;
         let (t2, t3) = (t * t, t * t * t);
-        let (h00, h10, h01, h11) = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, -2.0 * t3 + 3.0 * t2, (t3 - t2) * h);
+        let (h00, h10, h01, h11) =
+            (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, -2.0 * t3 + 3.0 * t2, (t3 - t2) * h);
         // g = (1 − ρx) I and g' = −ρ I + (1 − ρx) I' at both nodes.
         let (q0, q1, q) = (1.0 - rho * x0, 1.0 - rho * x1, 1.0 - rho * a);
         let w = [(h00 * q0 - h10 * rho) / q, h10 * q0 / q, (h01 * q1 - h11 * rho) / q, h11 * q1 / q];
@@ -390,7 +399,13 @@ impl RecolourBasis {
     #[must_use]
     pub fn size(&self) -> (usize, f64) {
         let bytes = (self.cells.iter())
-            .map(|c| 4 * (c.data.len() + c.curves.len() + c.poles.len() + c.mixed_weights.len()) + 4 * c.slots.len())
+            .map(|c| {
+                4 * (c.data.len()
+                    + c.curves.len()
+                    + c.poles.len()
+                    + 2 * c.mixed_weights.len()
+                    + c.slots.len())
+            })
             .sum();
         let classes: usize = self.cells.iter().map(|c| c.ranks.len()).sum();
         let ranks: u32 = self.cells.iter().flat_map(|c| &c.ranks).sum();
@@ -517,28 +532,35 @@ fn bake_cell_basis(
                     }
                 }
             };
-            // The class: the one slot holding every TT event, or the mixed class of the slot
-            // holding most of them (of the largest C_R derivative without TT events).
-            let mut holding = counts.iter().enumerate().filter(|(_, c)| **c > 0);
+            // The class: the one slot holding every event (TT and R), or the mixed class of the
+            // slot holding most TT events (the largest C_R derivative without TT events).
+            let mut holding = (0..slots).filter(|&s| counts[s] > 0 || r_log[s] > 0.0);
             let class = match (holding.next(), holding.next()) {
-                (Some((s, _)), None) => s,
+                (Some(s), None) => s,
                 _ if k == 0 => slots + argmax(r_log.iter().copied()),
                 _ => slots + argmax(counts.iter().map(|&c| f64::from(c))),
             };
+            let r_total: f64 = r_log.iter().sum();
+            let (value_set, r_set) = (2 * class, 2 * class + 1);
             for (i, &a) in CURVE_ALBEDOS.iter().enumerate() {
-                add(Rows::value(class, i), w * a.powi(k_i32));
-                if k > 0 {
-                    add(Rows::slope(class, i), w * f64::from(k) * a.powi(k_i32 - 1));
-                }
-            }
-            if class >= slots && k > 0 {
-                for (s, &c) in counts.iter().enumerate() {
-                    add(rows.mixed_gradient(class - slots, s), w * f64::from(c) * a0.powi(k_i32 - 1));
-                }
+                let at_a = w * a.powi(k_i32);
+                let slope = if k > 0 { w * f64::from(k) * a.powi(k_i32 - 1) } else { 0.0 };
+                add(Rows::value(value_set, i), at_a);
+                add(Rows::slope(value_set, i), slope);
+                add(Rows::value(r_set, i), at_a * r_total);
+                add(Rows::slope(r_set, i), slope * r_total);
             }
             let at_a0 = w * a0.powi(k_i32);
-            for (s, &r) in r_log.iter().enumerate() {
-                add(rows.r_gradient(s), at_a0 * r);
+            if class >= slots {
+                for s in 0..slots {
+                    if k > 0 {
+                        add(
+                            rows.mixed_gradient(class - slots, s),
+                            w * f64::from(counts[s]) * a0.powi(k_i32 - 1),
+                        );
+                    }
+                    add(rows.mixed_r_gradient(class - slots, s), at_a0 * r_log[s]);
+                }
             }
             for (t, y) in total_a0.iter_mut().zip(&y0) {
                 *t += at_a0 * y;
@@ -563,29 +585,33 @@ fn bake_cell_basis(
     Some(finish_cell(&sum, &sum2_a0, paths, n * n, rows))
 }
 
-/// The accumulator rows of a cell: per class (each slot's single class, then each slot's mixed
-/// class) the curve's values and slopes, then each mixed class's gradient per slot, and the
-/// C_R gradient per slot.
+/// The accumulator rows of a cell: per curve set (for each class, each slot's single class and
+/// then each slot's mixed class: its value curve and its C_R curve) the values and slopes at the
+/// nodes, then each mixed class's TT gradient and C_R gradient per slot.
 #[derive(Debug, Clone, Copy)]
 struct Rows {
     slots: usize,
 }
 
 impl Rows {
+    /// Curve sets: two per class, two classes per slot.
+    fn sets(self) -> usize {
+        4 * self.slots
+    }
     fn count(self) -> usize {
-        2 * self.slots * 2 * POINTS + self.slots * self.slots + self.slots
+        self.sets() * 2 * POINTS + 2 * self.slots * self.slots
     }
-    fn value(class: usize, point: usize) -> usize {
-        class * 2 * POINTS + point
+    fn value(set: usize, point: usize) -> usize {
+        set * 2 * POINTS + point
     }
-    fn slope(class: usize, point: usize) -> usize {
-        class * 2 * POINTS + POINTS + point
+    fn slope(set: usize, point: usize) -> usize {
+        set * 2 * POINTS + POINTS + point
     }
     fn mixed_gradient(self, class: usize, slot: usize) -> usize {
-        2 * self.slots * 2 * POINTS + class * self.slots + slot
+        self.sets() * 2 * POINTS + class * self.slots + slot
     }
-    fn r_gradient(self, slot: usize) -> usize {
-        2 * self.slots * 2 * POINTS + self.slots * self.slots + slot
+    fn mixed_r_gradient(self, class: usize, slot: usize) -> usize {
+        self.sets() * 2 * POINTS + self.slots * self.slots + class * self.slots + slot
     }
 }
 
@@ -608,9 +634,10 @@ fn low_rank(curves: &[[f64; 2 * POINTS]]) -> (Vec<[f64; 2 * POINTS]>, Vec<f64>) 
         if rms > 0.0 { rms } else { 1.0 }
     });
     let scaled = |c: &[f64; 2 * POINTS], i: usize| c[i] / scale[i];
-    let scatter = faer::Mat::from_fn(d, d, |i, j| curves.iter().map(|c| scaled(c, i) * scaled(c, j)).sum::<f64>());
+    let scatter =
+        faer::Mat::from_fn(d, d, |i, j| curves.iter().map(|c| scaled(c, i) * scaled(c, j)).sum::<f64>());
     let total: f64 = (0..d).map(|i| scatter[(i, i)]).sum();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return (Vec::new(), Vec::new());
     }
     let Ok((values, vectors)) = super::pca::symmetric_eigen(scatter.as_ref()) else {
@@ -630,7 +657,9 @@ fn low_rank(curves: &[[f64; 2 * POINTS]]) -> (Vec<[f64; 2 * POINTS]>, Vec<f64>) 
     let vectors = &vectors;
     let coefficients = curves
         .iter()
-        .flat_map(|c| (0..rank).map(move |r| (0..d).map(|i| vectors[(i, d - 1 - r)] * scaled(c, i)).sum::<f64>()))
+        .flat_map(|c| {
+            (0..rank).map(move |r| (0..d).map(|i| vectors[(i, d - 1 - r)] * scaled(c, i)).sum::<f64>())
+        })
         .collect();
     let basis = (0..rank).map(|r| std::array::from_fn(|i| vectors[(i, d - 1 - r)] * scale[i])).collect();
     (basis, coefficients)
@@ -650,58 +679,73 @@ fn finish_cell(sum: &[f64], sum2_a0: &[f64], paths: usize, entries: usize, rows:
     let uses = |q: usize| (0..entries).any(|e| sum[q * entries + e] != 0.0);
     let met: Vec<usize> = (0..slots)
         .filter(|&s| {
-            [s, slots + s].iter().any(|&class| (0..2 * POINTS).any(|i| uses(Rows::value(class, 0) + i)))
-                || (0..slots).any(|b| uses(rows.mixed_gradient(b, s)))
-                || uses(rows.r_gradient(s))
+            [2 * s, 2 * s + 1, 2 * (slots + s), 2 * (slots + s) + 1]
+                .iter()
+                .any(|&set| (0..2 * POINTS).any(|i| uses(Rows::value(set, 0) + i)))
+                || (0..slots).any(|b| uses(rows.mixed_gradient(b, s)) || uses(rows.mixed_r_gradient(b, s)))
         })
         .collect();
-    // Each mixed class's normalized gradient, from the (0, 0) entry; even weights where it
-    // cannot be divided (no such connections, or noise).
-    let mut mixed_weights = Vec::with_capacity(met.len() * met.len());
-    for &b in &met {
-        let gradient: Vec<f64> = met.iter().map(|&s| mean(rows.mixed_gradient(b, s), 0)).collect();
+    // Each mixed class's normalized TT and C_R gradients, from the (0, 0) entry; even weights
+    // where they cannot be divided (no such connections, or noise).
+    let normalized = |row: &dyn Fn(usize) -> usize| -> Vec<f64> {
+        let gradient: Vec<f64> = met.iter().map(|&s| mean(row(s), 0)).collect();
         let total: f64 = gradient.iter().sum();
         let weights: Vec<f64> = gradient.iter().map(|g| g / total).collect();
         if total > 0.0 && weights.iter().all(|w| (WEIGHT_RANGE.0..=WEIGHT_RANGE.1).contains(w)) {
-            mixed_weights.extend(weights);
+            weights
         } else {
-            mixed_weights.extend(std::iter::repeat_n(1.0 / met.len() as f64, met.len()));
+            vec![1.0 / met.len() as f64; met.len()]
         }
+    };
+    let mut mixed_weights = Vec::with_capacity(met.len() * met.len());
+    let mut mixed_r_weights = Vec::with_capacity(met.len() * met.len());
+    for &b in &met {
+        mixed_weights.extend(normalized(&|s| rows.mixed_gradient(b, s)));
+        mixed_r_weights.extend(normalized(&|s| rows.mixed_r_gradient(b, s)));
     }
     let classes: Vec<usize> = met.iter().copied().chain(met.iter().map(|&s| slots + s)).collect();
-    // Each class's curves over the entries, compressed to the few curves that span them.
-    let (mut poles, mut ranks, mut curves, mut coefficients) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    // Each curve set over the entries, compressed to the few curves that span it.
+    let (mut poles, mut ranks, mut curves, mut coefficients) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for &class in &classes {
-        let curve = |e: usize| -> [f64; 2 * POINTS] {
-            std::array::from_fn(|i| {
-                if i < POINTS { mean(Rows::value(class, i), e) } else { mean(Rows::slope(class, i - POINTS), e) }
-            })
-        };
-        let dc = curve(0);
-        poles.push(pole(dc[POINTS - 1], dc[2 * POINTS - 1]) as f32);
-        let all: Vec<[f64; 2 * POINTS]> = (0..entries).map(curve).collect();
-        let (basis, coefficient) = low_rank(&all);
-        ranks.push(basis.len() as u32);
-        curves.extend(basis.iter().flatten().map(|&x| x as f32));
-        coefficients.push(coefficient);
+        for set in [2 * class, 2 * class + 1] {
+            let curve = |e: usize| -> [f64; 2 * POINTS] {
+                std::array::from_fn(|i| {
+                    if i < POINTS {
+                        mean(Rows::value(set, i), e)
+                    } else {
+                        mean(Rows::slope(set, i - POINTS), e)
+                    }
+                })
+            };
+            if set == 2 * class {
+                let dc = curve(0);
+                poles.push(pole(dc[POINTS - 1], dc[2 * POINTS - 1]) as f32);
+            }
+            let all: Vec<[f64; 2 * POINTS]> = (0..entries).map(curve).collect();
+            let (basis, coefficient) = low_rank(&all);
+            ranks.push(basis.len() as u32);
+            curves.extend(basis.iter().flatten().map(|&x| x as f32));
+            coefficients.push(coefficient);
+        }
     }
-    let stride = ranks.iter().sum::<u32>() as usize + 1 + met.len();
+    let stride = ranks.iter().sum::<u32>() as usize + 1;
     let mut data = Vec::with_capacity(entries * stride);
     for (e, sum2) in sum2_a0.iter().enumerate().take(entries) {
         for c in &coefficients {
             let r = c.len() / entries;
             data.extend(c[e * r..(e + 1) * r].iter().map(|&x| x as f32));
         }
-        let whole: f64 = classes.iter().map(|&c| mean(Rows::value(c, EXPANSION_INDEX), e)).sum();
+        let whole: f64 = classes.iter().map(|&c| mean(Rows::value(2 * c, EXPANSION_INDEX), e)).sum();
         let std_error =
             if paths > 1 { ((sum2 / count - whole * whole).max(0.0) / (count - 1.0)).sqrt() } else { 0.0 };
         data.push(std_error as f32);
-        data.extend(met.iter().map(|&s| mean(rows.r_gradient(s), e) as f32));
     }
     CellBasis {
         paths,
         slots: met.iter().map(|&s| s as u32).collect(),
         mixed_weights: mixed_weights.iter().map(|&w| w as f32).collect(),
+        mixed_r_weights: mixed_r_weights.iter().map(|&w| w as f32).collect(),
         poles,
         ranks,
         curves,
@@ -966,16 +1010,27 @@ mod tests {
         let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
         let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
         let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
-        let basis = bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
         let (_, yarns) = yarn_materials(&inputs).unwrap();
         let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
         let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
         let y00 = 1.0 / (4.0 * PI);
-        for pair in [[0.3, 0.3], [0.5, 0.5], [0.75, 0.75], [0.9, 0.9], [0.97, 0.97], [0.6, 0.9], [0.9, 0.6], [0.3, 0.6]] {
+        for pair in [
+            [0.3, 0.3],
+            [0.5, 0.5],
+            [0.75, 0.75],
+            [0.9, 0.9],
+            [0.97, 0.97],
+            [0.6, 0.9],
+            [0.9, 0.6],
+            [0.3, 0.6],
+        ] {
             let (mut exact_sum, mut approx_sum, mut single_sum) = (0.0, 0.0, 0.0);
             for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0).take(300) {
-                let exact = reweighed_dc(&sampler, &grid, c, &s, &pair) * 4.0 * PI * y00 * 4.0 * PI / (4.0 * PI);
+                let exact =
+                    reweighed_dc(&sampler, &grid, c, &s, &pair) * 4.0 * PI * y00 * 4.0 * PI / (4.0 * PI);
                 let cell = &basis.cells[c];
                 let prepared = cell.prepare(&[colour(pair[0]), colour(pair[1])]);
                 let approx = f64::from(cell.entry(0, &prepared).0[0]);
@@ -984,7 +1039,65 @@ mod tests {
                 approx_sum += approx;
                 single_sum = 0.0;
             }
-            eprintln!("{pair:?}: exact {exact_sum:.5} basis {approx_sum:.5} ratio {:.4}", approx_sum / exact_sum);
+            eprintln!(
+                "{pair:?}: exact {exact_sum:.5} basis {approx_sum:.5} ratio {:.4}",
+                approx_sum / exact_sum
+            );
+        }
+    }
+
+    /// Diagnostic: the default fabric at interactive settings, the whole IIRTF from the basis
+    /// against a bake at the same colours: sums of the (0, 0) entries and of all entries.
+    #[test]
+    #[ignore = "diagnostic"]
+    fn default_fabric_against_bake() {
+        let preset = crate::fabric::presets::fabric_preset("default").unwrap();
+        let exemplar = preset.fabric.build(std::path::Path::new(".")).unwrap();
+        let materials = vec![preset.warp_material, preset.weft_material];
+        let s = Quality::Interactive.settings();
+        let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
+        let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
+        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        for (label, colours) in [
+            ("preset", vec![]),
+            ("black", vec![(None, Rgb::splat(0.02)); 2]),
+            ("mid", vec![(None, Rgb::splat(0.5)); 2]),
+            ("mid, C_R 0.05", vec![(Some(Rgb::splat(0.05)), Rgb::splat(0.5)); 2]),
+            ("contrast", vec![(None, Rgb::new(0.2, 0.5, 0.9)), (None, Rgb::new(0.9, 0.5, 0.2))]),
+        ] {
+            let m: Vec<MaterialDesc> = if colours.is_empty() {
+                materials.clone()
+            } else {
+                materials
+                    .iter()
+                    .zip(&colours)
+                    .map(|(m, &(c_r, c_tt))| match *m {
+                        MaterialDesc::Fiber(p) => {
+                            MaterialDesc::Fiber(FiberParams { c_r: c_r.unwrap_or(p.c_r), c_tt, ..p })
+                        }
+                        MaterialDesc::Lambert { .. } => unreachable!(),
+                    })
+                    .collect()
+            };
+            let slot: Vec<SlotColour> =
+                m.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect();
+            let ours = basis.iirtf(&slot).unwrap();
+            let direct = direct_bake(&exemplar, &grid, &m, &s);
+            let (a, sa) = total_dc(ours.cells.clone().into_iter());
+            let (b, sb) = total_dc(direct.cells.clone().into_iter());
+            let all = |i: &Iirtf| {
+                i.cells
+                    .iter()
+                    .flat_map(|c| c.matrix.iter())
+                    .fold(Rgb::ZERO, |acc, v| acc + glam::Vec3::from(*v).as_dvec3().abs())
+            };
+            eprintln!(
+                "{label}: DC {a:.4} ± {sa:.4} vs {b:.4} ± {sb:.4} ratio {:.4}; sum |entries| ratio {:.4}",
+                a / b,
+                all(&ours) / all(&direct)
+            );
         }
     }
 
