@@ -827,6 +827,7 @@ pub fn bench_recolor(
 
 /// How many colourways `twill bench recolor` tries, their seed, and the IIRTF paths per cell
 /// (`None`: the quality's).
+#[derive(Debug, Clone, Copy)]
 pub struct RecolorRun {
     pub count: usize,
     pub seed: u64,
