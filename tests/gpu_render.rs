@@ -883,9 +883,9 @@ fn a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would() {
 ///   whole-bake path (`bake_material_preview` + `update_fabric`): the in-place splice of the
 ///   f16 cells, the C_S rows and the materials is exact;
 /// - against a full rebake at those colours, 32 x 32, 16 spp, measured (2026-11-25): image mean
-///   R / G / B +0.37% / −1.21% / −0.07%, per-pixel RMS difference 33.9% of the rebake's mean,
+///   R / G / B +4.23% / +1.64% / −1.68%, per-pixel RMS difference 34.6% of the rebake's mean,
 ///   where two rebakes that differ only in their seed differ by 36.3% (draft: 96 paths per
-///   cell). One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
+///   cell, so both pictures' multiple scattering is noisy). One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
 ///   also stay within the seed-to-seed difference (the method's own per-pixel noise).
 #[test]
 fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
@@ -958,7 +958,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     };
     let (ours, theirs) = (live.mean(), rebaked.mean());
     let mut failures = Vec::new();
-    for (channel, measured) in [(0, 0.0037), (1, -0.0121), (2, -0.0007)] {
+    for (channel, measured) in [(0, 0.0423), (1, 0.0164), (2, -0.0168)] {
         let error = ours[channel] / theirs[channel] - 1.0;
         eprintln!(
             "channel {channel}: live {:.5}, rebake {:.5}, {:+.2}%",
@@ -974,7 +974,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     }
     let (live_rms, floor) = (rms(&live, &rebaked), rms(&reseeded, &rebaked));
     eprintln!("per-pixel RMS: live {:.2}%, seed to seed {:.2}%", 100.0 * live_rms, 100.0 * floor);
-    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.339, 0.02) {
+    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.346, 0.02) {
         failures.push(e);
     }
     if live_rms > floor {

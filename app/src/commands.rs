@@ -694,7 +694,7 @@ pub fn bench_recolor(
     quality: Quality,
     run: RecolorRun,
 ) -> Result<()> {
-    use twill_precompute::bake::pipeline::recolour_basis;
+    use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
     let RecolorRun { count, seed, iirtf_paths } = run;
     anyhow::ensure!((1..=1000).contains(&count), "--colourways {count}: expected 1..=1000");
     let base = SceneFile::load_or_default(scene)?;
@@ -706,7 +706,7 @@ pub fn bench_recolor(
         settings0.validate()?;
     }
     let started = Instant::now();
-    let (exemplars, pattern) = bake_scene(&scene0, settings0, cache.as_ref())?;
+    let (base_exemplars, pattern) = bake_scene(&scene0, settings0, cache.as_ref())?;
     let warm_bake = started.elapsed().as_secs_f64();
     let started = Instant::now();
     let bases = scene0
@@ -720,7 +720,7 @@ pub fn bench_recolor(
         .iter()
         .map(twill_precompute::bake::recolour::RecolourBasis::size)
         .fold((0, 0.0_f64), |(b, r), (b1, r1)| (b + b1, r.max(r1)));
-    let refs: Vec<&Baked> = exemplars.iter().collect();
+    let refs: Vec<&Baked> = base_exemplars.iter().collect();
     let mut session = SceneRenderer::new(&scene0, &refs, &pattern)?;
     let mut settings = frame_settings(&scene0, Components::All);
     (settings.width, settings.height, settings.spp) = (width as u32, height as u32, spp);
@@ -734,11 +734,12 @@ pub fn bench_recolor(
         basis_bytes as f64 / 1e6
     );
     println!(
-        "| colourway | live: evaluate + write ms | live: frame ms | live: edit to picture ms | rebake: material stages ms \
+        "| colourway | live: evaluate + write ms | live: frame ms | live: edit to picture ms | viewer preview: edit to picture ms \
+         | rebake: material stages ms \
          | rebake: upload ms | rebake: edit to picture ms | live vs rebake: image mean | live vs rebake: per-pixel RMS \
          | rebake vs rebake (seed): image mean | rebake vs rebake (seed): per-pixel RMS |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     let reseeded = BakeSettings { seed: settings0.seed.wrapping_add(1), ..settings0 };
     let mut floor_session: Option<SceneRenderer> = None;
     let mut worst_floor_mean = 0.0_f64;
@@ -755,6 +756,31 @@ pub fn bench_recolor(
         let live = session.render(&scene, &settings)?.radiance_image();
         let t_live = t0.elapsed().as_secs_f64();
         live_totals.push(t_live * 1e3);
+        // The viewer's path: the material preview evaluated from the basis, packed and written
+        // in place as a whole bake, one frame.
+        let t0 = Instant::now();
+        let previews = scene
+            .bake_inputs(settings0)
+            .iter()
+            .zip(&base_exemplars)
+            .zip(&bases)
+            .map(|((inputs, previous), basis)| {
+                bake_material_preview(
+                    inputs,
+                    previous,
+                    Some(basis),
+                    cache.as_ref(),
+                    &Cancel::new(),
+                    &|_, _| {},
+                )
+                .map(|o| o.baked)
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| anyhow::anyhow!("material preview: {e}"))?;
+        let refs: Vec<&Baked> = previews.iter().collect();
+        (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
+        session.render(&scene, &settings)?;
+        let t_viewer = t0.elapsed().as_secs_f64();
         // Rebake.
         let t0 = Instant::now();
         let (exemplars, pattern) = bake_scene(&scene, settings0, cache.as_ref())?;
@@ -791,11 +817,12 @@ pub fn bench_recolor(
         worst_floor_mean = worst_floor_mean.max(floor_mean.abs());
         worst_excess = worst_excess.max(live_rms - floor_rms);
         println!(
-            "| {} | {:.1} | {:.1} | {:.0} | {:.0} | {:.1} | {:.0} | {:+.2}% | {:.2}% | {:+.2}% | {:.2}% |",
+            "| {} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} | {:.1} | {:.0} | {:+.2}% | {:.2}% | {:+.2}% | {:.2}% |",
             k + 1,
             t_write * 1e3,
             (t_live - t_write) * 1e3,
             t_live * 1e3,
+            t_viewer * 1e3,
             t_bake * 1e3,
             (t_upload - t_bake) * 1e3,
             t_rebake * 1e3,

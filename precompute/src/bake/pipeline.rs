@@ -389,7 +389,7 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key.
-const RECOLOUR_VERSION: u32 = 3;
+const RECOLOUR_VERSION: u32 = 4;
 
 /// A material with its colours zeroed: what the recolouring basis depends on.
 fn without_colours(m: &MaterialDesc) -> MaterialDesc {

@@ -10,28 +10,36 @@
 //! K and the counts k_s per slot: at C_R = [`COLOUR_FREE_C_R`] its contribution at any τ is
 //! exactly `w Π_s τ_s^(k_s)`. Per channel, each IIRTF entry is then stored as:
 //!
-//! - **One exact curve per slot** for the connections whose TT events all lie in that slot
-//!   (most of them: light tends to stay in a yarn): `J_s(τ_s) = Σ w τ_s^K`, a function of one
-//!   variable, stored as its values and slopes `Σ w K τ^(K−1)` at [`CURVE_ALBEDOS`] (denser
-//!   toward 1, where long paths make it steep) and read between them by cubic Hermite
-//!   interpolation.
-//! - **Theorem 1 for the rest** (connections through several slots, and those with no TT event,
-//!   which do not depend on τ): their homogeneous curve `I_h(a) = Σ w a^K` likewise, read at
-//!   the weighted geometric mean `Π_s τ_s^(W_s)`, with W the normalized gradient
-//!   `∂/∂τ_s = Σ w k_s a0^(K−1)` at the expansion point `a0` = [`EXPANSION_ALBEDO`] divided by
-//!   its sum over slots. Like Hašan's weighted arithmetic mean it is exact on the homogeneous
-//!   diagonal with the true gradient at a0 (both conditions of the theorem); unlike it, it is
-//!   exact for a connection whose TT events split between the slots in the proportions W
-//!   (`Π τ_s^(k_s) = (Π τ_s^(k_s/K))^K`), and it sends the class to zero when one of its slots
-//!   is black, as the products do (the arithmetic mean doubled the error of a near-black slot).
-//!   W is the cell's, taken from its (0, 0) entry (the cell's total transfer): per-entry weights
-//!   at a few hundred paths per cell are noise, and the curve's convexity turns noise in W into
-//!   a bias (measured: +25% in the image mean of a navy and cream recolouring at draft quality).
-//! - **C_R** to first order: `∂/∂C_R,s = Σ w a0^K Σ_R-events-in-s (1 − m) / (C_R + (1 − C_R) m)`
-//!   at C_R = [`COLOUR_FREE_C_R`], added as `G_s (C_R,s − COLOUR_FREE_C_R)`: R events are few
-//!   and their factor is affine in C_R.
+//! - **One exact curve per slot** for the connections whose events (TT and R) all lie in that
+//!   slot (most of them: light tends to stay in a yarn): `J_s(τ_s) = Σ w τ_s^K`, a function of
+//!   one variable, stored as its values and slopes `Σ w K τ^(K−1)` at [`CURVE_ALBEDOS`] (denser
+//!   toward 1) and read between them by cubic Hermite interpolation of `(1 − ρa) J`, with the
+//!   pole ρ fitted to the class's (0, 0) entry ([`HermiteWeights::at`]): long paths make the
+//!   curves steep near 1, and plain Hermite missed by 3.5% at τ = 0.9.
+//! - **Theorem 1 for the rest**, one mixed class per slot holding most of a connection's TT
+//!   events (connections through several slots, and those with no TT event): their
+//!   homogeneous curve `I_h(a) = Σ w a^K` likewise, read at a mean M of the slots' τ with
+//!   `M(a, …, a) = a` and `∂M/∂τ_s = W_s` at the expansion point `a0` = [`EXPANSION_ALBEDO`],
+//!   W the normalized gradient `Σ w k_s a0^(K−1)` (Hašan's two conditions: exact on the
+//!   homogeneous diagonal, the true gradient at a0). Hašan use the arithmetic mean `Σ W_s τ_s`,
+//!   exact when each TT event falls in slot s independently with probability W_s (the binomial
+//!   theorem); the weighted geometric mean `Π τ_s^(W_s)` is exact when every connection splits
+//!   its events in the proportions W, and sends the class to zero when one of its slots is
+//!   black, as the products do. M is the mix `β A + (1 − β) G` whose cross second derivatives
+//!   at a0 match the class's ([`MixedMoments::arithmetic_share`]). W and β are the cell's, from
+//!   its (0, 0) entry (the cell's total transfer): per-entry weights at a few hundred paths per
+//!   cell are noise, and the curve's convexity turns noise in W into a bias (measured: +25% in
+//!   the image mean of a navy and cream recolouring at draft quality).
+//! - **C_R** to first order, per class: a second curve `Σ w τ^K Σ_R (1 − m) / ρ(C_R = 0.05)`
+//!   (the derivative in C_R of the connections' R factors at [`COLOUR_FREE_C_R`]), times the
+//!   class's `C_R − COLOUR_FREE_C_R` (a mixed class: weighted by its C_R gradient per slot).
+//!   Taking it at a0 alone and applying it at every albedo sent near-black recolourings
+//!   negative.
 //! - **C_S** is exactly affine in the colours: `C_S = A + C_R B + (1 − C_R) C_TT C`, with the
 //!   three colour-free tables of each fiber slot computed once ([`CsParts`]).
+//!
+//! Each class's curves over a cell's entries are compressed to the few that span them
+//! ([`low_rank`]), so the basis holds a few coefficients per entry and class.
 //!
 //! The walk never reads a colour, so the basis depends on the geometry, the lobe widths and the
 //! settings only, and a colour edit evaluates it (milliseconds) instead of rebaking. Its paths
@@ -39,9 +47,9 @@
 //! [`COLOUR_FREE_C_R`], Russian roulette at [`super::iirtf::COLOUR_FREE_ROULETTE_ALBEDO`]), so
 //! the gradient is unbiased (Hašan's section 5 warns of the opposite).
 //!
-//! Storage per nonempty cell: the slots its paths met and the mixed class's W; per IIRTF entry
-//! (scalar: one set of paths serves every channel) the curves (one per slot met, then the
-//! mixed class's), the standard error at a0 of the whole transfer, and G per slot met.
+//! Storage per nonempty cell: the slots its paths met, each mixed class's W, C_R weights and β,
+//! each class's pole, and the basis curves; per IIRTF entry (scalar: one set of paths serves
+//! every channel) the coefficients on them and the standard error at a0 of the whole transfer.
 
 use super::cells::CellGrid;
 use super::cs_table::{CsTable, CsTableError};
@@ -100,6 +108,8 @@ pub struct CellBasis {
     /// Each mixed class's C_R gradient per slot met, normalized like W: how a change of C_R
     /// in each slot moves the class.
     pub mixed_r_weights: Vec<f32>,
+    /// Per mixed class, β in [0, 1]: its albedo is `β Σ W τ + (1 − β) Π τ^W` (module docs).
+    pub mixed_arithmetic: Vec<f32>,
     /// Per class (each slot met's single class, then its mixed class): the pole ρ of its curves.
     pub poles: Vec<f32>,
     /// Per curve set (each class's value curve, then its C_R curve): how many basis curves it
@@ -120,6 +130,7 @@ impl CellBasis {
             slots: Vec::new(),
             mixed_weights: Vec::new(),
             mixed_r_weights: Vec::new(),
+            mixed_arithmetic: Vec::new(),
             poles: Vec::new(),
             ranks: Vec::new(),
             curves: Vec::new(),
@@ -152,14 +163,17 @@ impl CellBasis {
             })
             .collect();
         let per_class = |w: &[f32]| w.chunks_exact(k.max(1)).take(k).map(<[f32]>::to_vec).collect::<Vec<_>>();
-        for (weights, r_weights) in
-            per_class(&self.mixed_weights).iter().zip(per_class(&self.mixed_r_weights))
-        {
+        let classes = per_class(&self.mixed_weights).into_iter().zip(per_class(&self.mixed_r_weights));
+        for ((weights, r_weights), &beta) in classes.zip(&self.mixed_arithmetic) {
             let albedo = [0, 1, 2].map(|ch| {
-                let log_mixed: f64 = (self.slots.iter().zip(weights))
-                    .map(|(&s, &w)| f64::from(w) * colour(s).tau[ch].clamp(MIN_TAU, 1.0).ln())
+                let tau = |s: u32| colour(s).tau[ch].clamp(0.0, 1.0);
+                let log_mixed: f64 = (self.slots.iter().zip(&weights))
+                    .map(|(&s, &w)| f64::from(w) * tau(s).max(MIN_TAU).ln())
                     .sum();
-                log_mixed.exp().clamp(0.0, 1.0)
+                let arithmetic: f64 =
+                    (self.slots.iter().zip(&weights)).map(|(&s, &w)| f64::from(w) * tau(s)).sum();
+                let beta = f64::from(beta);
+                (beta * arithmetic + (1.0 - beta) * log_mixed.exp()).clamp(0.0, 1.0)
             });
             let dr = [0, 1, 2].map(|ch| {
                 self.slots.iter().zip(&r_weights).map(|(&s, &u)| f64::from(u) * delta(s, ch)).sum()
@@ -502,6 +516,9 @@ fn bake_cell_basis(
     let rows = Rows { slots };
     let mut sum = vec![0.0_f64; rows.count() * n * n];
     let mut sum2_a0 = vec![0.0_f64; n * n];
+    // Per mixed class, sums of colour-free weights (the (0, 0) entry up to a constant): the
+    // TT gradient per slot, I'(a0), I''(a0) and the cross second derivatives (module docs).
+    let mut mixed = vec![MixedMoments::new(slots); slots];
     let mut light = vec![0.0_f64; rows.count() * n];
     let mut touched = vec![false; rows.count()];
     let mut total_a0 = vec![0.0_f64; n];
@@ -552,6 +569,7 @@ fn bake_cell_basis(
             }
             let at_a0 = w * a0.powi(k_i32);
             if class >= slots {
+                mixed[class - slots].add(w, k, counts, a0);
                 for s in 0..slots {
                     if k > 0 {
                         add(
@@ -582,7 +600,55 @@ fn bake_cell_basis(
         }
     }
     tick(paths % CHECK_EVERY);
-    Some(finish_cell(&sum, &sum2_a0, paths, n * n, rows))
+    Some(finish_cell(&sum, &sum2_a0, paths, n * n, rows, &mixed))
+}
+
+/// Sums over a mixed class's connections of their colour-free weights w (the (0, 0) entry up
+/// to a constant), for the shape of its mean: `I'(a0) = Σ w K a0^(K−1)`,
+/// `I''(a0) = Σ w K (K − 1) a0^(K−2)` and the sum of the cross second derivatives
+/// `Σ_{s≠t} ∂²/∂τ_s∂τ_t = Σ w (K² − Σ_s k_s²) a0^(K−2)`.
+#[derive(Debug, Clone)]
+struct MixedMoments {
+    slope: f64,
+    curvature: f64,
+    cross: f64,
+}
+
+impl MixedMoments {
+    fn new(_slots: usize) -> Self {
+        Self { slope: 0.0, curvature: 0.0, cross: 0.0 }
+    }
+
+    fn add(&mut self, w: f64, k: u32, counts: &[u32], a0: f64) {
+        if k == 0 {
+            return;
+        }
+        let k_i32 = k.min(i32::MAX as u32) as i32;
+        let kf = f64::from(k);
+        self.slope += w * kf * a0.powi(k_i32 - 1);
+        if k >= 2 {
+            let squares: f64 = counts.iter().map(|&c| f64::from(c).powi(2)).sum();
+            self.curvature += w * kf * (kf - 1.0) * a0.powi(k_i32 - 2);
+            self.cross += w * (kf * kf - squares) * a0.powi(k_i32 - 2);
+        }
+    }
+
+    /// β for the class's mean `M = β Σ W τ + (1 − β) Π τ^W` (W = `weights`): any such M keeps
+    /// Theorem 1 (exact on the diagonal, `∂M/∂τ_s = W_s` there), and β is chosen so that
+    /// `I(M(τ))` also has the class's summed cross second derivative at a0,
+    /// `I'' S + I' (1 − β) S / a0` with `S = 1 − Σ W²`. β = 1 is exact when each TT event falls
+    /// in slot s independently with probability W_s (the binomial theorem), β = 0 when every
+    /// connection splits its events in the proportions W. Clamped to [0, 1]; 0 without the
+    /// moments to fit it.
+    fn arithmetic_share(&self, weights: &[f64]) -> f64 {
+        let spread = 1.0 - weights.iter().map(|w| w * w).sum::<f64>();
+        if self.slope <= 0.0 || spread <= 1e-6 || !self.slope.is_finite() {
+            return 0.0;
+        }
+        let geometric_share =
+            (self.cross - self.curvature * spread) * EXPANSION_ALBEDO / (self.slope * spread);
+        (1.0 - geometric_share).clamp(0.0, 1.0)
+    }
 }
 
 /// The accumulator rows of a cell: per curve set (for each class, each slot's single class and
@@ -672,7 +738,14 @@ fn argmax(values: impl Iterator<Item = f64>) -> usize {
 
 /// Means, the standard error at a0, the mixed classes' weights and the slots met, packed per
 /// entry.
-fn finish_cell(sum: &[f64], sum2_a0: &[f64], paths: usize, entries: usize, rows: Rows) -> CellBasis {
+fn finish_cell(
+    sum: &[f64],
+    sum2_a0: &[f64],
+    paths: usize,
+    entries: usize,
+    rows: Rows,
+    moments: &[MixedMoments],
+) -> CellBasis {
     let count = paths as f64;
     let mean = |q: usize, e: usize| sum[q * entries + e] / count;
     let slots = rows.slots;
@@ -699,8 +772,11 @@ fn finish_cell(sum: &[f64], sum2_a0: &[f64], paths: usize, entries: usize, rows:
     };
     let mut mixed_weights = Vec::with_capacity(met.len() * met.len());
     let mut mixed_r_weights = Vec::with_capacity(met.len() * met.len());
+    let mut mixed_arithmetic = Vec::with_capacity(met.len());
     for &b in &met {
-        mixed_weights.extend(normalized(&|s| rows.mixed_gradient(b, s)));
+        let weights = normalized(&|s| rows.mixed_gradient(b, s));
+        mixed_arithmetic.push(moments[b].arithmetic_share(&weights) as f32);
+        mixed_weights.extend(weights);
         mixed_r_weights.extend(normalized(&|s| rows.mixed_r_gradient(b, s)));
     }
     let classes: Vec<usize> = met.iter().copied().chain(met.iter().map(|&s| slots + s)).collect();
@@ -746,6 +822,7 @@ fn finish_cell(sum: &[f64], sum2_a0: &[f64], paths: usize, entries: usize, rows:
         slots: met.iter().map(|&s| s as u32).collect(),
         mixed_weights: mixed_weights.iter().map(|&w| w as f32).collect(),
         mixed_r_weights: mixed_r_weights.iter().map(|&w| w as f32).collect(),
+        mixed_arithmetic,
         poles,
         ranks,
         curves,
@@ -1066,6 +1143,8 @@ mod tests {
             ("mid", vec![(None, Rgb::splat(0.5)); 2]),
             ("mid, C_R 0.05", vec![(Some(Rgb::splat(0.05)), Rgb::splat(0.5)); 2]),
             ("contrast", vec![(None, Rgb::new(0.2, 0.5, 0.9)), (None, Rgb::new(0.9, 0.5, 0.2))]),
+            ("white", vec![(None, Rgb::splat(0.93)); 2]),
+            ("white, C_R 0.05", vec![(Some(Rgb::splat(0.05)), Rgb::splat(0.93)); 2]),
         ] {
             let m: Vec<MaterialDesc> = if colours.is_empty() {
                 materials.clone()
