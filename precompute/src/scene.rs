@@ -639,12 +639,7 @@ impl SceneFile {
             }
         };
 
-        // Material slot 0 is warp (or the only material of imported fibers), slot 1 weft; with
-        // a colourway, material k is palette colour k.
-        let material_descs = match colourway {
-            Some(colourway) => colourway.materials,
-            None => self.material_slots().map(|m| m.unwrap_or(FALLBACK_MATERIAL)).to_vec(),
-        };
+        let material_descs = self.slot_materials(colourway.map(|c| c.materials));
         let materials: Vec<Material> =
             material_descs.iter().map(Material::from_desc).collect::<Result<_, _>>().map_err(param)?;
         let yarn_materials = exemplar
@@ -778,6 +773,25 @@ impl SceneFile {
             )));
         }
         Ok(ScenePattern { map, exemplars })
+    }
+
+    /// The material of every slot a bake of this scene has, without building the fabric (what
+    /// a colour edit needs): material slot 0 is warp (or the only material of imported fibers),
+    /// slot 1 weft; with a colourway, material k is palette colour k.
+    ///
+    /// # Errors
+    /// A colourway that does not parse (as [`Self::build`] says it).
+    pub fn material_descs(&self) -> Result<Vec<MaterialDesc>, SceneError> {
+        let colourway = self.colourway().map_err(|message| SceneError::Invalid {
+            path: self.path.clone(),
+            message: format!("[materials]: {message}"),
+        })?;
+        Ok(self.slot_materials(colourway.map(|c| c.materials)))
+    }
+
+    /// The palette's materials when there is one, else the warp and weft slots.
+    fn slot_materials(&self, palette: Option<Vec<MaterialDesc>>) -> Vec<MaterialDesc> {
+        palette.unwrap_or_else(|| self.material_slots().map(|m| m.unwrap_or(FALLBACK_MATERIAL)).to_vec())
     }
 
     /// The material of each slot (0 warp, 1 weft) as given: `[materials]` over the preset's, a
