@@ -369,8 +369,11 @@ pub fn recolour_basis(
     let key = h.finish();
     let name = "recolour_basis";
     if let Some(file) = cache.and_then(|c| c.load(key)) {
-        match decode_section(&file, name) {
-            Ok(basis) => return Ok(basis),
+        match decode_section::<RecolourBasis>(&file, name) {
+            Ok(basis) => match basis.check_sizes() {
+                Ok(()) => return Ok(basis),
+                Err(e) => log::warn!("ignoring cached {name}: {e}"),
+            },
             Err(e) => log::warn!("ignoring cached {name}: {e}"),
         }
     }

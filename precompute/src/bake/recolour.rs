@@ -426,6 +426,42 @@ impl RecolourBasis {
         (bytes, f64::from(ranks) / classes.max(1) as f64)
     }
 
+    /// Checks that every cell's arrays have the sizes its slots and ranks give (a basis read
+    /// from a cache file is checked before it is used).
+    ///
+    /// # Errors
+    /// What is inconsistent, naming the cell.
+    pub fn check_sizes(&self) -> Result<(), String> {
+        let entries = sh_count(self.sh_order).pow(2);
+        for (i, c) in self.cells.iter().enumerate() {
+            if c.paths == 0 {
+                if !c.data.is_empty() || !c.ranks.is_empty() {
+                    return Err(format!("recolouring basis cell {i} has no paths but holds data"));
+                }
+                continue;
+            }
+            let k = c.slots.len();
+            let ranks: usize = c.ranks.iter().map(|&r| r as usize).sum();
+            let consistent = c.slots.iter().all(|&s| (s as usize) < self.slot_count)
+                && c.mixed_weights.len() == k * k
+                && c.mixed_r_weights.len() == k * k
+                && c.mixed_arithmetic.len() == k
+                && c.poles.len() == 2 * k
+                && c.ranks.len() == 4 * k
+                && c.curves.len() == ranks * 2 * POINTS
+                && c.data.len() == entries * c.stride()
+                && c.data.iter().chain(&c.curves).all(|x| x.is_finite());
+            if !consistent {
+                return Err(format!("recolouring basis cell {i} has arrays of inconsistent sizes or values"));
+            }
+        }
+        if self.cs_parts.len() == self.slot_count {
+            Ok(())
+        } else {
+            Err(format!("{} C_S parts for {} slots", self.cs_parts.len(), self.slot_count))
+        }
+    }
+
     /// Checks that `colours` has one entry per slot.
     ///
     /// # Errors
@@ -518,7 +554,7 @@ fn bake_cell_basis(
     let mut sum2_a0 = vec![0.0_f64; n * n];
     // Per mixed class, sums of colour-free weights (the (0, 0) entry up to a constant): the
     // TT gradient per slot, I'(a0), I''(a0) and the cross second derivatives (module docs).
-    let mut mixed = vec![MixedMoments::new(slots); slots];
+    let mut mixed = vec![MixedMoments::new(); slots];
     let mut light = vec![0.0_f64; rows.count() * n];
     let mut touched = vec![false; rows.count()];
     let mut total_a0 = vec![0.0_f64; n];
@@ -615,7 +651,7 @@ struct MixedMoments {
 }
 
 impl MixedMoments {
-    fn new(_slots: usize) -> Self {
+    fn new() -> Self {
         Self { slope: 0.0, curvature: 0.0, cross: 0.0 }
     }
 
@@ -1199,6 +1235,25 @@ mod tests {
             }
         }
         assert!(matches!(basis.iirtf(&[]), Err(RecolourError::SlotCount { colours: 0, slots: 2 })));
+    }
+
+    #[test]
+    fn a_basis_with_inconsistent_sizes_is_refused() {
+        let s = settings(32, 1);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        assert_eq!(basis.check_sizes(), Ok(()));
+        let mut bad = basis.clone();
+        let c = bad.cells.iter().position(|c| c.paths > 0).unwrap();
+        bad.cells[c].data.pop();
+        assert!(bad.check_sizes().unwrap_err().contains(&format!("cell {c}")));
+        let mut bad = basis.clone();
+        bad.cells[c].curves[0] = f32::NAN;
+        assert!(bad.check_sizes().is_err());
+        let mut bad = basis;
+        bad.cs_parts.pop();
+        assert!(bad.check_sizes().unwrap_err().contains("C_S parts"));
     }
 
     #[test]
