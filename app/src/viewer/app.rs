@@ -404,8 +404,13 @@ impl ViewerApp {
         }
         let scene = scene.clone();
         if let (Some(previous), false) = (&self.shown_bake, geometry_changed) {
+            // The bases hold for any colours of the lobes they were made for: a lobe edit
+            // previews without them, and its full bake makes new ones.
+            let materials = scene.material_descs().unwrap_or_default();
             let recolour = (self.recolour.as_ref())
-                .filter(|(quality, _)| *quality == self.final_quality)
+                .filter(|(quality, bases)| {
+                    *quality == self.final_quality && bases.iter().all(|b| b.fits(&materials))
+                })
                 .map(|(_, bases)| Arc::clone(bases));
             self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous), recolour);
         } else {

@@ -42,8 +42,7 @@ use super::svf::{SvfError, VisibilityImages, render_exemplar};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
 use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
-use crate::Rgb;
-use crate::bcsdf::{FiberParams, Material, MaterialDesc};
+use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::ParamError;
 use crate::raycast::{Extent, FiberScene, mean_free_path};
@@ -314,6 +313,9 @@ pub fn bake_material_preview(
             previous.materials.len()
         )));
     }
+    // A basis made for other lobes does not hold: the preview keeps the previous bake's
+    // multiple scattering then, as without one.
+    let recolour = recolour.filter(|basis| basis.fits(inputs.materials));
     if let Some(basis) = recolour
         && (basis.cells.len() != previous.transfer.iirtf.cells.len()
             || basis.slot_count != inputs.materials.len()
@@ -350,7 +352,7 @@ pub fn recolour_basis(
     yarn_materials(inputs)?;
     let keys = StageKeys::new(inputs)?;
     let mfp = bake_stages_mfp(inputs, cache, cancel)?;
-    let colour_free: Vec<MaterialDesc> = inputs.materials.iter().map(without_colours).collect();
+    let colour_free: Vec<MaterialDesc> = inputs.materials.iter().map(super::recolour::colour_free).collect();
     let free_hash = Hasher::new("twill.materials.colour_free")
         .serde(&colour_free)
         .map_err(|e| BakeError::Serialize { stage: "recolour key", message: e.to_string() })?
@@ -392,15 +394,7 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key.
-const RECOLOUR_VERSION: u32 = 4;
-
-/// A material with its colours zeroed: what the recolouring basis depends on.
-fn without_colours(m: &MaterialDesc) -> MaterialDesc {
-    match *m {
-        MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_r: Rgb::ZERO, c_tt: Rgb::ZERO, ..p }),
-        MaterialDesc::Lambert { .. } => MaterialDesc::Lambert { albedo: Rgb::ZERO },
-    }
-}
+const RECOLOUR_VERSION: u32 = 5;
 
 /// The mean free path stage alone, through the cache.
 fn bake_stages_mfp(
@@ -1189,6 +1183,46 @@ pub(crate) mod tests {
         let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings: other };
         let refused = bake_material_preview(&inputs, &before.baked, None, None, &Cancel::new(), &|_, _| {});
         assert!(matches!(refused, Err(BakeError::Fabric(_))), "{refused:?}");
+    }
+
+    #[test]
+    fn a_preview_recolours_from_a_basis_of_the_same_lobes_only() {
+        use Stage::{CsTables, Transfer};
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::new(dir.path()).unwrap();
+        let (exemplar, materials) = tiny(WeavePreset::Plain);
+        let settings = test_settings();
+        let before = run(&exemplar, &materials, settings, &cache);
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
+        let basis = recolour_basis(&inputs, Some(&cache), &Cancel::new(), &|_| {}).unwrap();
+        // Cached under a key without the colours: another colouring loads the same basis.
+        let recoloured = [with_colour(materials[0], Rgb::new(0.2, 0.6, 0.3)), materials[1]];
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings };
+        assert_eq!(recolour_basis(&inputs, Some(&cache), &Cancel::new(), &|_| {}).unwrap(), basis);
+        let preview =
+            bake_material_preview(&inputs, &before.baked, Some(&basis), None, &Cancel::new(), &|_, _| {})
+                .unwrap();
+        let recoloured_stages: Vec<Stage> =
+            preview.stages.iter().filter(|r| r.source == StageSource::Recoloured).map(|r| r.stage).collect();
+        assert_eq!(recoloured_stages, vec![Transfer, CsTables]);
+        assert_ne!(preview.baked.transfer.iirtf, before.baked.transfer.iirtf, "multiple scattering follows");
+        let full = run(&exemplar, &recoloured, settings, &cache);
+        assert_eq!(preview.baked.cs_tables.len(), full.baked.cs_tables.len());
+        for (a, b) in preview.baked.cs_tables.iter().flatten().zip(full.baked.cs_tables.iter().flatten()) {
+            for (x, y) in a.coefficients().iter().zip(b.coefficients()) {
+                assert!((*x - *y).abs().max_element() <= 1e-9 * (1.0 + y.abs().max_element()));
+            }
+        }
+        // Other lobes: the basis does not hold, and the preview keeps the previous transfer.
+        let MaterialDesc::Fiber(p) = recoloured[0] else { panic!("cotton_plain has fiber materials") };
+        let wider =
+            [MaterialDesc::Fiber(FiberParams { beta_tt_deg: p.beta_tt_deg + 5.0, ..p }), materials[1]];
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &wider, settings };
+        let preview =
+            bake_material_preview(&inputs, &before.baked, Some(&basis), None, &Cancel::new(), &|_, _| {})
+                .unwrap();
+        assert!(preview.stages.iter().all(|r| r.source != StageSource::Recoloured));
+        assert_eq!(preview.baked.transfer, before.baked.transfer);
     }
 
     #[test]

@@ -328,6 +328,9 @@ pub enum RecolourError {
 /// Everything a recolouring needs: the per-cell IIRTF basis and each slot's C_S parts.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RecolourBasis {
+    /// The materials it was made for, colours zeroed ([`colour_free`]): it holds for any
+    /// colours of these lobes, and for no other lobes.
+    pub materials: Vec<MaterialDesc>,
     pub sh_order: usize,
     pub light_domain: LightDomain,
     /// Material slots of the bake (the length colours must have).
@@ -462,6 +465,13 @@ impl RecolourBasis {
         }
     }
 
+    /// Whether the basis holds for `materials`: the same slots with the same lobes (any colours).
+    #[must_use]
+    pub fn fits(&self, materials: &[MaterialDesc]) -> bool {
+        materials.len() == self.slot_count
+            && materials.iter().map(colour_free).eq(self.materials.iter().copied())
+    }
+
     /// Checks that `colours` has one entry per slot.
     ///
     /// # Errors
@@ -472,6 +482,15 @@ impl RecolourBasis {
         } else {
             Err(RecolourError::SlotCount { colours: colours.len(), slots: self.slot_count })
         }
+    }
+}
+
+/// A material with its colours zeroed: what a recolouring basis depends on.
+#[must_use]
+pub fn colour_free(m: &MaterialDesc) -> MaterialDesc {
+    match *m {
+        MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_r: Rgb::ZERO, c_tt: Rgb::ZERO, ..p }),
+        MaterialDesc::Lambert { .. } => MaterialDesc::Lambert { albedo: Rgb::ZERO },
     }
 }
 
@@ -532,7 +551,14 @@ pub fn bake_recolour_basis(
             MaterialDesc::Lambert { .. } => Ok(None),
         })
         .collect::<Result<_, _>>()?;
-    Ok(RecolourBasis { sh_order: order, light_domain, slot_count: slots, cells, cs_parts })
+    Ok(RecolourBasis {
+        materials: materials.iter().map(colour_free).collect(),
+        sh_order: order,
+        light_domain,
+        slot_count: slots,
+        cells,
+        cs_parts,
+    })
 }
 
 /// One cell's basis (see the module docs); `None` when `tick` asks to stop.
@@ -987,6 +1013,11 @@ mod tests {
         let dark = with_colours(&materials, &[(Rgb::splat(0.9), Rgb::splat(0.01)), (Rgb::ZERO, Rgb::ONE)]);
         let b = bake(&dark);
         assert_eq!(a.cells, b.cells, "the walk must not read the colours (lobe choice, Russian roulette)");
+        assert!(a.fits(&dark) && b.fits(&materials), "any colours of the same lobes");
+        let MaterialDesc::Fiber(p) = materials[0] else { panic!("fiber") };
+        let wider = [MaterialDesc::Fiber(FiberParams { beta_r_deg: p.beta_r_deg + 1.0, ..p }), materials[1]];
+        assert!(!a.fits(&wider), "not other lobes");
+        assert!(!a.fits(&materials[..1]), "not other slots");
         assert!(a.cells.iter().any(|c| c.paths > 0));
     }
 
