@@ -251,6 +251,24 @@ impl TransferSampler {
         self.midpoints[k as usize]
     }
 
+    /// A path's start: segment k drawn uniformly from the cell, ω1 uniformly on the sphere, and
+    /// the first fiber hit from μ_k toward ω1 (k's own fiber ignored).
+    fn first_hit(
+        &self,
+        cell_segments: &[u32],
+        rng: &mut rand_pcg::Pcg64Mcg,
+    ) -> (u32, DVec3, Option<crate::raycast::Hit>) {
+        let k = cell_segments[rng.random_range(0..cell_segments.len())];
+        let view = uniform_sphere(rng.random(), rng.random());
+        let hit = self.scene.closest_hit(
+            self.midpoints[k as usize].as_vec3(),
+            view.as_vec3(),
+            f32::INFINITY,
+            Some(self.fibers[k as usize]),
+        );
+        (k, view, hit)
+    }
+
     /// Whether light from `to_light` counts (the light domain).
     fn in_domain(&self, to_light: DVec3) -> bool {
         match self.light_domain {
@@ -273,17 +291,10 @@ impl TransferSampler {
     #[must_use]
     pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
         let mut rng = pixel_rng(stream, path);
-        let k = cell_segments[rng.random_range(0..cell_segments.len())];
-        let view = uniform_sphere(rng.random(), rng.random());
+        let (k, view, mut hit) = self.first_hit(cell_segments, &mut rng);
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let mut lights = Vec::new();
         let fibers = &self.scene;
-        let mut hit = fibers.closest_hit(
-            self.midpoints[k as usize].as_vec3(),
-            view.as_vec3(),
-            f32::INFINITY,
-            Some(self.fibers[k as usize]),
-        );
         let mut dir = view;
         let mut throughput = Rgb::ONE;
         for event in 1..=MAX_DEPTH {
@@ -367,17 +378,10 @@ impl TransferSampler {
         out.r_log_derivative.clear();
         out.slots = slots;
         let mut rng = pixel_rng(stream, path);
-        let k = cell_segments[rng.random_range(0..cell_segments.len())];
-        let view = uniform_sphere(rng.random(), rng.random());
+        let (_, view, mut hit) = self.first_hit(cell_segments, &mut rng);
         out.view = view;
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let fibers = &self.scene;
-        let mut hit = fibers.closest_hit(
-            self.midpoints[k as usize].as_vec3(),
-            view.as_vec3(),
-            f32::INFINITY,
-            Some(self.fibers[k as usize]),
-        );
         let mut dir = view;
         let mut weight = 1.0;
         let mut tt_total = 0_u32;

@@ -1141,12 +1141,9 @@ mod tests {
         assert!(worst_off < 0.03, "off the diagonal: worst relative error {worst_off:.3}");
     }
 
-    /// Diagnostic: the default fabric at interactive settings, the (0, 0) entry of the first
-    /// nonempty cells, exact reweighting of the basis's paths against the basis, for random
-    /// per-slot τ.
-    #[test]
-    #[ignore = "diagnostic"]
-    fn default_fabric_same_path_error() {
+    /// The default fabric, interactive settings, its cell grid and recolouring basis.
+    fn default_fabric_interactive()
+    -> (crate::fabric::Exemplar, Vec<MaterialDesc>, BakeSettings, CellGrid, RecolourBasis) {
         let preset = crate::fabric::presets::fabric_preset("default").unwrap();
         let exemplar = preset.fabric.build(std::path::Path::new(".")).unwrap();
         let materials = vec![preset.warp_material, preset.weft_material];
@@ -1156,6 +1153,16 @@ mod tests {
         let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        (exemplar, materials, s, grid, basis)
+    }
+
+    /// Diagnostic: the default fabric at interactive settings, the (0, 0) entry of the first
+    /// nonempty cells, exact reweighting of the basis's paths against the basis, for random
+    /// per-slot τ.
+    #[test]
+    #[ignore = "diagnostic"]
+    fn default_fabric_same_path_error() {
+        let (exemplar, materials, s, grid, basis) = default_fabric_interactive();
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
         let (_, yarns) = yarn_materials(&inputs).unwrap();
         let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
@@ -1195,15 +1202,7 @@ mod tests {
     #[test]
     #[ignore = "diagnostic"]
     fn default_fabric_against_bake() {
-        let preset = crate::fabric::presets::fabric_preset("default").unwrap();
-        let exemplar = preset.fabric.build(std::path::Path::new(".")).unwrap();
-        let materials = vec![preset.warp_material, preset.weft_material];
-        let s = Quality::Interactive.settings();
-        let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
-        let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
-        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
-        let basis =
-            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let (exemplar, materials, s, grid, basis) = default_fabric_interactive();
         for (label, colours) in [
             ("preset", vec![]),
             ("black", vec![(None, Rgb::splat(0.02)); 2]),
