@@ -692,10 +692,13 @@ pub fn bench_recolor(
     (width, height): (usize, usize),
     spp: u32,
     quality: Quality,
-    run: RecolorRun,
+    run: &RecolorRun,
 ) -> Result<()> {
     use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
-    let RecolorRun { count, seed, iirtf_paths } = run;
+    let RecolorRun { count, seed, iirtf_paths, ref images } = *run;
+    if let Some(dir) = images {
+        std::fs::create_dir_all(dir).with_context(|| format!("--images {}", dir.display()))?;
+    }
     anyhow::ensure!((1..=1000).contains(&count), "--colourways {count}: expected 1..=1000");
     let base = SceneFile::load_or_default(scene)?;
     let cache = open_cache(None, false)?;
@@ -757,8 +760,9 @@ pub fn bench_recolor(
         }
         let t_write = t0.elapsed().as_secs_f64();
         // The camera and lights are the base scene's: a colour edit changes neither.
-        let live = session.render(&scene0, &settings)?.radiance_image();
+        let live_frame = session.render(&scene0, &settings)?;
         let t_live = t0.elapsed().as_secs_f64();
+        let live = live_frame.radiance_image();
         let scene = file.build()?;
         live_totals.push(t_live * 1e3);
         // The viewer's path: the material preview evaluated from the basis, packed and written
@@ -793,8 +797,15 @@ pub fn bench_recolor(
         let refs: Vec<&Baked> = exemplars.iter().collect();
         (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
         let t_upload = t0.elapsed().as_secs_f64();
-        let rebaked = session.render(&scene, &settings)?.radiance_image();
+        let rebaked_frame = session.render(&scene, &settings)?;
         let t_rebake = t0.elapsed().as_secs_f64();
+        let rebaked = rebaked_frame.radiance_image();
+        if let Some(dir) = images {
+            for (frame, what) in [(&live_frame, "live"), (&rebaked_frame, "rebake")] {
+                let path = dir.join(format!("{:02}-{what}.png", k + 1));
+                write_display_png(&path, frame.width, frame.height, &frame.display)?;
+            }
+        }
         rebake_totals.push(t_rebake * 1e3);
         // The same colours baked with another seed: the method's own per-pixel noise. Its own
         // renderer on the same device (another seed measures another mean free path, so another
@@ -860,11 +871,13 @@ pub fn bench_recolor(
 
 /// How many colourways `twill bench recolor` tries, their seed, and the IIRTF paths per cell
 /// (`None`: the quality's).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct RecolorRun {
     pub count: usize,
     pub seed: u64,
     pub iirtf_paths: Option<usize>,
+    /// Where to write each colourway's live and rebaked pictures (`None`: nowhere).
+    pub images: Option<PathBuf>,
 }
 
 /// Relative difference of the image means, the channel where it is largest (signed).

@@ -199,6 +199,10 @@ enum BenchCommand {
         /// the recolouring's own error below the transfer's noise.
         #[arg(long)]
         iirtf_paths: Option<usize>,
+        /// Also write each colourway's live and rebaked pictures (PNG) into this folder, to
+        /// look at side by side.
+        #[arg(long)]
+        images: Option<PathBuf>,
     },
     /// The viewer's own frame times while a bake runs in the background (needs a display:
     /// run under `xvfb-run -a` without one). The bake starts from an empty stage cache.
@@ -595,13 +599,13 @@ fn run(cli: Cli) -> Result<()> {
                 println!("UI frame times (orbiting every frame; bake: {quality:?}, {seconds} s):\n{report}");
                 Ok(())
             }
-            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed, iirtf_paths } => {
+            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed, iirtf_paths, images } => {
                 commands::bench_recolor(
                     scene.as_deref(),
                     size,
                     spp,
                     quality_of(quality),
-                    commands::RecolorRun { count: colourways, seed, iirtf_paths },
+                    &commands::RecolorRun { count: colourways, seed, iirtf_paths, images },
                 )
             }
             BenchCommand::Raycast { scene, swatch_cm, rays, seconds, embree } => {
