@@ -500,6 +500,90 @@ fn make_recolour_bases(
 mod tests {
     use super::*;
 
+    /// Events from `baker` until `done` says so (the pictures count as shown at once), at most
+    /// five minutes.
+    fn events_until(baker: &Baker, done: impl Fn(&BakeEvent) -> bool) -> Vec<BakeEvent> {
+        let started = Instant::now();
+        let mut events = Vec::new();
+        loop {
+            baker.picture_shown();
+            for event in baker.poll() {
+                let finished = done(&event);
+                if let BakeEvent::Failed { message } = &event {
+                    panic!("bake failed: {message}");
+                }
+                events.push(event);
+                if finished {
+                    return events;
+                }
+            }
+            assert!(started.elapsed() < Duration::from_secs(300), "no such event in five minutes");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The default scene with the warp's C_TT set to `c_tt`.
+    fn with_warp_colour(c_tt: [f64; 3]) -> SceneFile {
+        use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
+        let mut scene = SceneFile::default_scene();
+        let Some(MaterialDesc::Fiber(p)) = scene.material_slots()[0] else {
+            panic!("the default warp is fiber")
+        };
+        scene.materials.warp =
+            Some(MaterialDesc::Fiber(FiberParams { c_tt: twill_precompute::Rgb::from_array(c_tt), ..p }));
+        scene
+    }
+
+    #[test]
+    fn colour_edits_after_the_first_preview_their_multiple_scattering_from_the_bases() {
+        let cache = std::env::temp_dir().join(format!("twill-recolour-viewer-{}", std::process::id()));
+        let mut baker = Baker::new(egui::Context::default(), Some(cache.clone()));
+        let full = |e: &BakeEvent| matches!(e, BakeEvent::Ready(b) if !b.preview);
+        let ready = |events: Vec<BakeEvent>| -> Vec<FabricBake> {
+            events
+                .into_iter()
+                .filter_map(|e| if let BakeEvent::Ready(b) = e { Some(b) } else { None })
+                .collect()
+        };
+        baker.start(SceneFile::default_scene(), vec![Quality::Draft]);
+        let first = ready(events_until(&baker, full)).pop().unwrap().baked;
+        // The first colour edit: the preview keeps the previous transfer; its full bake goes on
+        // to make the bases.
+        baker.start_material_edit(
+            with_warp_colour([0.1, 0.2, 0.6]),
+            Quality::Draft,
+            Arc::clone(&first),
+            None,
+        );
+        let events = events_until(&baker, |e| matches!(e, BakeEvent::RecolourReady { .. }));
+        let Some(BakeEvent::RecolourReady { quality, bases, .. }) = events.last() else { unreachable!() };
+        assert_eq!(*quality, Quality::Draft);
+        let (bases, bakes) = (Arc::clone(bases), ready(events));
+        assert!(bakes[0].preview && !bakes[1].preview);
+        assert_eq!(bakes[0].baked.exemplars[0].transfer, first.exemplars[0].transfer, "kept");
+        let second = Arc::clone(&bakes[1].baked);
+        assert!(bases.iter().zip(&second.exemplars).all(|(b, e)| b.fits(&e.materials)));
+        // A later colour edit: the preview's multiple scattering follows the colours at once.
+        baker.start_material_edit(
+            with_warp_colour([0.9, 0.3, 0.1]),
+            Quality::Draft,
+            Arc::clone(&second),
+            Some(bases),
+        );
+        let bakes = ready(events_until(&baker, full));
+        assert!(bakes[0].preview);
+        let (preview, rebaked) = (&bakes[0].baked.exemplars[0], &bakes[1].baked.exemplars[0]);
+        assert_ne!(preview.transfer.iirtf, second.exemplars[0].transfer.iirtf, "recoloured, not kept");
+        // Within a few percent of the rebake in total transfer (the red warp's red channel).
+        let total = |b: &Baked| -> f64 {
+            b.transfer.iirtf.cells.iter().filter(|c| !c.is_empty()).map(|c| f64::from(c.matrix[0][0])).sum()
+        };
+        let relative = total(preview) / total(rebaked) - 1.0;
+        assert!(relative.abs() < 0.1, "preview against rebake: {relative:+.3}");
+        drop(baker);
+        let _ = std::fs::remove_dir_all(cache);
+    }
+
     #[test]
     fn overall_progress_runs_from_zero_to_one_in_stage_order() {
         assert!((STAGE_WEIGHTS.iter().sum::<f64>() - 1.0).abs() < 1e-12);
