@@ -200,8 +200,9 @@ pub fn fibers_panel(ui: &mut egui::Ui, scene: &mut SceneFile) {
     }
     ui.label(
         egui::RichText::new(
-            "Single scattering follows at once; multiple scattering when its background bake \
-             finishes (the old one stays until then).",
+            "Single scattering follows at once. Multiple scattering follows a colour edit at once \
+             too from the fabric's second colour edit on (the first makes its recolouring basis), \
+             and a lobe edit when its background bake finishes (the old one stays until then).",
         )
         .small()
         .weak(),
