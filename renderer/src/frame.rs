@@ -417,18 +417,15 @@ impl Renderer {
             .collect::<Result<_, _>>()
             .map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
         basis.check_colours(&colours).map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
-        let cell_values = 3 * twill_precompute::sh::sh_count(basis.sh_order).pow(2);
-        if basis.cells.len() * cell_values
-            != self
-                .fabric
-                .arrays
-                .exemplars
-                .get(exemplar)
-                .map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize)
-                * cell_values
-        {
+        let exemplar_cells = self
+            .fabric
+            .arrays
+            .exemplars
+            .get(exemplar)
+            .map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize);
+        if basis.cells.len() != exemplar_cells {
             return Err(RenderError::Settings(format!(
-                "recolouring: the basis has {} cells, the GPU fabric's exemplar {exemplar} another count",
+                "recolouring: the basis has {} cells, the GPU fabric's exemplar {exemplar} {exemplar_cells}",
                 basis.cells.len()
             )));
         }

@@ -352,27 +352,24 @@ pub struct ColourFreeSample {
 }
 
 impl TransferSampler {
-    /// Material slots the exemplar's yarns use (one more than the largest).
-    #[must_use]
-    pub fn slot_count(&self) -> usize {
-        self.yarn_slots.iter().max().map_or(0, |&m| m as usize + 1)
-    }
-
     /// [`Self::sample`] with every colour left out of the walk (`bake::recolour`): lobes are
     /// chosen and sampled by [`Material::sample_colour_free`] (lobe widths and geometry only),
     /// Russian roulette follows the colour-free weight at TT factor
     /// [`COLOUR_FREE_ROULETTE_ALBEDO`], and each light connection records its colour-free
     /// weight and its event counts, from which the transfer at any colours follows by
     /// multiplying in the colour factors. The walk does not depend on the materials' colours
-    /// (tested), so differentiating it in the colours is unbiased.
+    /// (tested), so differentiating it in the colours is unbiased. `slots` is the number of
+    /// material slots (every yarn's slot is below it, slots no yarn uses included), the width
+    /// of the per-slot counts in `out`.
     pub fn sample_colour_free(
         &self,
         cell_segments: &[u32],
         stream: u64,
         path: u64,
+        slots: usize,
         out: &mut ColourFreeSample,
     ) {
-        let slots = self.slot_count();
+        debug_assert!(self.yarn_slots.iter().all(|&s| (s as usize) < slots));
         out.lights.clear();
         out.tt_events.clear();
         out.r_log_derivative.clear();

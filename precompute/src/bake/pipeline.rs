@@ -349,9 +349,9 @@ pub fn recolour_basis(
 ) -> Result<RecolourBasis, BakeError> {
     let s = &inputs.settings;
     s.validate()?;
-    yarn_materials(inputs)?;
     let keys = StageKeys::new(inputs)?;
-    let mfp = bake_stages_mfp(inputs, cache, cancel)?;
+    let mfp = StageRunner { cache, runs: &mut Vec::new() }
+        .run(Stage::MeanFreePath, keys.mfp, || measure_mfp(inputs, cancel))?;
     let colour_free: Vec<MaterialDesc> = inputs.materials.iter().map(super::recolour::colour_free).collect();
     let free_hash = Hasher::new("twill.materials.colour_free")
         .serde(&colour_free)
@@ -395,17 +395,6 @@ pub fn recolour_basis(
 
 /// Version of the recolouring basis's code and layout: part of its cache key.
 const RECOLOUR_VERSION: u32 = 5;
-
-/// The mean free path stage alone, through the cache.
-fn bake_stages_mfp(
-    inputs: &BakeInputs<'_>,
-    cache: Option<&Cache>,
-    cancel: &Cancel,
-) -> Result<MeanFreePathData, BakeError> {
-    let keys = StageKeys::new(inputs)?;
-    let mut runs = Vec::new();
-    StageRunner { cache, runs: &mut runs }.run(Stage::MeanFreePath, keys.mfp, || measure_mfp(inputs, cancel))
-}
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
@@ -459,7 +448,7 @@ pub fn bake_precomputed(
 ///
 /// # Errors
 /// A material that cannot be built, or a yarn naming a slot that does not exist.
-pub fn yarn_materials(inputs: &BakeInputs<'_>) -> Result<(Vec<Material>, Vec<Material>), BakeError> {
+pub fn yarn_materials(inputs: &BakeInputs<'_>) -> Result<(Vec<Material>, Vec<Material>), ParamError> {
     let materials: Vec<Material> =
         inputs.materials.iter().map(Material::from_desc).collect::<Result<_, _>>()?;
     let yarn_materials: Vec<Material> = inputs

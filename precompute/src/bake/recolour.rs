@@ -515,21 +515,11 @@ pub fn bake_recolour_basis(
         }
         .into());
     }
-    let slot_materials: Vec<Material> =
-        materials.iter().map(Material::from_desc).collect::<Result<_, _>>()?;
-    let yarn_materials: Vec<Material> = exemplar
-        .yarns
-        .iter()
-        .map(|y| {
-            slot_materials.get(y.material as usize).cloned().ok_or_else(|| {
-                ParamError::new(
-                    "yarn material",
-                    y.material,
-                    format!("a material slot below {}", materials.len()),
-                )
-            })
-        })
-        .collect::<Result<_, _>>()?;
+    let (_, yarn_materials) = super::pipeline::yarn_materials(&super::pipeline::BakeInputs {
+        exemplar,
+        materials,
+        settings: *settings,
+    })?;
     let light_domain = IirtfOptions::default().light_domain;
     let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?;
     let slots = materials.len();
@@ -591,7 +581,7 @@ fn bake_cell_basis(
         if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
             return None;
         }
-        sampler.sample_colour_free(segments, stream, p as u64, &mut sample);
+        sampler.sample_colour_free(segments, stream, p as u64, slots, &mut sample);
         if sample.lights.is_empty() {
             continue;
         }
@@ -924,6 +914,11 @@ mod tests {
             .collect()
     }
 
+    /// The colours of every slot of `materials`.
+    fn slot_colours(materials: &[MaterialDesc]) -> Vec<SlotColour> {
+        materials.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect()
+    }
+
     fn settings(paths: usize, order: usize) -> BakeSettings {
         BakeSettings {
             cell_size_mfp: 16.0,
@@ -1022,6 +1017,22 @@ mod tests {
     }
 
     #[test]
+    fn a_material_slot_no_yarn_uses_changes_nothing() {
+        // A palette colour no order uses is a slot without yarns: the walk's per-slot counts
+        // are as wide as the slots, not as the yarns' largest slot.
+        let s = settings(64, 2);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let bake = |m: &[MaterialDesc]| {
+            bake_recolour_basis(&exemplar, m, &grid, &s, &Cancel::new(), &no_progress).unwrap()
+        };
+        let two = bake(&materials);
+        let three = bake(&[materials[0], materials[1], materials[0]]);
+        assert_eq!(two.cells, three.cells);
+        assert_eq!(three.slot_count, 3);
+        assert_eq!(three.check_sizes(), Ok(()));
+    }
+
+    #[test]
     fn homogeneous_colours_give_the_bake_at_those_colours_within_noise() {
         // On the homogeneous diagonal the recolouring is exact (up to the curve's interpolation):
         // it must agree with an IIRTF baked at the colours (another estimator) within the two
@@ -1033,8 +1044,7 @@ mod tests {
         for tau in [0.3, 0.6, 0.9] {
             let c_tt = Rgb::splat(tau / (1.0 - COLOUR_FREE_C_R));
             let m = with_colours(&materials, &[(Rgb::splat(COLOUR_FREE_C_R), c_tt); 2]);
-            let colours: Vec<SlotColour> =
-                m.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect();
+            let colours = slot_colours(&m);
             let recoloured = basis.iirtf(&colours).unwrap();
             let direct = direct_bake(&exemplar, &grid, &m, &s);
             let ((a, sa), (b, sb)) =
@@ -1060,8 +1070,7 @@ mod tests {
                 (Rgb::splat(0.09), Rgb::new(0.95, 0.9, 0.75)),
             ],
         );
-        let colours: Vec<SlotColour> =
-            m.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect();
+        let colours = slot_colours(&m);
         let recoloured = basis.iirtf(&colours).unwrap();
         let direct = direct_bake(&exemplar, &grid, &m, &s);
         let ((a, sa), (b, sb)) = (total_dc(recoloured.cells.into_iter()), total_dc(direct.cells.into_iter()));
@@ -1096,6 +1105,7 @@ mod tests {
                 segments,
                 super::super::iirtf::cell_stream(s.seed, c as u32),
                 p as u64,
+                tau.len(),
                 &mut sample,
             );
             for (l, &(_, w, _)) in sample.lights.iter().enumerate() {
@@ -1226,8 +1236,7 @@ mod tests {
                     })
                     .collect()
             };
-            let slot: Vec<SlotColour> =
-                m.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect();
+            let slot = slot_colours(&m);
             let ours = basis.iirtf(&slot).unwrap();
             let direct = direct_bake(&exemplar, &grid, &m, &s);
             let (a, sa) = total_dc(ours.cells.clone().into_iter());
@@ -1254,8 +1263,7 @@ mod tests {
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
         for (c_r, c_tt) in [(0.0, 0.0), (1.0, 1.0), (0.0, 1.0), (1.0, 0.0), (0.02, 0.999)] {
             let m = with_colours(&materials, &[(Rgb::splat(c_r), Rgb::splat(c_tt)); 2]);
-            let colours: Vec<SlotColour> =
-                m.iter().map(|d| SlotColour::of(&Material::from_desc(d).unwrap())).collect();
+            let colours = slot_colours(&m);
             let iirtf = basis.iirtf(&colours).unwrap();
             for cell in &iirtf.cells {
                 assert!(cell.matrix.iter().flatten().all(|v| v.is_finite()), "C_R {c_r} C_TT {c_tt}");
