@@ -138,7 +138,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     if (ENABLE_MULTIPLE) {
         // A truncated SH product can ring below zero where little light arrives; radiance
-        // cannot, so the multiple-scattering term is clamped per channel.
+        // cannot, so the radiance shaded (single and multiple scattering together, not the
+        // multiple-scattering term alone: a clamp lifts the mean where it acts) is clamped per
+        // channel (shading::render::shade_segment, the CPU twin).
         // The shaded point in the exemplar's coordinates (as the G-buffer pass found it).
         let z = fabric.z_range.x + clamp(uvw.z, 0.0, 1.0) * (fabric.z_range.y - fabric.z_range.x);
         let p = vec3<f32>(uvw.xy, z);
@@ -148,9 +150,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                 coeffs[j] = vec3<f32>(0.0);
             }
             frame_transferred_at(e, segment, p, &coeffs);
-            radiance += max(multiple_from_transferred(segment, wo, &coeffs), vec3<f32>(0.0));
+            radiance = max(radiance + multiple_from_transferred(segment, wo, &coeffs), vec3<f32>(0.0));
         } else {
-            radiance += max(shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
+            radiance = max(radiance + shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
         }
     }
     let index = id.y * width + id.x;

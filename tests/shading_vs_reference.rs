@@ -485,7 +485,8 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     let mut file = SceneFile::default_scene();
     (file.render.width, file.render.height) = (32, 32);
     let scene = file.build().expect("the default scene builds");
-    let settings = BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3 };
+    let settings =
+        BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3, split_transfer: false };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
     assert_eq!(budget.rungs.len(), 12);

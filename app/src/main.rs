@@ -96,6 +96,10 @@ enum AccuracyCommand {
         /// Override one bake knob, as `twill bake --set` (repeatable).
         #[arg(long = "set", value_name = "KNOB=VALUE")]
         overrides: Vec<String>,
+        /// Also split multiple scattering's transfer into the first neighbour's transmission
+        /// and the rest (rungs 4a, 4b; two more transfer bakes).
+        #[arg(long)]
+        split_transfer: bool,
     },
 }
 
@@ -583,6 +587,7 @@ fn run(cli: Cli) -> Result<()> {
                     reference_spp,
                     light_samples,
                     overrides,
+                    split_transfer,
                 }),
             ..
         } => commands::accuracy_budget(
@@ -590,7 +595,13 @@ fn run(cli: Cli) -> Result<()> {
             quality_of(quality),
             &overrides,
             size,
-            &twill_precompute::shading::budget::BudgetSettings { spp, reference_spp, light_samples, seed: 1 },
+            &twill_precompute::shading::budget::BudgetSettings {
+                spp,
+                reference_spp,
+                light_samples,
+                seed: 1,
+                split_transfer,
+            },
         ),
         Command::Bench { command } => match command {
             BenchCommand::Ui { scene, quality, seconds, window_size } => {

@@ -6,7 +6,8 @@
 //! the midpoints μ_k of the segments in C.
 //!
 //! How it works: each path draws a segment k of the cell uniformly and ω1 uniformly on the
-//! sphere (pdf 1/4π), and walks from μ_k (in the central copy of the fabric tiled over the
+//! sphere (pdf 1/4π), both and its first light sample stratified over the cell's paths
+//! ([`path_strata`]: a randomly shifted low-discrepancy sequence), and walks from μ_k (in the central copy of the fabric tiled over the
 //! whole plane, no ground) toward ω1, ignoring k's own fiber on the first ray
 //! ([`TransferSampler::sample`]). At each fiber event it draws a light direction ω0 from that
 //! fiber's scattering function and casts a shadow ray; ω0 counts if it lies in the light domain
@@ -24,7 +25,8 @@
 //! finished (their noise is far above f32 rounding), and a cell with no segment holds no entries
 //! at all (it transfers nothing): the in-memory form is the stored one, so a bake of a large
 //! fabric neither holds its matrices in f64 nor copies them to write them.
-//! Determinism: path `p` of cell `c` draws from `pixel_rng(seed ^ mix(c), p)` and each cell's
+//! Determinism: path `p` of cell `c` draws from `pixel_rng(seed ^ mix(c), p)` (its stratified
+//! start from [`path_strata`], whose shift is drawn once per cell) and each cell's
 //! sums are accumulated in path order by one worker, so results do not depend on threads.
 //! Parallelism: one worker per rayon thread, all sharing one [`TransferSampler`] (its fiber
 //! scene is read-only; a copy per worker would grow with the machine's core count), pulling
@@ -85,7 +87,8 @@ pub struct CellTransfer {
     pub paths: usize,
     /// `matrix[j1 * n + j0] = a_C[j0, j1]`, n = (L+1)², RGB.
     pub matrix: Vec<[f32; 3]>,
-    /// Standard error of each entry (same layout).
+    /// Standard error of each entry (same layout), estimated as if the paths were independent:
+    /// their starts are stratified ([`path_strata`]), so this is an upper bound.
     pub std_error: Vec<[f32; 3]>,
 }
 
@@ -190,6 +193,23 @@ impl TryFrom<StoredIirtf> for Iirtf {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct IirtfOptions {
     pub light_domain: LightDomain,
+    /// Which light transport the matrices hold (all of it in a bake).
+    pub part: TransferPart,
+}
+
+/// A part of the transfer, for measuring what the SH transfer holds well (`shading::budget`):
+/// the light connections of the same paths split in two, so the parts sum to the whole.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TransferPart {
+    /// Every light connection (what a bake stores).
+    #[default]
+    All,
+    /// Only light transmitted by the first fiber a path meets: the connection at its first
+    /// event drawn from that fiber's TT lobe. Light that went through one neighbouring fiber
+    /// almost undeflected, peaked around the light's direction.
+    FirstTransmission,
+    /// Every other connection.
+    Rest,
 }
 
 /// One path's sample of T: the radiance arriving at μ_k from −ω1 (`view`), split by the
@@ -215,6 +235,7 @@ pub struct TransferSampler {
     midpoints: Vec<DVec3>,
     fibers: Vec<u32>,
     light_domain: LightDomain,
+    part: TransferPart,
 }
 
 impl TransferSampler {
@@ -242,7 +263,14 @@ impl TransferSampler {
             midpoints,
             fibers: fiber_ids,
             light_domain,
+            part: TransferPart::All,
         })
+    }
+
+    /// The sampler with [`Self::sample`] keeping only the light connections of `part`.
+    #[must_use]
+    pub fn with_part(self, part: TransferPart) -> Self {
+        Self { part, ..self }
     }
 
     /// World position (central copy) of segment k's midpoint.
@@ -252,14 +280,16 @@ impl TransferSampler {
     }
 
     /// A path's start: segment k drawn uniformly from the cell, ω1 uniformly on the sphere, and
-    /// the first fiber hit from μ_k toward ω1 (k's own fiber ignored).
+    /// the first fiber hit from μ_k toward ω1 (k's own fiber ignored), from the path's
+    /// [`path_strata`] point `u` (dimensions 0–2).
     fn first_hit(
         &self,
         cell_segments: &[u32],
-        rng: &mut rand_pcg::Pcg64Mcg,
+        u: &[f64; STRATA_DIMS],
     ) -> (u32, DVec3, Option<crate::raycast::Hit>) {
-        let k = cell_segments[rng.random_range(0..cell_segments.len())];
-        let view = uniform_sphere(rng.random(), rng.random());
+        let index = ((u[0] * cell_segments.len() as f64) as usize).min(cell_segments.len() - 1);
+        let k = cell_segments[index];
+        let view = uniform_sphere(u[1], u[2]);
         let hit = self.scene.closest_hit(
             self.midpoints[k as usize].as_vec3(),
             view.as_vec3(),
@@ -287,11 +317,13 @@ impl TransferSampler {
     /// contribution is `throughput · S cos θ0 / p(ω0)` where the ray escapes and ω0 is in the
     /// domain. The paper instead draws one uniform ω0 per path; the fiber lobes are narrow, so
     /// a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's image mean
-    /// moved by ±8% between seeds).
+    /// moved by ±8% between seeds). With [`Self::with_part`], only that part's connections
+    /// are kept (the same paths and random numbers either way).
     #[must_use]
     pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
+        let strata = path_strata(stream, path);
         let mut rng = pixel_rng(stream, path);
-        let (k, view, mut hit) = self.first_hit(cell_segments, &mut rng);
+        let (k, view, mut hit) = self.first_hit(cell_segments, &strata);
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let mut lights = Vec::new();
         let fibers = &self.scene;
@@ -302,8 +334,19 @@ impl TransferSampler {
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
             let material = &self.yarn_materials[h.yarn as usize];
             let wo = -dir;
-            if let Some((to_light, pdf)) =
-                material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            let u_light = if event == 1 {
+                [strata[3], strata[4], strata[5]]
+            } else {
+                [rng.random(), rng.random(), rng.random()]
+            };
+            let kept = self.part == TransferPart::All
+                || {
+                    let transmitted = event == 1
+                        && matches!(material, Material::Fiber(f) if f.sampled_lobe(t, wo, u_light) == Some(Lobe::Tt));
+                    transmitted == (self.part == TransferPart::FirstTransmission)
+                };
+            if kept
+                && let Some((to_light, pdf)) = material.sample(t, n, wo, u_light)
                 && self.in_domain(to_light)
             {
                 let f = material.eval_cos(t, n, to_light, wo);
@@ -374,8 +417,9 @@ impl TransferSampler {
         out.tt_events.clear();
         out.r_log_derivative.clear();
         out.slots = slots;
+        let strata = path_strata(stream, path);
         let mut rng = pixel_rng(stream, path);
-        let (_, view, mut hit) = self.first_hit(cell_segments, &mut rng);
+        let (_, view, mut hit) = self.first_hit(cell_segments, &strata);
         out.view = view;
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let fibers = &self.scene;
@@ -391,7 +435,12 @@ impl TransferSampler {
             let material = &self.yarn_materials[h.yarn as usize];
             let slot = self.yarn_slots[h.yarn as usize] as usize;
             let wo = -dir;
-            if let Some(e) = material.sample_colour_free(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            let u_light = if event == 1 {
+                [strata[3], strata[4], strata[5]]
+            } else {
+                [rng.random(), rng.random(), rng.random()]
+            };
+            if let Some(e) = material.sample_colour_free(t, n, wo, u_light)
                 && self.in_domain(e.dir)
                 && !fibers.any_hit(position.as_vec3(), e.dir.as_vec3(), f32::INFINITY, Some(h.fiber))
             {
@@ -452,6 +501,41 @@ pub fn uniform_sphere(u0: f64, u1: f64) -> DVec3 {
     DVec3::new(r * c, r * s, z)
 }
 
+/// Dimensions of a path's stratified start ([`path_strata`]).
+pub const STRATA_DIMS: usize = 6;
+
+/// The additive recurrences of a path's stratified start, one Roberts sequence per group of
+/// dimensions that is integrated together: the segment (R_1, the golden ratio), the direction
+/// ω1 (R_2) and the first light sample (R_3). `α_i = g^−i`, g the positive root of
+/// `x^(d+1) = x + 1` for R_d (checked by a test). Each group's own projection is as even as
+/// its sequence makes it (a single R_6 spreads one dimension less evenly than these).
+const STRATA_STEPS: [f64; STRATA_DIMS] = [
+    0.618_033_988_749_894_8,
+    0.754_877_666_246_692_7,
+    0.569_840_290_998_053_2,
+    0.819_172_513_396_164_4,
+    0.671_043_606_703_789_2,
+    0.549_700_477_901_970_2,
+];
+
+/// Path `path`'s point of its cell's stratified start: the [`STRATA_STEPS`] sequences shifted
+/// by a random vector drawn once per cell (Cranley–Patterson rotation). Dimension 0 picks the segment, 1–2
+/// the direction ω1, 3–5 the first event's light sample. Each point is uniform on the unit
+/// cube (the shift is), so every path's estimate keeps its expectation, while a cell's paths
+/// cover segments, directions and first light samples evenly instead of clumping as
+/// independent draws do, and the per-cell projection noise falls (over the 100 hard
+/// configurations of `twill accuracy`, multiple scattering's error fell a little on each of
+/// the three fabrics; docs/BENCHMARKS.md).
+#[must_use]
+pub fn path_strata(stream: u64, path: u64) -> [f64; STRATA_DIMS] {
+    let mut shift = pixel_rng(stream, u64::MAX);
+    std::array::from_fn(|i| {
+        let v = (shift.random::<f64>() + (path as f64 * STRATA_STEPS[i]).fract()).fract();
+        // fract of a sum of two numbers in [0, 1) can round to 1.0.
+        if v < 1.0 { v } else { 0.0 }
+    })
+}
+
 /// The random stream of a cell's paths.
 #[must_use]
 pub fn cell_stream(seed: u64, cell: u32) -> u64 {
@@ -498,7 +582,8 @@ pub fn bake_iirtf_cells(
         });
     }
     // One scene shared by every worker (a copy each would grow with the machine's cores).
-    let sampler = TransferSampler::new(exemplar, yarn_materials, options.light_domain)?;
+    let sampler =
+        TransferSampler::new(exemplar, yarn_materials, options.light_domain)?.with_part(options.part);
     let order = settings.sh_order;
     let paths = settings.iirtf_paths_per_cell;
     Ok(for_each_cell(grid, cells, paths, settings.seed, cancel, progress, &|segments, stream, tick| {
@@ -658,6 +743,71 @@ mod tests {
 
     fn small_settings(paths: usize, order: usize) -> BakeSettings {
         BakeSettings { iirtf_paths_per_cell: paths, sh_order: order, ..Quality::Draft.settings() }
+    }
+
+    #[test]
+    fn path_strata_follow_roberts_sequences_and_cover_each_group_evenly() {
+        // α_i = g^−i with g^(d+1) = g + 1, for the groups R_1, R_2, R_3.
+        for (first, d) in [(0, 1), (1, 2), (3, 3)] {
+            let g = 1.0 / STRATA_STEPS[first];
+            assert!((g.powi(d + 1) - g - 1.0).abs() < 1e-12, "R_{d}: g = {g}");
+            for i in 0..d {
+                let a = STRATA_STEPS[first + i as usize];
+                assert!((a - g.powi(-(i + 1))).abs() < 1e-15, "R_{d}, α_{i} = {a}");
+            }
+        }
+        // 160 paths of a cell: each dimension's 16 bins, and ω1's 4 x 4 bins, hold 10 ± 3
+        // points. Independent draws (10 ± 3.2 per bin) keep all 16 bins of a dimension so close
+        // in about 1% of cells; this holds in every cell.
+        for cell in 0..50 {
+            let stream = cell_stream(7, cell);
+            let mut bins = [[0_u32; 16]; STRATA_DIMS + 1];
+            for p in 0..160 {
+                let u = path_strata(stream, p);
+                for (d, v) in u.iter().enumerate() {
+                    assert!((0.0..1.0).contains(v), "{v}");
+                    bins[d][(v * 16.0) as usize] += 1;
+                }
+                bins[STRATA_DIMS][(u[1] * 4.0) as usize * 4 + (u[2] * 4.0) as usize] += 1;
+            }
+            for (d, b) in bins.iter().enumerate() {
+                assert!(b.iter().all(|&n| (7..=13).contains(&n)), "cell {cell}, dimension {d}: {b:?}");
+            }
+        }
+        // The shift differs between cells, so their points do too.
+        assert_ne!(path_strata(cell_stream(7, 0), 3), path_strata(cell_stream(7, 1), 3));
+    }
+
+    #[test]
+    fn transfer_parts_split_the_same_paths_and_sum_to_the_whole() {
+        let (exemplar, materials) = default_fabric();
+        let grid = CellGrid::new(&exemplar, 0.01, 8.0, 8.0).unwrap();
+        let settings = small_settings(200, 2);
+        let bake_part = |part| {
+            let options = IirtfOptions { part, ..IirtfOptions::default() };
+            bake_iirtf(&exemplar, &materials, &grid, &settings, &options, &Cancel::new(), &no_progress)
+                .unwrap()
+        };
+        let (all, first, rest) = (
+            bake_part(TransferPart::All),
+            bake_part(TransferPart::FirstTransmission),
+            bake_part(TransferPart::Rest),
+        );
+        let total = |iirtf: &Iirtf| -> f64 {
+            iirtf.cells.iter().flat_map(|c| &c.matrix).map(|e| f64::from(e[0]).abs()).sum()
+        };
+        // Both parts carry light (on this cotton, transmission through the first neighbour is
+        // a large share of it).
+        assert!(total(&first) > 0.1 * total(&all) && total(&rest) > 0.1 * total(&all));
+        for ((a, f), r) in all.cells.iter().zip(&first.cells).zip(&rest.cells) {
+            assert_eq!((a.paths, f.paths), (r.paths, r.paths));
+            let scale = a.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs())).max(1e-30);
+            for ((x, y), z) in a.matrix.iter().zip(&f.matrix).zip(&r.matrix) {
+                for ch in 0..3 {
+                    assert!((x[ch] - y[ch] - z[ch]).abs() <= 1e-5 * scale, "{x:?} != {y:?} + {z:?}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -221,6 +221,15 @@ impl FiberScattering {
         (total > 0.0).then(|| w_r / total)
     }
 
+    /// The lobe [`Self::sample`] draws from with these uniforms (`u[0]` chooses it); `None`
+    /// when both lobes are black.
+    #[must_use]
+    pub fn sampled_lobe(&self, tangent: DVec3, fixed: DVec3, u: [f64; 3]) -> Option<Lobe> {
+        let (theta_f, _) = FiberFrame::new(tangent).angles(fixed);
+        let p_r = self.lobe_probability_r(theta_f.cos())?;
+        Some(if u[0] < p_r { Lobe::R } else { Lobe::Tt })
+    }
+
     /// Samples the direction on the other side of S from `fixed` (either ωi or ωo: the
     /// density is the same), from three uniforms in [0, 1). Its density is [`Self::pdf`].
     #[must_use]

@@ -29,9 +29,15 @@
 //! 4. the method: the IIRTF interpolated between cells at the hit point;
 //! 5. the method on the GPU's primary hits (as single-scattering rung 6);
 //!
-//! and beside them 4′, the method without clamping multiple scattering at zero. Truncated SH and
+//! and beside them 4′, the method without its clamp at zero (on this ladder the radiance shaded
+//! is multiple scattering alone, so the clamp acts on it). Truncated SH and
 //! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
-//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds.
+//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. With
+//! [`BudgetSettings::split_transfer`], 4a and 4b split 4′ by light transport
+//! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
+//! peaked around the light's direction) and the rest, each baked on the same paths; run at two
+//! SH orders, the part whose figure swings with the order is the one the SH transfer cannot
+//! hold.
 //!
 //! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
 //! adds the GPU renderer's frame (primary visibility from the voxel volume) after each
@@ -49,7 +55,8 @@ use super::ShadingError;
 use super::render::{MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use crate::Rgb;
 use crate::bake::Cancel;
-use crate::bake::pipeline::Baked;
+use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
+use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
 use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
 use crate::image::{Estimate, Film, Image, compare};
 use crate::pathtrace::integrator::{below_ground, radiance_from};
@@ -67,11 +74,14 @@ pub struct BudgetSettings {
     /// Light samples per hit for SG lights (single-scattering rungs 1–4).
     pub light_samples: u32,
     pub seed: u64,
+    /// Add rungs 4a and 4b: the transfer split into the first neighbour's transmission and the
+    /// rest (two more IIRTF bakes).
+    pub split_transfer: bool,
 }
 
 impl Default for BudgetSettings {
     fn default() -> Self {
-        Self { spp: 16, reference_spp: 64, light_samples: 16, seed: 1 }
+        Self { spp: 16, reference_spp: 64, light_samples: 16, seed: 1, split_transfer: false }
     }
 }
 
@@ -265,15 +275,34 @@ pub fn error_budget(
         baked.transfer.iirtf.sh_order,
         baked.settings.iirtf_paths_per_cell
     );
-    for (name, interpolate_transfer, clamp_multiple) in [
+    for (name, interpolate_transfer, clamp_at_zero) in [
         (format!("3 IIRTF per cell (paper): {cells}"), false, true),
         ("4 the method: IIRTF interpolated between cells".into(), true, true),
         ("4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(), true, false),
     ] {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer, clamp_multiple, primary: PrimaryHits::Exact };
+        let options = MethodOptions { interpolate_transfer, clamp_at_zero, primary: PrimaryHits::Exact };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
+    }
+    if settings.split_transfer {
+        for (part, name) in [
+            (TransferPart::FirstTransmission, "4a rung 4′ with the first neighbour's transmission alone"),
+            (TransferPart::Rest, "4b rung 4′ with the rest of the transfer (4a + 4b = 4′)"),
+        ] {
+            let t = Instant::now();
+            let part_baked = with_transfer_part(scene, baked, part)?;
+            let options = MethodOptions { clamp_at_zero: false, ..MethodOptions::default() };
+            let film = render_flat_with(
+                scene,
+                &part_baked,
+                Component::Multiple,
+                settings.spp,
+                settings.seed,
+                options,
+            )?;
+            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
+        }
     }
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
@@ -288,6 +317,28 @@ pub fn error_budget(
         single_reference,
         multiple_reference,
     })
+}
+
+/// `baked` with its IIRTF baked again holding only `part` of the transfer (same cells,
+/// settings and paths: the parts of one bake sum to it).
+fn with_transfer_part(scene: &Scene, baked: &Baked, part: TransferPart) -> Result<Baked, ShadingError> {
+    let inputs =
+        BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings: baked.settings };
+    let (_, yarn_materials) = yarn_materials(&inputs)?;
+    let options = IirtfOptions { light_domain: baked.transfer.iirtf.light_domain, part };
+    let iirtf = bake_iirtf(
+        &scene.exemplar,
+        &yarn_materials,
+        &baked.transfer.cells,
+        &baked.settings,
+        &options,
+        &Cancel::new(),
+        &|_| {},
+    )
+    .map_err(|e| ShadingError::Budget(format!("baking the transfer's part {part:?}: {e}")))?;
+    let mut out = baked.clone();
+    out.transfer.iirtf = iirtf;
+    Ok(out)
 }
 
 /// One rung's figures: `test` against the path-traced `reference`.

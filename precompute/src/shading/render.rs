@@ -45,7 +45,7 @@ pub fn shade(
     shade_segment(baked, segment, position, wo, lights, component, true)
 }
 
-/// [`shade`], with the clamp of multiple scattering at zero optional (`clamp_multiple`).
+/// [`shade`], with the clamp of the shaded radiance at zero optional (`clamp_at_zero`).
 fn shade_segment(
     baked: &Baked,
     segment: u32,
@@ -53,7 +53,7 @@ fn shade_segment(
     wo: DVec3,
     lights: &[(Light, f64, f64)],
     component: Component,
-    clamp_multiple: bool,
+    clamp_at_zero: bool,
 ) -> Result<Rgb, ShadingError> {
     let mut total = Rgb::ZERO;
     if component != Component::Multiple {
@@ -71,12 +71,14 @@ fn shade_segment(
                 }
             }
         }
-        // Truncated SH and a noisy transfer can go negative; clamped per channel as the GPU's
-        // shade pass does (which biases the mean up where the transfer is noisy).
-        let multiple = multiple_scattering(baked, segment, position, wo, &c_light)?;
-        total += if clamp_multiple { multiple.max(Rgb::ZERO) } else { multiple };
+        // Truncated SH and a noisy transfer can go negative. What is clamped (per channel, as
+        // the GPU's shade pass does) is the radiance shaded, single and multiple scattering
+        // together, not the multiple-scattering term alone: a clamp lifts the mean wherever it
+        // acts, and on narrow-lobed fibers (silk) the term rings below zero over much of the
+        // image, so clamping it alone added more bias than it removed (docs/BENCHMARKS.md).
+        total += multiple_scattering(baked, segment, position, wo, &c_light)?;
     }
-    Ok(total)
+    Ok(if clamp_at_zero { total.max(Rgb::ZERO) } else { total })
 }
 
 /// Choices of [`render_flat_with`] between the method's approximations.
@@ -85,16 +87,17 @@ pub struct MethodOptions {
     /// Interpolate transfer between cells at the hit point (`true`, the default) or use the
     /// hit segment's own cell (the paper's constant per cell).
     pub interpolate_transfer: bool,
-    /// Clamp multiple scattering at zero per channel and sample (`true`, the default and the
-    /// GPU's choice) or keep negative values (unbiased in the mean, but not an image).
-    pub clamp_multiple: bool,
+    /// Clamp the shaded radiance (single plus multiple scattering) at zero per channel and
+    /// sample (`true`, the default and the GPU's choice) or keep negative values (unbiased in
+    /// the mean, but not an image).
+    pub clamp_at_zero: bool,
     /// Where camera rays meet the fabric.
     pub primary: PrimaryHits,
 }
 
 impl Default for MethodOptions {
     fn default() -> Self {
-        Self { interpolate_transfer: true, clamp_multiple: true, primary: PrimaryHits::Exact }
+        Self { interpolate_transfer: true, clamp_at_zero: true, primary: PrimaryHits::Exact }
     }
 }
 
@@ -139,7 +142,7 @@ pub fn render_flat_with(
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     let shade_at = |segment: u32, local: DVec3, wo: DVec3| {
         let position = options.interpolate_transfer.then_some(local);
-        shade_segment(baked, segment, position, wo, &lights, component, options.clamp_multiple)
+        shade_segment(baked, segment, position, wo, &lights, component, options.clamp_at_zero)
     };
     match options.primary {
         PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {
