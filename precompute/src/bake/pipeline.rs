@@ -90,7 +90,7 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 2, 1, 1, 1, 2];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 3, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key).
 pub const BAKE_LAYOUT_VERSION: u32 = 2;
@@ -394,7 +394,7 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key.
-const RECOLOUR_VERSION: u32 = 5;
+const RECOLOUR_VERSION: u32 = 6;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
