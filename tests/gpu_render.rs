@@ -882,10 +882,15 @@ fn a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would() {
 /// - the same picture as the material preview evaluated from the basis and uploaded through the
 ///   whole-bake path (`bake_material_preview` + `update_fabric`): the in-place splice of the
 ///   f16 cells, the C_S rows and the materials is exact;
-/// - against a full rebake at those colours, 32 x 32, 16 spp, measured (2026-11-25): image mean
-///   R / G / B +4.23% / +1.64% / −1.68%, per-pixel RMS difference 34.6% of the rebake's mean,
-///   where two rebakes that differ only in their seed differ by 36.3% (draft: 96 paths per
-///   cell, so both pictures' multiple scattering is noisy). One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
+/// - against a full rebake at those colours, 32 x 32, 16 spp, measured (2026-11-26, IIRTF path
+///   starts stratified): image mean R / G / B +4.33% / +4.76% / +3.65%, per-pixel RMS difference
+///   24.0% of the rebake's mean, where two rebakes that differ only in their seed differ by
+///   43.2% (draft: 96 paths per cell, so both pictures' multiple scattering is noisy). With
+///   independent path starts (2026-11-25) these were +4.23% / +1.64% / −1.68% and 34.6%: one
+///   colourway's means move by a few points with the paths drawn, and over 12 colourways
+///   (`twill bench recolor --quality draft --colourways 12 --size 96x96 --spp 4`) the worst
+///   image-mean difference fell from 10.9% to 5.4% and the mean signed one went from −4.5% to
+///   +1.9% with the stratified starts. One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
 ///   also stay within the seed-to-seed difference (the method's own per-pixel noise).
 #[test]
 fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
@@ -958,7 +963,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     };
     let (ours, theirs) = (live.mean(), rebaked.mean());
     let mut failures = Vec::new();
-    for (channel, measured) in [(0, 0.0423), (1, 0.0164), (2, -0.0168)] {
+    for (channel, measured) in [(0, 0.0433), (1, 0.0476), (2, 0.0365)] {
         let error = ours[channel] / theirs[channel] - 1.0;
         eprintln!(
             "channel {channel}: live {:.5}, rebake {:.5}, {:+.2}%",
@@ -974,7 +979,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     }
     let (live_rms, floor) = (rms(&live, &rebaked), rms(&reseeded, &rebaked));
     eprintln!("per-pixel RMS: live {:.2}%, seed to seed {:.2}%", 100.0 * live_rms, 100.0 * floor);
-    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.346, 0.02) {
+    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.240, 0.02) {
         failures.push(e);
     }
     if live_rms > floor {
