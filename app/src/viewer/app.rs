@@ -52,8 +52,8 @@ use super::quality::{
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, quality_panel,
 };
 use super::render_worker::{
-    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RenderWorker, ToneRequest,
-    WorkerEvent,
+    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RecolourRequest, RenderWorker,
+    ToneRequest, WorkerEvent,
 };
 use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
 use super::timing::FrameStats;
@@ -412,7 +412,24 @@ impl ViewerApp {
                     *quality == self.final_quality && bases.iter().all(|b| b.fits(&materials))
                 })
                 .map(|(_, bases)| Arc::clone(bases));
-            self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous), recolour);
+            // The fabric on the GPU is this geometry at the bases' quality: the render worker
+            // writes the new colours into it from the bases (tens of milliseconds), and the full
+            // bake follows without a preview of its own.
+            let on_gpu = self.fabric.as_ref().is_some_and(|f| f.quality == self.final_quality);
+            match (recolour, &self.worker) {
+                (Some(bases), Some(worker)) if on_gpu => {
+                    worker.recolour(RecolourRequest { bases, materials });
+                    self.baker.start(scene.clone(), vec![self.final_quality]);
+                }
+                (recolour, _) => {
+                    self.baker.start_material_edit(
+                        scene.clone(),
+                        self.final_quality,
+                        Arc::clone(previous),
+                        recolour,
+                    );
+                }
+            }
         } else {
             self.recolour = None;
             self.baker.start(scene.clone(), bake_sequence(self.final_quality));
@@ -596,6 +613,17 @@ impl ViewerApp {
                 }
                 WorkerEvent::FabricFailed { message } | WorkerEvent::MeshFailed { message } => {
                     self.messages.error(message);
+                }
+                WorkerEvent::Recoloured { seconds } => {
+                    if let Some(f) = &mut self.fabric {
+                        f.preview = true;
+                    }
+                    self.restart_picture = true;
+                    log::info!("colours written from the recolouring bases in {:.0} ms", seconds * 1e3);
+                }
+                WorkerEvent::RecolourFailed { message } => {
+                    // The full bake that follows shows the new colours.
+                    log::warn!("no live recolouring: {message}");
                 }
                 WorkerEvent::MeshReady { bounds, seconds } => {
                     self.shell_id += 1;

@@ -26,7 +26,9 @@
 //! it. The basis is made lazily: the full bake after the first material edit of a geometry goes
 //! on to make it ([`BakeEvent::RecolourReady`]; cached like a stage, seconds at interactive
 //! quality), so every later colour edit follows with multiple scattering at once, and a
-//! designer who never edits a colour never pays for it.
+//! designer who never edits a colour never pays for it. Once the fabric on the GPU is of the
+//! bases' quality, the viewer writes a colour edit into it through the render worker instead
+//! (`RenderWorker::recolour`, tens of milliseconds) and asks here only for the full bake.
 
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};

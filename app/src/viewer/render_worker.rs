@@ -3,8 +3,10 @@
 //!
 //! How it works: the worker thread owns the [`Renderer`] (built on the device and queue that
 //! eframe opened, which the viewer asks for with the adapter's limits and timestamp queries).
-//! The viewer posts work into a small inbox — a new fabric to upload, an export, and the one
-//! viewport frame it wants next — and the worker takes them in that order. The inbox holds at
+//! The viewer posts work into a small inbox — a new fabric to upload, new colours to write
+//! into the uploaded one from its recolouring bases ([`Renderer::recolour`]; a newer fabric
+//! drops them), an export, and the one viewport frame it wants next — and the worker takes
+//! them in that order. The inbox holds at
 //! most one frame request: posting a newer one replaces a request not yet started, so the worker
 //! never renders a picture that is already stale. Each request adds samples
 //! `first_sample .. first_sample + spp` of the view's sample sequence to the picture the
@@ -43,6 +45,7 @@ use eframe::egui;
 use glam::Vec3;
 use twill_precompute::bake::pipeline::Baked;
 use twill_precompute::bake::settings::Quality;
+use twill_precompute::bcsdf::MaterialDesc;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
 use twill_renderer::frame::{FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer};
@@ -50,7 +53,7 @@ use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
 use twill_renderer::headless::{HeadlessError, renderer_on_mesh};
 
-use super::bake::BakedSet;
+use super::bake::{BakedSet, RecolourBases};
 use super::export::{ExportImage, write_export};
 
 /// Samples per export batch.
@@ -114,6 +117,15 @@ pub struct NewFabric {
     pub preview: bool,
     pub baked: Arc<BakedSet>,
     pub scene: Arc<Scene>,
+}
+
+/// New yarn colours for the uploaded fabric, evaluated from its recolouring bases on the worker
+/// and written into its buffers in place ([`Renderer::recolour`]): a colour edit's picture in
+/// tens of milliseconds, before its rebake. The bases must be those of the uploaded fabric's
+/// geometry, lobes and quality (one per exemplar); the renderer checks the cell counts.
+pub struct RecolourRequest {
+    pub bases: RecolourBases,
+    pub materials: Vec<MaterialDesc>,
 }
 
 /// A new base surface for the fabric (a mesh edit; no rebake).
@@ -184,6 +196,14 @@ pub enum WorkerEvent {
         bounds: (Vec3, Vec3),
         seconds: f64,
     },
+    /// New colours written into the uploaded fabric ([`RenderWorker::recolour`]); the picture
+    /// starts again.
+    Recoloured {
+        seconds: f64,
+    },
+    RecolourFailed {
+        message: String,
+    },
     MeshFailed {
         message: String,
     },
@@ -227,12 +247,21 @@ pub enum WorkerEvent {
 #[derive(Default)]
 struct Inbox {
     fabric: Option<NewFabric>,
+    recolour: Option<RecolourRequest>,
     mesh: Option<MeshRequest>,
     export: Option<ExportRequest>,
     frame: Option<FrameRequest>,
     tone: Option<ToneRequest>,
     lose_device: bool,
     shutdown: bool,
+}
+
+impl Inbox {
+    /// A fabric to upload next; a recolouring not yet done is dropped (the fabric is newer).
+    fn replace_fabric(&mut self, fabric: NewFabric) {
+        self.fabric = Some(fabric);
+        self.recolour = None;
+    }
 }
 
 struct Shared {
@@ -269,9 +298,16 @@ impl RenderWorker {
         self.shared.wake.notify_one();
     }
 
-    /// Uploads a new fabric (replacing one waiting to be uploaded).
+    /// Uploads a new fabric (replacing one waiting to be uploaded, and dropping a recolouring
+    /// not yet done: the fabric is the newer bake).
     pub fn set_fabric(&self, fabric: NewFabric) {
-        self.post(|inbox| inbox.fabric = Some(fabric));
+        self.post(|inbox| inbox.replace_fabric(fabric));
+    }
+
+    /// Writes new colours into the uploaded fabric from its recolouring bases (after a fabric
+    /// waiting to be uploaded; a newer request replaces one not yet done).
+    pub fn recolour(&self, request: RecolourRequest) {
+        self.post(|inbox| inbox.recolour = Some(request));
     }
 
     /// Replaces the base surface (kept for fabrics uploaded later too).
@@ -332,6 +368,7 @@ impl Drop for RenderWorker {
 enum Work {
     LoseDevice,
     Fabric(NewFabric),
+    Recolour(RecolourRequest),
     Mesh(MeshRequest),
     Export(ExportRequest),
     Frame(FrameRequest),
@@ -352,6 +389,9 @@ fn next_work(shared: &Shared) -> Option<Work> {
         }
         if let Some(fabric) = inbox.fabric.take() {
             return Some(Work::Fabric(fabric));
+        }
+        if let Some(recolour) = inbox.recolour.take() {
+            return Some(Work::Recolour(recolour));
         }
         if let Some(export) = inbox.export.take() {
             return Some(Work::Export(export));
@@ -480,6 +520,28 @@ fn worker_loop(
                         }
                     }
                 }
+            }
+            Work::Recolour(request) => {
+                let started = Instant::now();
+                let Some(r) = renderer.as_mut() else {
+                    send(WorkerEvent::RecolourFailed { message: "no fabric is uploaded yet".into() });
+                    continue;
+                };
+                let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    for (exemplar, basis) in request.bases.iter().enumerate() {
+                        r.recolour(exemplar, basis, &request.materials)?;
+                    }
+                    Ok::<_, RenderError>(())
+                }));
+                let message = match outcome {
+                    Ok(Ok(())) => {
+                        send(WorkerEvent::Recoloured { seconds: started.elapsed().as_secs_f64() });
+                        continue;
+                    }
+                    Ok(Err(e)) => e.to_string(),
+                    Err(payload) => format!("recolouring panicked: {}", panic_text(payload.as_ref())),
+                };
+                send(WorkerEvent::RecolourFailed { message });
             }
             Work::Frame(request) => {
                 let Some(r) = renderer.as_mut() else {
@@ -745,4 +807,117 @@ fn run_export(
     };
     let files = write_export(&request.image_path, &image, &request.scene_toml)?;
     Ok(Some((files, started.elapsed().as_secs_f64())))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use twill_precompute::bake::Cancel;
+    use twill_precompute::bake::pattern::PatternMap;
+    use twill_precompute::bake::pipeline::{bake, recolour_basis};
+    use twill_precompute::bake::settings::BakeSettings;
+    use twill_precompute::bcsdf::FiberParams;
+    use twill_precompute::scene::SceneFile;
+
+    use super::*;
+
+    /// The worker's events until `done` says stop (failures panic), at most five minutes.
+    fn events_until(worker: &RenderWorker, done: impl Fn(&WorkerEvent) -> bool) -> Vec<WorkerEvent> {
+        let started = Instant::now();
+        let mut events = Vec::new();
+        loop {
+            for event in worker.poll() {
+                if let WorkerEvent::FabricFailed { message } = &event {
+                    panic!("upload failed: {message}");
+                }
+                let finished = done(&event);
+                events.push(event);
+                if finished {
+                    return events;
+                }
+            }
+            assert!(started.elapsed() < Duration::from_mins(5), "no such event in five minutes");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
+    fn colour_edits_are_written_from_the_bases_into_the_uploaded_fabric() {
+        let Some(gpu) = Gpu::for_test("colour_edits_are_written_from_the_bases_into_the_uploaded_fabric")
+        else {
+            return;
+        };
+        let device =
+            DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true };
+        let worker = RenderWorker::start(device, egui::Context::default()).expect("worker thread");
+        // A fabric of huge cells, so the bake and its bases take a moment.
+        let settings =
+            BakeSettings { cell_size_mfp: 8.0, iirtf_paths_per_cell: 32, ..Quality::Draft.settings() };
+        let scene = Arc::new(SceneFile::default_scene().build().expect("default scene"));
+        let inputs = &scene.bake_inputs(settings)[0];
+        let baked = bake(inputs, None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
+        let basis = recolour_basis(inputs, None, &Cancel::new(), &|_| {}).expect("bases");
+        let fabric = |fabric_id| NewFabric {
+            fabric_id,
+            quality: Quality::Draft,
+            preview: false,
+            baked: Arc::new(BakedSet { exemplars: vec![baked.clone()], pattern: PatternMap::uniform(0) }),
+            scene: Arc::clone(&scene),
+        };
+        let bases: RecolourBases = Arc::new(vec![basis]);
+        let recoloured = |c_tt: [f64; 3]| -> Vec<MaterialDesc> {
+            let mut materials = scene.material_descs.clone();
+            let MaterialDesc::Fiber(p) = materials[0] else { panic!("the default warp is fiber") };
+            materials[0] =
+                MaterialDesc::Fiber(FiberParams { c_tt: twill_precompute::Rgb::from_array(c_tt), ..p });
+            materials
+        };
+        // Nothing uploaded yet: refused, and said so.
+        worker
+            .recolour(RecolourRequest { bases: Arc::clone(&bases), materials: recoloured([0.9, 0.2, 0.1]) });
+        let events = events_until(&worker, |e| matches!(e, WorkerEvent::RecolourFailed { .. }));
+        assert!(
+            matches!(events.last(), Some(WorkerEvent::RecolourFailed { message }) if message.contains("no fabric"))
+        );
+        worker.set_fabric(fabric(1));
+        events_until(&worker, |e| matches!(e, WorkerEvent::FabricReady { fabric_id: 1, .. }));
+        worker
+            .recolour(RecolourRequest { bases: Arc::clone(&bases), materials: recoloured([0.9, 0.2, 0.1]) });
+        let events = events_until(&worker, |e| {
+            matches!(e, WorkerEvent::Recoloured { .. } | WorkerEvent::RecolourFailed { .. })
+        });
+        let Some(WorkerEvent::Recoloured { seconds }) = events.last() else {
+            let message = match events.last() {
+                Some(WorkerEvent::RecolourFailed { message }) => message.clone(),
+                _ => String::new(),
+            };
+            panic!("not recoloured: {message}");
+        };
+        assert!(seconds.is_finite() && *seconds >= 0.0);
+        // Colours the bases cannot hold (another slot count) are refused with a reason; the
+        // fabric stays usable.
+        worker.recolour(RecolourRequest {
+            bases: Arc::clone(&bases),
+            materials: recoloured([0.5; 3])[..1].to_vec(),
+        });
+        let events = events_until(&worker, |e| matches!(e, WorkerEvent::RecolourFailed { .. }));
+        assert!(
+            matches!(events.last(), Some(WorkerEvent::RecolourFailed { message }) if message.contains("recolouring"))
+        );
+        // A newer fabric drops a recolouring still waiting (both in the inbox at once, as
+        // `set_fabric` finds it): only the fabric is done.
+        worker.post(|inbox| {
+            inbox.recolour =
+                Some(RecolourRequest { bases: Arc::clone(&bases), materials: recoloured([0.1; 3]) });
+            inbox.replace_fabric(fabric(2));
+        });
+        let events = events_until(&worker, |e| matches!(e, WorkerEvent::FabricReady { fabric_id: 2, .. }));
+        std::thread::sleep(Duration::from_millis(200));
+        let later = worker.poll();
+        assert!(
+            !events.iter().chain(&later).any(|e| matches!(e, WorkerEvent::Recoloured { .. })),
+            "a recolouring older than the fabric was applied"
+        );
+    }
 }
