@@ -193,6 +193,9 @@ pub struct ViewerApp {
     /// The recolouring bases of the fabric's geometry and the quality they were made at
     /// (`bake::recolour`): colour edits evaluate them for their preview.
     recolour: Option<(Quality, super::bake::RecolourBases)>,
+    /// A colour edit sent to the render worker to write live: its full bake starts when the
+    /// worker has done it ([`WorkerEvent::Recoloured`] or [`WorkerEvent::RecolourFailed`]).
+    bake_after_recolour: Option<SceneFile>,
     /// The scene whose fabric and materials the last bake was started for.
     baked_scene: Option<SceneFile>,
     /// A fabric edit waiting for [`FABRIC_EDIT_SETTLE`], and since when.
@@ -314,6 +317,7 @@ impl ViewerApp {
             fabric: None,
             shown_bake: None,
             recolour: None,
+            bake_after_recolour: None,
             baked_scene: baked_scene.clone(),
             pending_fabric: None,
             mesh_sent: baked_scene.as_ref().map(|f| (f.mesh.clone(), f.swatch.size_cm)),
@@ -363,6 +367,7 @@ impl ViewerApp {
     fn start_bake(&mut self, quality: Quality) {
         if let Some(file) = &self.scene_file {
             let sequence = if self.fabric.is_none() { bake_sequence(quality) } else { vec![quality] };
+            self.bake_after_recolour = None;
             self.baker.start(file.clone(), sequence);
             self.final_quality = quality;
             self.baked_scene = Some(file.clone());
@@ -418,10 +423,16 @@ impl ViewerApp {
             let on_gpu = self.fabric.as_ref().is_some_and(|f| f.quality == self.final_quality);
             match (recolour, &self.worker) {
                 (Some(bases), Some(worker)) if on_gpu => {
+                    // The full bake starts once the colours are written: its transfer stage
+                    // would hold every core (and rayon's pool, which the recolouring uses) for
+                    // seconds. The bake in flight is stopped now, so that no older bake's fabric
+                    // replaces the recolouring before it is done.
                     worker.recolour(RecolourRequest { bases, materials });
-                    self.baker.start(scene.clone(), vec![self.final_quality]);
+                    self.baker.cancel();
+                    self.bake_after_recolour = Some(scene.clone());
                 }
                 (recolour, _) => {
+                    self.bake_after_recolour = None;
                     self.baker.start_material_edit(
                         scene.clone(),
                         self.final_quality,
@@ -432,10 +443,24 @@ impl ViewerApp {
             }
         } else {
             self.recolour = None;
+            self.bake_after_recolour = None;
             self.baker.start(scene.clone(), bake_sequence(self.final_quality));
         }
         self.baked_scene = Some(scene);
         self.pending_fabric = None;
+    }
+
+    /// Stops the bake in flight and the one a live recolouring would start.
+    fn cancel_bakes(&mut self) {
+        self.bake_after_recolour = None;
+        self.baker.cancel();
+    }
+
+    /// The full bake of a colour edit written live, once the render worker has written it.
+    fn start_bake_after_recolour(&mut self) {
+        if let Some(scene) = self.bake_after_recolour.take() {
+            self.baker.start(scene, vec![self.final_quality]);
+        }
     }
 
     /// No bake running or waiting, the latest bake of the scene as edited on screen (not a
@@ -447,6 +472,7 @@ impl ViewerApp {
             .is_some_and(|s| bake_changes(self.baked_scene.as_ref(), s) == (false, false));
         baked_current
             && self.pending_fabric.is_none()
+            && self.bake_after_recolour.is_none()
             && !self.baker.busy()
             && self.uploading.is_empty()
             && self.fabric.as_ref().is_some_and(|f| !f.preview)
@@ -532,6 +558,7 @@ impl ViewerApp {
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
         self.recolour = None;
+        self.bake_after_recolour = None;
         self.fabric = None;
         self.baker.start(file.clone(), bake_sequence(self.final_quality));
         self.baked_scene = Some(file);
@@ -620,10 +647,12 @@ impl ViewerApp {
                     }
                     self.restart_picture = true;
                     log::info!("colours written from the recolouring bases in {:.0} ms", seconds * 1e3);
+                    self.start_bake_after_recolour();
                 }
                 WorkerEvent::RecolourFailed { message } => {
                     // The full bake that follows shows the new colours.
                     log::warn!("no live recolouring: {message}");
+                    self.start_bake_after_recolour();
                 }
                 WorkerEvent::MeshReady { bounds, seconds } => {
                     self.shell_id += 1;
@@ -1008,7 +1037,7 @@ impl ViewerApp {
             egui::ScrollArea::vertical().show(ui, |ui| quality_panel(ui, controls, &view, bake_choice)).inner;
         match action {
             Some(QualityAction::Bake(q)) => self.start_bake(q),
-            Some(QualityAction::CancelBake) => self.baker.cancel(),
+            Some(QualityAction::CancelBake) => self.cancel_bakes(),
             None => {}
         }
     }
@@ -1327,7 +1356,7 @@ impl ViewerApp {
                 Ok(true)
             }
             Step::CancelBake => {
-                self.baker.cancel();
+                self.cancel_bakes();
                 Ok(true)
             }
             Step::Orbit { yaw_deg, pitch_deg } => {

@@ -394,7 +394,7 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key.
-const RECOLOUR_VERSION: u32 = 6;
+const RECOLOUR_VERSION: u32 = 7;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
@@ -1184,10 +1184,14 @@ pub(crate) mod tests {
         let before = run(&exemplar, &materials, settings, &cache);
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
         let basis = recolour_basis(&inputs, Some(&cache), &Cancel::new(), &|_| {}).unwrap();
-        // Cached under a key without the colours: another colouring loads the same basis.
+        // Cached under a key without the colours: another colouring loads the same basis (loads
+        // it: nothing is computed, so no progress is reported).
         let recoloured = [with_colour(materials[0], Rgb::new(0.2, 0.6, 0.3)), materials[1]];
         let inputs = BakeInputs { exemplar: &exemplar, materials: &recoloured, settings };
-        assert_eq!(recolour_basis(&inputs, Some(&cache), &Cancel::new(), &|_| {}).unwrap(), basis);
+        let computed = std::sync::atomic::AtomicBool::new(false);
+        let progress = |_: f64| computed.store(true, std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(recolour_basis(&inputs, Some(&cache), &Cancel::new(), &progress).unwrap(), basis);
+        assert!(!computed.into_inner(), "the cached basis was computed again, not loaded");
         let preview =
             bake_material_preview(&inputs, &before.baked, Some(&basis), None, &Cancel::new(), &|_, _| {})
                 .unwrap();

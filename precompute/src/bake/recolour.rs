@@ -329,7 +329,9 @@ pub enum RecolourError {
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RecolourBasis {
     /// The materials it was made for, colours zeroed ([`colour_free`]): it holds for any
-    /// colours of these lobes, and for no other lobes.
+    /// colours of these lobes, and for no other lobes. Stored externally tagged
+    /// ([`stored_materials`]): postcard cannot decode `MaterialDesc`'s internal tag.
+    #[serde(with = "stored_materials")]
     pub materials: Vec<MaterialDesc>,
     pub sh_order: usize,
     pub light_domain: LightDomain,
@@ -338,6 +340,45 @@ pub struct RecolourBasis {
     pub cells: Vec<CellBasis>,
     /// C_S parts per slot (`None` for Lambertian slots, which have no table).
     pub cs_parts: Vec<Option<CsParts>>,
+}
+
+/// [`RecolourBasis::materials`] as the cache stores it: `MaterialDesc` is internally tagged
+/// (`model = "fiber"` in scene files), which needs a self-describing format to decode; the
+/// basis goes into the stage cache as postcard, so its materials are written as this
+/// externally tagged mirror instead (a basis cached with the internal tag never decoded, and
+/// was made again every time).
+mod stored_materials {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    use crate::Rgb;
+    use crate::bcsdf::{FiberParams, MaterialDesc};
+
+    #[derive(Serialize, Deserialize)]
+    enum Stored {
+        Fiber(FiberParams),
+        Lambert(Rgb),
+    }
+
+    pub fn serialize<S: Serializer>(materials: &[MaterialDesc], s: S) -> Result<S::Ok, S::Error> {
+        let stored: Vec<Stored> = materials
+            .iter()
+            .map(|m| match *m {
+                MaterialDesc::Fiber(p) => Stored::Fiber(p),
+                MaterialDesc::Lambert { albedo } => Stored::Lambert(albedo),
+            })
+            .collect();
+        stored.serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<MaterialDesc>, D::Error> {
+        Ok(Vec::<Stored>::deserialize(d)?
+            .into_iter()
+            .map(|m| match m {
+                Stored::Fiber(p) => MaterialDesc::Fiber(p),
+                Stored::Lambert(albedo) => MaterialDesc::Lambert { albedo },
+            })
+            .collect())
+    }
 }
 
 impl RecolourBasis {
