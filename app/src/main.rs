@@ -96,8 +96,9 @@ enum AccuracyCommand {
         /// Override one bake knob, as `twill bake --set` (repeatable).
         #[arg(long = "set", value_name = "KNOB=VALUE")]
         overrides: Vec<String>,
-        /// Also split multiple scattering's transfer into the first neighbour's transmission
-        /// and the rest (rungs 4a, 4b; two more transfer bakes).
+        /// Also split multiple scattering's transfer into the first neighbour's transmission,
+        /// its reflection and light scattered twice or more (rungs 4a-4c; three more transfer
+        /// bakes).
         #[arg(long)]
         split_transfer: bool,
     },

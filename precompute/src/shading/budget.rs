@@ -33,11 +33,11 @@
 //! is multiple scattering alone, so the clamp acts on it). Truncated SH and
 //! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
 //! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. With
-//! [`BudgetSettings::split_transfer`], 4a and 4b split 4′ by light transport
+//! [`BudgetSettings::split_transfer`], 4a–4c split 4′ by light transport
 //! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
-//! peaked around the light's direction) and the rest, each baked on the same paths; run at two
-//! SH orders, the part whose figure swings with the order is the one the SH transfer cannot
-//! hold.
+//! peaked around the light's direction), its reflection (a cone about its axis) and light
+//! scattered twice or more, each baked on the same paths; run at two SH orders, a part whose
+//! figure swings with the order is one the SH transfer cannot hold.
 //!
 //! Callers can add rungs measured elsewhere with [`Budget::add_rung`]: `twill accuracy budget`
 //! adds the GPU renderer's frame (primary visibility from the voxel volume) after each
@@ -74,8 +74,8 @@ pub struct BudgetSettings {
     /// Light samples per hit for SG lights (single-scattering rungs 1–4).
     pub light_samples: u32,
     pub seed: u64,
-    /// Add rungs 4a and 4b: the transfer split into the first neighbour's transmission and the
-    /// rest (two more IIRTF bakes).
+    /// Add rungs 4a–4c: the transfer split into the first neighbour's transmission, its
+    /// reflection and light scattered twice or more (three more IIRTF bakes).
     pub split_transfer: bool,
 }
 
@@ -288,7 +288,8 @@ pub fn error_budget(
     if settings.split_transfer {
         for (part, name) in [
             (TransferPart::FirstTransmission, "4a rung 4′ with the first neighbour's transmission alone"),
-            (TransferPart::Rest, "4b rung 4′ with the rest of the transfer (4a + 4b = 4′)"),
+            (TransferPart::FirstReflection, "4b rung 4′ with the first neighbour's reflection alone"),
+            (TransferPart::Later, "4c rung 4′ with light scattered twice or more (4a + 4b + 4c = 4′)"),
         ] {
             let t = Instant::now();
             let part_baked = with_transfer_part(scene, baked, part)?;
