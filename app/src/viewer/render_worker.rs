@@ -6,9 +6,9 @@
 //! The viewer posts work into a small inbox — a new fabric to upload, new colours to write
 //! into the uploaded one from its recolouring bases ([`Renderer::recolour`]; a newer fabric
 //! drops them), an export, and the one viewport frame it wants next — and the worker takes
-//! them in that order. The inbox holds at
-//! most one frame request: posting a newer one replaces a request not yet started, so the worker
-//! never renders a picture that is already stale. Each request adds samples
+//! them in that order. The inbox holds at most one frame request: posting a newer one replaces
+//! a request not yet started, so the worker never renders a picture that is already stale.
+//! Each request adds samples
 //! `first_sample .. first_sample + spp` of the view's sample sequence to the picture the
 //! renderer keeps on the GPU and tone-maps it there ([`Renderer::render_progressive`]); an
 //! exposure or curve edit tone-maps the same samples again ([`RenderWorker::tone_map`]). On the

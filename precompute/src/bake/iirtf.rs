@@ -6,12 +6,13 @@
 //! the midpoints μ_k of the segments in C.
 //!
 //! How it works: each path draws a segment k of the cell uniformly and ω1 uniformly on the
-//! sphere (pdf 1/4π), both and its first light sample stratified over the cell's paths
-//! ([`path_strata`]: a randomly shifted low-discrepancy sequence), and walks from μ_k (in the central copy of the fabric tiled over the
-//! whole plane, no ground) toward ω1, ignoring k's own fiber on the first ray
-//! ([`TransferSampler::sample`]). At each fiber event it draws a light direction ω0 from that
-//! fiber's scattering function and casts a shadow ray; ω0 counts if it lies in the light domain
-//! (the upper hemisphere, as in the paper: T is zero for light from below;
+//! sphere (pdf 1/4π), these and its first light sample stratified over the cell's paths
+//! ([`path_strata`]: randomly shifted low-discrepancy sequences), and walks from μ_k (in the
+//! central copy of the fabric tiled over the whole plane, no ground) toward ω1, ignoring k's
+//! own fiber on the first ray ([`TransferSampler::sample`]). At each fiber event it draws a
+//! light direction ω0 from that fiber's scattering function and casts a shadow ray; ω0 counts
+//! if it lies in the light domain (the upper hemisphere, as in the paper: T is zero for light
+//! from below;
 //! [`LightDomain::Sphere`] takes the whole sphere). Light reaching μ_k without touching a fiber
 //! is never counted, so only scattered light enters. The path's estimate of every coefficient
 //! is `Σ_events w · Y_j0(ω0) Y_j1(ω1)` with `w = throughput · S cos θ0 / (p(ω0) p(ω1))` (p(k)
@@ -537,13 +538,12 @@ const STRATA_STEPS: [f64; STRATA_DIMS] = [
 ];
 
 /// Path `path`'s point of its cell's stratified start: the [`STRATA_STEPS`] sequences shifted
-/// by a random vector drawn once per cell (Cranley–Patterson rotation). Dimension 0 picks the segment, 1–2
-/// the direction ω1, 3–5 the first event's light sample. Each point is uniform on the unit
-/// cube (the shift is), so every path's estimate keeps its expectation, while a cell's paths
-/// cover segments, directions and first light samples evenly instead of clumping as
-/// independent draws do, and the per-cell projection noise falls (over the 100 hard
-/// configurations of `twill accuracy`, multiple scattering's error fell a little on each of
-/// the three fabrics; docs/BENCHMARKS.md).
+/// by a random vector drawn once per cell (Cranley–Patterson rotation). Dimension 0 picks the
+/// segment, 1–2 the direction ω1, 3–5 the first event's light sample. Each point is uniform on
+/// the unit cube (the shift is), so every path's estimate keeps its expectation, while a
+/// cell's paths cover segments, directions and first light samples evenly instead of clumping
+/// as independent draws do, and the per-cell noise falls (seed to seed, the default scene's
+/// multiple scattering at interactive spread ±3.2 points instead of ±4.8; docs/BENCHMARKS.md).
 #[must_use]
 pub fn path_strata(stream: u64, path: u64) -> [f64; STRATA_DIMS] {
     let mut shift = pixel_rng(stream, u64::MAX);
