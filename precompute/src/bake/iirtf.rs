@@ -352,11 +352,7 @@ impl TransferSampler {
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
             let material = &self.yarn_materials[h.yarn as usize];
             let wo = -dir;
-            let u_light = if event == 1 {
-                [strata[3], strata[4], strata[5]]
-            } else {
-                [rng.random(), rng.random(), rng.random()]
-            };
+            let u_light = light_uniforms(event, &strata, &mut rng);
             let kept = self.part == TransferPart::All || {
                 let lobe = match material {
                     Material::Fiber(f) if event == 1 => f.sampled_lobe(t, wo, u_light),
@@ -454,11 +450,7 @@ impl TransferSampler {
             let material = &self.yarn_materials[h.yarn as usize];
             let slot = self.yarn_slots[h.yarn as usize] as usize;
             let wo = -dir;
-            let u_light = if event == 1 {
-                [strata[3], strata[4], strata[5]]
-            } else {
-                [rng.random(), rng.random(), rng.random()]
-            };
+            let u_light = light_uniforms(event, &strata, &mut rng);
             if let Some(e) = material.sample_colour_free(t, n, wo, u_light)
                 && self.in_domain(e.dir)
                 && !fibers.any_hit(position.as_vec3(), e.dir.as_vec3(), f32::INFINITY, Some(h.fiber))
@@ -552,6 +544,13 @@ pub fn path_strata(stream: u64, path: u64) -> [f64; STRATA_DIMS] {
         // fract of a sum of two numbers in [0, 1) can round to 1.0.
         if v < 1.0 { v } else { 0.0 }
     })
+}
+
+/// The uniforms of the light sample at a path's `event` (1 = its first fiber event): the
+/// first event's from its stratified start ([`path_strata`], dimensions 3–5), later ones from
+/// the path's generator.
+fn light_uniforms(event: u32, strata: &[f64; STRATA_DIMS], rng: &mut rand_pcg::Pcg64Mcg) -> [f64; 3] {
+    if event == 1 { [strata[3], strata[4], strata[5]] } else { [rng.random(), rng.random(), rng.random()] }
 }
 
 /// The random stream of a cell's paths.

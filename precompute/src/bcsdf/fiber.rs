@@ -226,8 +226,15 @@ impl FiberScattering {
     #[must_use]
     pub fn sampled_lobe(&self, tangent: DVec3, fixed: DVec3, u: [f64; 3]) -> Option<Lobe> {
         let (theta_f, _) = FiberFrame::new(tangent).angles(fixed);
+        self.choose_lobe(theta_f, u[0]).map(|(lobe, _)| lobe)
+    }
+
+    /// The lobe `u0` chooses when the fixed direction is at longitudinal angle `theta_f`, with
+    /// the probability of R; `None` when both lobes are black. The one choice of
+    /// [`Self::sample`] and [`Self::sampled_lobe`].
+    fn choose_lobe(&self, theta_f: f64, u0: f64) -> Option<(Lobe, f64)> {
         let p_r = self.lobe_probability_r(theta_f.cos())?;
-        Some(if u[0] < p_r { Lobe::R } else { Lobe::Tt })
+        Some((if u0 < p_r { Lobe::R } else { Lobe::Tt }, p_r))
     }
 
     /// Samples the direction on the other side of S from `fixed` (either ωi or ωo: the
@@ -236,14 +243,16 @@ impl FiberScattering {
     pub fn sample(&self, tangent: DVec3, fixed: DVec3, u: [f64; 3]) -> Option<DVec3> {
         let frame = FiberFrame::new(tangent);
         let (theta_f, phi_f) = frame.angles(fixed);
-        let p_r = self.lobe_probability_r(theta_f.cos())?;
-        let (theta, phi) = if u[0] < p_r {
-            let theta = TruncGauss::new(-theta_f, self.beta_r).sample(u[1]);
-            (theta, phi_f + 2.0 * PI * u[2])
-        } else {
-            let reuse = ((u[0] - p_r) / (1.0 - p_r)).clamp(0.0, 1.0);
-            let theta = TruncGauss::new(-theta_f, self.beta_tt).sample(u[1]);
-            (theta, phi_f + PI + self.von_mises.sample(u[2], reuse))
+        let (theta, phi) = match self.choose_lobe(theta_f, u[0])? {
+            (Lobe::R, _) => {
+                let theta = TruncGauss::new(-theta_f, self.beta_r).sample(u[1]);
+                (theta, phi_f + 2.0 * PI * u[2])
+            }
+            (Lobe::Tt, p_r) => {
+                let reuse = ((u[0] - p_r) / (1.0 - p_r)).clamp(0.0, 1.0);
+                let theta = TruncGauss::new(-theta_f, self.beta_tt).sample(u[1]);
+                (theta, phi_f + PI + self.von_mises.sample(u[2], reuse))
+            }
         };
         let dir = frame.direction(theta, phi);
         // Same cut-off as `pdf`, measured the same way.

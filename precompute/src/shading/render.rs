@@ -74,8 +74,9 @@ fn shade_segment(
         // Truncated SH and a noisy transfer can go negative. What is clamped (per channel, as
         // the GPU's shade pass does) is the radiance shaded, single and multiple scattering
         // together, not the multiple-scattering term alone: a clamp lifts the mean wherever it
-        // acts, and on narrow-lobed fibers (silk) the term rings below zero over much of the
-        // image, so clamping it alone added more bias than it removed (docs/BENCHMARKS.md).
+        // acts (on the silk satin's multiple scattering, which rings below zero over much of
+        // the image, by 50–200 points in the error budget; docs/BENCHMARKS.md), and the sum
+        // goes below zero less often than the term.
         total += multiple_scattering(baked, segment, position, wo, &c_light)?;
     }
     Ok(if clamp_at_zero { total.max(Rgb::ZERO) } else { total })
