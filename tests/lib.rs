@@ -25,6 +25,7 @@ pub fn lambert_scene(exemplar: &Exemplar, extent: Extent, albedo: f64, lights: V
         yarn_materials: vec![material; exemplar.yarns.len()],
         lights,
         ground_z: None,
+        painted: None,
     }
 }
 

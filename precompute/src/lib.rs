@@ -17,6 +17,7 @@ pub mod bcsdf;
 pub mod fabric;
 pub mod fibonacci;
 pub mod image;
+pub mod paint;
 pub mod params;
 pub mod pathtrace;
 pub mod quadrature;

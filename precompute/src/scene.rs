@@ -692,7 +692,7 @@ impl SceneFile {
         };
         let fibers = FiberScene::new(&exemplar, extent).map_err(|e| invalid(format!("[fabric]: {e}")))?;
         let ground_z = self.swatch.ground.then(|| f64::from(fibers.slab().0) - GROUND_GAP_CM);
-        let path_scene = PathScene { fibers, yarn_materials, lights, ground_z };
+        let path_scene = PathScene { fibers, yarn_materials, lights, ground_z, painted: None };
         Ok(Scene {
             exemplar,
             pattern,

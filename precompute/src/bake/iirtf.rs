@@ -931,6 +931,7 @@ mod tests {
             yarn_materials: materials.clone(),
             lights: vec![Light::Directional { to_light: light, irradiance: Rgb::ONE }],
             ground_z: None,
+            painted: None,
         };
         let render = RenderSettings { spp: 1, max_depth: MAX_DEPTH, component: Component::All, seed: 0 };
 

@@ -22,6 +22,7 @@
 //! p(θ) p(φ) / cos θ; directions within 1e-9 of the tangent have pdf 0 and are not returned.
 
 use std::f64::consts::{FRAC_PI_2, PI};
+use std::sync::Arc;
 
 use glam::DVec3;
 
@@ -112,8 +113,9 @@ pub struct FiberScattering {
     lam_r: f64,
     lam_tt: f64,
     von_mises: VonMises,
-    gn_r: GnTable,
-    gn_tt: GnTable,
+    // Shared: a recoloured copy ([`Self::with_c_tt`]) keeps its tables.
+    gn_r: Arc<GnTable>,
+    gn_tt: Arc<GnTable>,
 }
 
 impl FiberScattering {
@@ -135,8 +137,8 @@ impl FiberScattering {
             lam_r: 0.5 / (beta_r * beta_r),
             lam_tt: 0.5 / (beta_tt * beta_tt),
             von_mises: VonMises::new(kappa),
-            gn_r: GnTable::new(beta_r),
-            gn_tt: GnTable::new(beta_tt),
+            gn_r: Arc::new(GnTable::new(beta_r)),
+            gn_tt: Arc::new(GnTable::new(beta_tt)),
         })
     }
 
@@ -144,6 +146,36 @@ impl FiberScattering {
     #[must_use]
     pub fn gn_tables(&self) -> (&GnTable, &GnTable) {
         (&self.gn_r, &self.gn_tt)
+    }
+
+    /// The TT colour `C_TT`.
+    #[must_use]
+    pub fn c_tt(&self) -> Rgb {
+        self.c_tt
+    }
+
+    /// The same fiber with the TT colour `c_tt` (checked as [`Self::new`] does); the Gn
+    /// tables are shared, so this costs a copy of a few numbers.
+    pub fn with_c_tt(&self, c_tt: Rgb) -> Result<Self, ParamError> {
+        Ok(Self { c_tt: check_rgb("c_tt", c_tt, 0.0, 1.0)?, ..self.clone() })
+    }
+
+    /// `S(ωi, ωo) cos θi` split by lobe and with `C_TT` left out: `(R, T)` with the whole
+    /// value `R + C_TT T`. R carries `F_R(θi)` and T carries `1 − F_R(θi)`, so only the TT
+    /// colour is left to multiply in (what albedo painting differentiates, `crate::paint`).
+    #[must_use]
+    pub fn eval_cos_parts(&self, tangent: DVec3, wi: DVec3, wo: DVec3) -> (Rgb, Rgb) {
+        let frame = FiberFrame::new(tangent);
+        let (ti, pi) = frame.angles(wi);
+        let (to, po) = frame.angles(wo);
+        let theta_i = ti.clamp(-FRAC_PI_2, FRAC_PI_2);
+        let sum = theta_i + to.clamp(-FRAC_PI_2, FRAC_PI_2);
+        let cos_i = theta_i.cos();
+        let f = self.fresnel(cos_i);
+        let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
+        let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+        let azimuth = self.tt_azimuthal(po - pi);
+        (f * (m_r / (2.0 * PI) * cos_i), (Rgb::ONE - f) * (m_tt * azimuth * cos_i))
     }
 
     /// Schlick-form reflectance `F_R(θ) = C_R + (1 - C_R)(1 - cos θ)^5`.
@@ -273,8 +305,7 @@ impl FiberScattering {
     pub fn sample_colour_free(&self, tangent: DVec3, wo: DVec3, u: [f64; 3]) -> Option<ColourFreeEvent> {
         let frame = FiberFrame::new(tangent);
         let (theta_f, phi_f) = frame.angles(wo);
-        let m_fixed = (1.0 - theta_f.cos().clamp(0.0, 1.0)).powi(5);
-        let p_r = (COLOUR_FREE_C_R + (1.0 - COLOUR_FREE_C_R) * m_fixed).clamp(0.1, 0.9);
+        let p_r = colour_free_probability_r(theta_f);
         let (lobe, theta, phi, choice) = if u[0] < p_r {
             let theta = TruncGauss::new(-theta_f, self.beta_r).sample(u[1]);
             (Lobe::R, theta, phi_f + 2.0 * PI * u[2], p_r)
@@ -309,22 +340,46 @@ impl FiberScattering {
         (weight.is_finite() && weight > 0.0).then_some(ColourFreeEvent { dir, lobe, weight, schlick })
     }
 
-    /// Solid-angle density with which [`Self::sample`] returns `dir` given `fixed`.
+    /// Solid-angle density with which [`Self::sample_colour_free`] returns `dir` given `wo`
+    /// (what multiple importance sampling weighs a colour-free walk with: the weights then do
+    /// not depend on the colours either).
     #[must_use]
-    pub fn pdf(&self, tangent: DVec3, fixed: DVec3, dir: DVec3) -> f64 {
+    pub fn pdf_colour_free(&self, tangent: DVec3, wo: DVec3, dir: DVec3) -> f64 {
         let frame = FiberFrame::new(tangent);
+        let (theta_f, _) = frame.angles(wo);
+        self.mixture_pdf(&frame, wo, dir, colour_free_probability_r(theta_f))
+    }
+
+    /// Density of choosing R with probability `p_r` (else TT) and sampling that lobe about
+    /// `fixed`.
+    fn mixture_pdf(&self, frame: &FiberFrame, fixed: DVec3, dir: DVec3, p_r: f64) -> f64 {
         let (theta_f, phi_f) = frame.angles(fixed);
         let (theta, phi) = frame.angles(dir);
         let cos_theta = theta.cos();
         if cos_theta <= MIN_COS_THETA {
             return 0.0;
         }
-        let Some(p_r) = self.lobe_probability_r(theta_f.cos()) else {
-            return 0.0;
-        };
         let pdf_r = TruncGauss::new(-theta_f, self.beta_r).pdf(theta) / (2.0 * PI);
         let pdf_tt =
             TruncGauss::new(-theta_f, self.beta_tt).pdf(theta) * self.von_mises.pdf(phi - phi_f - PI);
         (p_r * pdf_r + (1.0 - p_r) * pdf_tt) / cos_theta
     }
+
+    /// Solid-angle density with which [`Self::sample`] returns `dir` given `fixed`.
+    #[must_use]
+    pub fn pdf(&self, tangent: DVec3, fixed: DVec3, dir: DVec3) -> f64 {
+        let frame = FiberFrame::new(tangent);
+        let (theta_f, _) = frame.angles(fixed);
+        let Some(p_r) = self.lobe_probability_r(theta_f.cos()) else {
+            return 0.0;
+        };
+        self.mixture_pdf(&frame, fixed, dir, p_r)
+    }
+}
+
+/// The colour-free walk's probability of R when the fixed direction is at longitudinal angle
+/// `theta_f`: `clamp(F_ref(θ), 0.1, 0.9)` with `F_ref` the Schlick form at [`COLOUR_FREE_C_R`].
+fn colour_free_probability_r(theta_f: f64) -> f64 {
+    let m_fixed = (1.0 - theta_f.cos().clamp(0.0, 1.0)).powi(5);
+    (COLOUR_FREE_C_R + (1.0 - COLOUR_FREE_C_R) * m_fixed).clamp(0.1, 0.9)
 }

@@ -27,8 +27,14 @@ impl Lambertian {
     /// f(ωi, ωo) · max(0, ωi·n); zero when ωo is not above the surface.
     #[must_use]
     pub fn eval_cos(&self, n: DVec3, wi: DVec3, wo: DVec3) -> Rgb {
+        self.albedo * Self::eval_cos_white(n, wi, wo)
+    }
+
+    /// [`Self::eval_cos`] at albedo 1.
+    #[must_use]
+    pub fn eval_cos_white(n: DVec3, wi: DVec3, wo: DVec3) -> f64 {
         let (ci, co) = (wi.dot(n), wo.dot(n));
-        if ci > 0.0 && co > 0.0 { self.albedo * (FRAC_1_PI * ci) } else { Rgb::ZERO }
+        if ci > 0.0 && co > 0.0 { FRAC_1_PI * ci } else { 0.0 }
     }
 
     /// Cosine-weighted direction about n (`None` when ωo is below the surface or the sample

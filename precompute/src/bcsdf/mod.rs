@@ -129,6 +129,46 @@ impl Material {
         }
     }
 
+    /// `eval_cos` split into the part that does not depend on the paintable colour and the
+    /// part per unit of it: `(fixed, per_colour)` with `eval_cos = fixed + colour · per_colour`,
+    /// the colour being `C_TT` for the fiber (its R lobe and the `1 − F_R` of TT stay in) and
+    /// the albedo for Lambert (whose fixed part is zero). See [`FiberScattering::eval_cos_parts`].
+    #[must_use]
+    pub fn eval_cos_parts(&self, t: DVec3, n: DVec3, wi: DVec3, wo: DVec3) -> (Rgb, Rgb) {
+        match self {
+            Self::Fiber(f) => f.eval_cos_parts(t, wi, wo),
+            Self::Lambert(_) => (Rgb::ZERO, Rgb::splat(Lambertian::eval_cos_white(n, wi, wo))),
+        }
+    }
+
+    /// Solid-angle density of [`Self::sample_colour_free`] (for multiple importance sampling
+    /// in a walk that must not read the colours).
+    #[must_use]
+    pub fn pdf_colour_free(&self, t: DVec3, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
+        match self {
+            Self::Fiber(f) => f.pdf_colour_free(t, wo, wi),
+            Self::Lambert(l) => l.pdf(n, wo, wi),
+        }
+    }
+
+    /// The paintable colour: `C_TT` of a fiber, the albedo of a Lambertian surface.
+    #[must_use]
+    pub fn paint_colour(&self) -> Rgb {
+        match self {
+            Self::Fiber(f) => f.c_tt(),
+            Self::Lambert(l) => l.albedo,
+        }
+    }
+
+    /// The same material with its paintable colour replaced ([`Self::paint_colour`]); checked
+    /// to lie in [0, 1] per channel.
+    pub fn with_paint_colour(&self, colour: Rgb) -> Result<Self, ParamError> {
+        Ok(match self {
+            Self::Fiber(f) => Self::Fiber(f.with_c_tt(colour)?),
+            Self::Lambert(_) => Self::Lambert(Lambertian::new(colour)?),
+        })
+    }
+
     /// The colour variables a recolouring works in: `(τ, C_R)` with `τ = (1 − C_R) C_TT` the
     /// factor of a TT event (a Lambertian surface: its albedo, and C_R = 0).
     #[must_use]

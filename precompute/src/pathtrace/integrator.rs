@@ -26,6 +26,7 @@ use super::light::Light;
 use crate::Rgb;
 use crate::bcsdf::Material;
 use crate::image::{Film, PixelRow};
+use crate::paint::PaintedMaterials;
 use crate::params::{ParamError, check_count};
 use crate::raycast::{FiberScene, Hit};
 
@@ -76,6 +77,19 @@ pub struct PathScene {
     pub lights: Vec<Light>,
     /// Height of a black, absorbing ground plane under the fabric, if any.
     pub ground_z: Option<f64>,
+    /// A painted cloth: materials per paint cell, in place of `yarn_materials`.
+    pub painted: Option<PaintedMaterials>,
+}
+
+impl PathScene {
+    /// The material at a fiber hit: its paint cell's when the cloth is painted, else its yarn's.
+    #[must_use]
+    pub fn material(&self, hit: &Hit) -> &Material {
+        match &self.painted {
+            Some(p) => &p.materials[p.of_cell[p.cells.cell_of(hit) as usize] as usize],
+            None => &self.yarn_materials[hit.yarn as usize],
+        }
+    }
 }
 
 /// Renders `settings.spp` samples per pixel; `progress` is called with the number of rows done.
@@ -154,7 +168,7 @@ pub fn radiance_from(
         let position = hit.position.as_dvec3();
         let t = hit.tangent.as_dvec3();
         let n = hit.normal.as_dvec3();
-        let material = &scene.yarn_materials[hit.yarn as usize];
+        let material = scene.material(&hit);
         let counts_here = settings.component.counts(event);
 
         if counts_here {
@@ -231,18 +245,18 @@ fn has_sg_light(scene: &PathScene) -> bool {
     scene.lights.iter().any(|l| matches!(l, Light::Sg { .. }))
 }
 
-fn power_heuristic(a: f64, b: f64) -> f64 {
+pub(crate) fn power_heuristic(a: f64, b: f64) -> f64 {
     let (a2, b2) = (a * a, b * b);
     if a2 + b2 == 0.0 { 0.0 } else { a2 / (a2 + b2) }
 }
 
 /// Closest fiber hit that lies above the ground (fibers below it are hidden by it).
-fn trace(scene: &PathScene, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>) -> Option<Hit> {
+pub(crate) fn trace(scene: &PathScene, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>) -> Option<Hit> {
     let t_max = ground_distance(scene, origin, dir).unwrap_or(f64::INFINITY);
     scene.fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, ignore_fiber)
 }
 
-fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
+pub(crate) fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
     below_ground(scene, origin, dir)
         || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
 }

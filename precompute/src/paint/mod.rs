@@ -1,0 +1,519 @@
+//! Albedo painting at path-traced quality: Hašan & Ramamoorthy 2013 on fiber cloth.
+//!
+//! For a fixed view and lights, a designer paints colours onto yarns and sees the path-traced
+//! picture of the painted cloth at once. The paintable colour of a yarn is the colour of its TT
+//! events (a fiber's C_TT; a Lambertian yarn's albedo), per [cell](cells): one crossing-long
+//! section of one thread of the swatch. A pixel of the cloth is then
+//! `I(α) = ∫ a(x̄) Π_j α_j^(b_j(x̄)) dμ(x̄)`, `b_j` counting the path's TT events in cell j.
+//!
+//! [`precompute`] traces colour-free camera paths ([`walk`]: sampled without the colours, so
+//! one path serves every painting and the gradient is unbiased) and keeps, per pixel and
+//! channel:
+//! - the **homogeneous curve** `I_h(α)`, every cell at α, as its values and slopes at
+//!   [`CURVE_ALBEDOS`] (denser toward 1, where long paths make it steep): each path adds
+//!   `a α^B` and `a B α^(B−1)` at every grid albedo (`B = Σ b_j`), so one set of paths gives
+//!   the whole curve;
+//! - the **weights** `W`: the gradient `∂I/∂α_j = Σ a b_j α0^(B−1)` at the expansion point
+//!   α0 = [`EXPANSION_ALBEDO`] (the event-counting estimator, from the first `gradient_spp`
+//!   paths), normalized to sum to 1, stored sparsely (a path touches a few cells).
+//!
+//! [`PaintData::evaluate`] is Theorem 1: `J(α) = I_h(W α)` per pixel and channel, the curve
+//! read by cubic Hermite interpolation; exact for homogeneous paintings, with the true
+//! gradient at α0. [`PaintData::save`]/[`PaintData::load`] keep it in a checksummed file,
+//! [`Painting`] reads the designer's strokes, and [`PaintedMaterials`] gives the path tracer a
+//! painted cloth to check against.
+
+mod cells;
+mod file;
+mod painting;
+#[cfg(test)]
+mod tests;
+mod walk;
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use rand::Rng;
+use rayon::prelude::*;
+
+pub use cells::{CellsError, MAX_CELLS, PaintCells, ThreadSet};
+pub use file::PaintFileError;
+pub use painting::{Painting, PaintingError, Stroke};
+
+use crate::Rgb;
+use crate::bcsdf::Material;
+use crate::image::{Film, Image, PixelRow};
+use crate::params::{ParamError, check_count, check_range};
+use crate::pathtrace::integrator::pixel_rng;
+use crate::pathtrace::{Camera, PathScene};
+
+/// The albedos at which the homogeneous curve is kept (value and slope), denser toward 1.
+pub const CURVE_ALBEDOS: [f64; 11] = [0.0, 0.2, 0.4, 0.55, 0.68, 0.78, 0.86, 0.92, 0.96, 0.985, 1.0];
+/// The expansion point α0 of the weights (Hašan & Ramamoorthy use 0.772).
+pub const EXPANSION_ALBEDO: f64 = 0.78;
+const EXPANSION_INDEX: usize = 5;
+const POINTS: usize = CURVE_ALBEDOS.len();
+
+/// How much to trace.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct PaintSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Paths per pixel for the homogeneous curves.
+    pub curve_spp: u32,
+    /// Of those, the first this many also give the weights (their storage grows with it).
+    pub gradient_spp: u32,
+    /// Most scattering events on a path.
+    pub max_depth: u32,
+    pub seed: u64,
+}
+
+impl PaintSettings {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check_count("width", self.width as usize, 1, 4096)?;
+        check_count("height", self.height as usize, 1, 4096)?;
+        check_count("curve_spp", self.curve_spp as usize, 1, 1 << 20)?;
+        check_count("gradient_spp", self.gradient_spp as usize, 1, self.curve_spp as usize)?;
+        check_count("max_depth", self.max_depth as usize, 1, 10_000)?;
+        Ok(())
+    }
+}
+
+/// What a painting needs of a fixed view and lights ([module docs](self)).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PaintData {
+    pub settings: PaintSettings,
+    pub cells: PaintCells,
+    /// Each cell's colour in the scene as precomputed (what an unpainted cell keeps).
+    pub scene_colours: Vec<[f32; 3]>,
+    /// Per pixel, per grid albedo: `I_h` and its slope (`[pixel * POINTS + k]`).
+    curve_values: Vec<[f32; 3]>,
+    curve_slopes: Vec<[f32; 3]>,
+    /// Per pixel, per grid albedo: the standard error of `I_h` (from the spread of its paths).
+    curve_errors: Vec<[f32; 3]>,
+    /// The weights, row by row (a row per pixel): `rows[p]..rows[p + 1]` index `weight_cells`
+    /// and `weights`; each row's weights sum to 1 per channel (or are all zero).
+    rows: Vec<u32>,
+    weight_cells: Vec<u32>,
+    weights: Vec<[f32; 3]>,
+    /// Seconds the precompute took (curves and weights together).
+    pub seconds: f64,
+}
+
+/// Why a painting cannot be precomputed.
+#[derive(Debug, thiserror::Error)]
+pub enum PaintError {
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    #[error(transparent)]
+    Cells(#[from] CellsError),
+    #[error("the camera is {camera_w}x{camera_h}; the settings say {width}x{height}")]
+    CameraSize { camera_w: usize, camera_h: usize, width: u32, height: u32 },
+    #[error("a painted scene cannot be precomputed: paint the precomputed data instead")]
+    AlreadyPainted,
+}
+
+/// One pixel's accumulation.
+struct PixelSums {
+    values: [Rgb; POINTS],
+    slopes: [Rgb; POINTS],
+    squares: [Rgb; POINTS],
+    gradient: Vec<(u32, Rgb)>,
+}
+
+impl PixelSums {
+    fn new() -> Self {
+        Self {
+            values: [Rgb::ZERO; POINTS],
+            slopes: [Rgb::ZERO; POINTS],
+            squares: [Rgb::ZERO; POINTS],
+            gradient: Vec::new(),
+        }
+    }
+}
+
+/// One pixel's result.
+struct PixelResult {
+    values: [[f32; 3]; POINTS],
+    slopes: [[f32; 3]; POINTS],
+    errors: [[f32; 3]; POINTS],
+    weights: Vec<(u32, [f32; 3])>,
+}
+
+fn f32s(v: Rgb) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// Traces the colour-free paths of every pixel and keeps the curves and weights; `cells` are
+/// the scene's ([`PaintCells::new`]); `progress` is called with the rows done.
+pub fn precompute(
+    scene: &PathScene,
+    cells: PaintCells,
+    camera: &Camera,
+    settings: &PaintSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<PaintData, PaintError> {
+    settings.validate()?;
+    if scene.painted.is_some() {
+        return Err(PaintError::AlreadyPainted);
+    }
+    let (w, h) = (settings.width as usize, settings.height as usize);
+    if (camera.width(), camera.height()) != (w, h) {
+        return Err(PaintError::CameraSize {
+            camera_w: camera.width(),
+            camera_h: camera.height(),
+            width: settings.width,
+            height: settings.height,
+        });
+    }
+    let started = std::time::Instant::now();
+    let yarn_of_cell = cells.yarn_of_cells();
+    let scene_colours =
+        yarn_of_cell.iter().map(|&y| f32s(scene.yarn_materials[y as usize].paint_colour())).collect();
+    let rows_done = AtomicUsize::new(0);
+    let rows: Vec<Vec<PixelResult>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let row = (0..w).map(|x| trace_pixel(scene, &cells, camera, settings, x, y)).collect();
+            progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1);
+            row
+        })
+        .collect();
+    let mut data = PaintData {
+        settings: *settings,
+        cells,
+        scene_colours,
+        curve_values: Vec::with_capacity(w * h * POINTS),
+        curve_slopes: Vec::with_capacity(w * h * POINTS),
+        curve_errors: Vec::with_capacity(w * h * POINTS),
+        rows: Vec::with_capacity(w * h + 1),
+        weight_cells: Vec::new(),
+        weights: Vec::new(),
+        seconds: 0.0,
+    };
+    data.rows.push(0);
+    for pixel in rows.into_iter().flatten() {
+        data.curve_values.extend_from_slice(&pixel.values);
+        data.curve_slopes.extend_from_slice(&pixel.slopes);
+        data.curve_errors.extend_from_slice(&pixel.errors);
+        for (cell, weight) in pixel.weights {
+            data.weight_cells.push(cell);
+            data.weights.push(weight);
+        }
+        data.rows.push(data.weight_cells.len() as u32);
+    }
+    data.seconds = started.elapsed().as_secs_f64();
+    Ok(data)
+}
+
+fn trace_pixel(
+    scene: &PathScene,
+    cells: &PaintCells,
+    camera: &Camera,
+    settings: &PaintSettings,
+    x: usize,
+    y: usize,
+) -> PixelResult {
+    let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
+    let mut sums = PixelSums::new();
+    let mut path_values = [Rgb::ZERO; POINTS];
+    for sample in 0..settings.curve_spp {
+        let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+        let (origin, dir) = camera.ray(px, py);
+        let with_gradient = sample < settings.gradient_spp;
+        path_values.fill(Rgb::ZERO);
+        walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, &mut |c| {
+            let b = c.tt_events;
+            for (k, &alpha) in CURVE_ALBEDOS.iter().enumerate() {
+                let v = c.value * power(alpha, b);
+                path_values[k] += v;
+                sums.values[k] += v;
+                if b > 0 {
+                    sums.slopes[k] += c.value * (f64::from(b) * power(alpha, b - 1));
+                }
+            }
+            if with_gradient && b > 0 {
+                let base = c.value * power(EXPANSION_ALBEDO, b - 1);
+                for &(cell, count) in c.cells {
+                    sums.gradient.push((cell, base * f64::from(count)));
+                }
+            }
+        });
+        for (k, v) in path_values.iter().enumerate() {
+            sums.squares[k] += *v * *v;
+        }
+    }
+    finish_pixel(sums, settings)
+}
+
+/// `a^b` with `0^0 = 1`.
+fn power(a: f64, b: u32) -> f64 {
+    a.powi(b.min(i32::MAX as u32) as i32)
+}
+
+fn finish_pixel(mut sums: PixelSums, settings: &PaintSettings) -> PixelResult {
+    let n = f64::from(settings.curve_spp);
+    let mut result = PixelResult {
+        values: [[0.0; 3]; POINTS],
+        slopes: [[0.0; 3]; POINTS],
+        errors: [[0.0; 3]; POINTS],
+        weights: Vec::new(),
+    };
+    for k in 0..POINTS {
+        let mean = sums.values[k] / n;
+        result.values[k] = f32s(mean);
+        result.slopes[k] = f32s(sums.slopes[k] / n);
+        let variance = (sums.squares[k] / n - mean * mean).max(Rgb::ZERO) / (n - 1.0).max(1.0);
+        result.errors[k] = f32s(Rgb::new(variance.x.sqrt(), variance.y.sqrt(), variance.z.sqrt()));
+    }
+    sums.gradient.sort_unstable_by_key(|&(cell, _)| cell);
+    let mut merged: Vec<(u32, Rgb)> = Vec::new();
+    for (cell, g) in sums.gradient {
+        match merged.last_mut() {
+            Some((c, sum)) if *c == cell => *sum += g,
+            _ => merged.push((cell, g)),
+        }
+    }
+    let total = merged.iter().fold(Rgb::ZERO, |acc, (_, g)| acc + *g);
+    let inverse = |t: f64| if t > 0.0 { 1.0 / t } else { 0.0 };
+    let scale = Rgb::new(inverse(total.x), inverse(total.y), inverse(total.z));
+    result.weights = merged.into_iter().map(|(cell, g)| (cell, f32s(g * scale))).collect();
+    result
+}
+
+/// Cubic Hermite interpolation of `(CURVE_ALBEDOS, values, slopes)` at `a` in [0, 1].
+fn hermite(values: &[[f32; 3]], slopes: &[[f32; 3]], channel: usize, a: f64) -> f64 {
+    let a = a.clamp(0.0, 1.0);
+    let k = CURVE_ALBEDOS.partition_point(|&x| x <= a).clamp(1, POINTS - 1) - 1;
+    let (x0, x1) = (CURVE_ALBEDOS[k], CURVE_ALBEDOS[k + 1]);
+    let h = x1 - x0;
+    let t = (a - x0) / h;
+    let (t2, t3) = (t * t, t * t * t);
+    let v = |i: usize| f64::from(values[i][channel]);
+    let d = |i: usize| f64::from(slopes[i][channel]);
+    (2.0 * t3 - 3.0 * t2 + 1.0) * v(k)
+        + (t3 - 2.0 * t2 + t) * h * d(k)
+        + (-2.0 * t3 + 3.0 * t2) * v(k + 1)
+        + (t3 - t2) * h * d(k + 1)
+}
+
+impl PaintData {
+    /// Checks that the parts fit together (what a decoded file must pass before it is used).
+    fn check(&self) -> Result<(), String> {
+        self.settings.validate().map_err(|e| format!("settings: {e}"))?;
+        self.cells.check()?;
+        let (w, h) = self.size();
+        let pixels = w * h;
+        let cells = self.cells.count();
+        let sized = |name: &str, len: usize, want: usize| {
+            if len == want { Ok(()) } else { Err(format!("{name} holds {len} entries where {want} belong")) }
+        };
+        sized("curve_values", self.curve_values.len(), pixels * POINTS)?;
+        sized("curve_slopes", self.curve_slopes.len(), pixels * POINTS)?;
+        sized("curve_errors", self.curve_errors.len(), pixels * POINTS)?;
+        sized("rows", self.rows.len(), pixels + 1)?;
+        sized("scene_colours", self.scene_colours.len(), cells)?;
+        sized("weights", self.weights.len(), self.weight_cells.len())?;
+        if self.rows[0] != 0 || self.rows.windows(2).any(|r| r[0] > r[1]) {
+            return Err("rows are not in order".into());
+        }
+        sized("weight_cells", self.weight_cells.len(), self.rows[pixels] as usize)?;
+        if let Some(c) = self.weight_cells.iter().find(|&&c| c as usize >= cells) {
+            return Err(format!("weight of cell {c}; the swatch has {cells} cells"));
+        }
+        let finite = |v: &[f32; 3]| v.iter().all(|x| x.is_finite());
+        for (name, values) in [
+            ("curve_values", &self.curve_values),
+            ("curve_slopes", &self.curve_slopes),
+            ("curve_errors", &self.curve_errors),
+            ("weights", &self.weights),
+            ("scene_colours", &self.scene_colours),
+        ] {
+            if let Some(i) = values.iter().position(|v| !finite(v)) {
+                return Err(format!("{name}[{i}] is {:?}", values[i]));
+            }
+        }
+        Ok(())
+    }
+
+    /// Image size.
+    #[must_use]
+    pub fn size(&self) -> (usize, usize) {
+        (self.settings.width as usize, self.settings.height as usize)
+    }
+
+    /// Number of stored weights (nonzero entries of W).
+    #[must_use]
+    pub fn weight_count(&self) -> usize {
+        self.weights.len()
+    }
+
+    /// Bytes the curves and weights take in memory.
+    #[must_use]
+    pub fn bytes(&self) -> usize {
+        12 * (self.curve_values.len()
+            + self.curve_slopes.len()
+            + self.curve_errors.len()
+            + self.weights.len())
+            + 4 * (self.rows.len() + self.weight_cells.len())
+    }
+
+    /// The scene's own colours, one per cell (an unpainted cloth).
+    #[must_use]
+    pub fn scene_painting(&self) -> Vec<Rgb> {
+        self.scene_colours.iter().map(|c| Rgb::new(c[0].into(), c[1].into(), c[2].into())).collect()
+    }
+
+    /// Theorem 1 at cell colours `colours` (one per cell, each channel in [0, 1]): per pixel
+    /// and channel, `I_h(Σ_j W_j α_j)`.
+    ///
+    /// # Panics
+    /// If `colours` does not hold one colour per cell.
+    #[must_use]
+    pub fn evaluate(&self, colours: &[Rgb]) -> Image {
+        assert_eq!(colours.len(), self.cells.count(), "one colour per paint cell");
+        let (w, h) = self.size();
+        let pixels: Vec<Rgb> = (0..w * h)
+            .into_par_iter()
+            .map(|p| {
+                let albedo = self.local_albedo(p, colours);
+                let values = &self.curve_values[p * POINTS..(p + 1) * POINTS];
+                let slopes = &self.curve_slopes[p * POINTS..(p + 1) * POINTS];
+                Rgb::new(
+                    hermite(values, slopes, 0, albedo.x),
+                    hermite(values, slopes, 1, albedo.y),
+                    hermite(values, slopes, 2, albedo.z),
+                )
+            })
+            .collect();
+        let mut image = Image::new(w, h);
+        image.pixels = pixels;
+        image
+    }
+
+    /// Step R1 of the paper: the pixel's blend `W α` of the cell colours (α0 where the pixel
+    /// has no weights: no TT event reached it, and its curve is flat).
+    fn local_albedo(&self, pixel: usize, colours: &[Rgb]) -> Rgb {
+        let (lo, hi) = (self.rows[pixel] as usize, self.rows[pixel + 1] as usize);
+        let mut blend = Rgb::ZERO;
+        let mut total = Rgb::ZERO;
+        for (&cell, w) in self.weight_cells[lo..hi].iter().zip(&self.weights[lo..hi]) {
+            let w = Rgb::new(w[0].into(), w[1].into(), w[2].into());
+            blend += w * colours[cell as usize];
+            total += w;
+        }
+        let pick = |b: f64, t: f64| if t > 0.5 { b / t } else { EXPANSION_ALBEDO };
+        Rgb::new(pick(blend.x, total.x), pick(blend.y, total.y), pick(blend.z, total.z))
+    }
+
+    /// The homogeneous curve at grid albedo `k` ([`CURVE_ALBEDOS`]) as an image, with its
+    /// standard error per pixel.
+    #[must_use]
+    pub fn curve_image(&self, k: usize) -> (Image, Image) {
+        let (w, h) = self.size();
+        let mut value = Image::new(w, h);
+        let mut error = Image::new(w, h);
+        for p in 0..w * h {
+            let v = self.curve_values[p * POINTS + k];
+            let e = self.curve_errors[p * POINTS + k];
+            value.pixels[p] = Rgb::new(v[0].into(), v[1].into(), v[2].into());
+            error.pixels[p] = Rgb::new(e[0].into(), e[1].into(), e[2].into());
+        }
+        (value, error)
+    }
+
+    /// `∂I/∂α_j` at α0 summed over the pixels of `pixels` and the cells of `of`: the weights
+    /// times the curve's slope at α0 (for checks against finite differences).
+    #[must_use]
+    pub fn gradient_sum(&self, pixels: &[usize], of: &[u32]) -> Rgb {
+        let mut sum = Rgb::ZERO;
+        for &p in pixels {
+            let slope = self.curve_slopes[p * POINTS + EXPANSION_INDEX];
+            let slope = Rgb::new(slope[0].into(), slope[1].into(), slope[2].into());
+            let (lo, hi) = (self.rows[p] as usize, self.rows[p + 1] as usize);
+            for (&cell, w) in self.weight_cells[lo..hi].iter().zip(&self.weights[lo..hi]) {
+                if of.contains(&cell) {
+                    sum += slope * Rgb::new(w[0].into(), w[1].into(), w[2].into());
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// Renders the cloth at cell colours `colours` with the colour-free paths themselves: every
+/// path's terms evaluated exactly at those colours. With the precompute's seed and
+/// `curve_spp` these are the very paths its curves came from, so this is what Theorem 1
+/// approximates, free of the paths' noise; with another seed, an unbiased path-traced image.
+pub fn render_painted_paths(
+    scene: &PathScene,
+    cells: &PaintCells,
+    camera: &Camera,
+    settings: &PaintSettings,
+    colours: &[Rgb],
+) -> Result<Film, PaintError> {
+    settings.validate()?;
+    check_count("colours", colours.len(), cells.count(), cells.count())?;
+    let (w, h) = (camera.width(), camera.height());
+    let rows: Vec<PixelRow> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let mut row = PixelRow::new(w);
+            for x in 0..w {
+                let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
+                for _ in 0..settings.curve_spp {
+                    let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+                    let (origin, dir) = camera.ray(px, py);
+                    let mut total = Rgb::ZERO;
+                    walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, &mut |c| {
+                        total += c.at(colours);
+                    });
+                    row.add(x, total);
+                }
+            }
+            row
+        })
+        .collect();
+    let mut film = Film::new(w, h);
+    for (y, row) in rows.iter().enumerate() {
+        film.set_row(y, row);
+    }
+    Ok(film)
+}
+
+/// A painted cloth for the path tracer ([`PathScene::painted`]): each cell's material is its
+/// yarn's with the cell's colour.
+#[derive(Debug, Clone)]
+pub struct PaintedMaterials {
+    pub cells: PaintCells,
+    pub materials: Vec<Material>,
+    /// Index into `materials` per cell.
+    pub of_cell: Vec<u32>,
+}
+
+impl PaintedMaterials {
+    /// The cloth of `scene` painted with `colours` (one per cell of `cells`, which must be the
+    /// scene's). Materials are shared between cells of one yarn and colour.
+    pub fn new(scene: &PathScene, cells: PaintCells, colours: &[Rgb]) -> Result<Self, ParamError> {
+        check_count("colours", colours.len(), cells.count(), cells.count())?;
+        let mut materials = Vec::new();
+        let mut index = std::collections::HashMap::new();
+        let mut of_cell = Vec::with_capacity(colours.len());
+        for (cell, yarn) in cells.yarn_of_cells().into_iter().enumerate() {
+            let c = colours[cell];
+            for v in [c.x, c.y, c.z] {
+                check_range("paint colour", v, 0.0, 1.0)?;
+            }
+            let key = (yarn, c.x.to_bits(), c.y.to_bits(), c.z.to_bits());
+            let i = match index.get(&key) {
+                Some(&i) => i,
+                None => {
+                    materials.push(scene.yarn_materials[yarn as usize].with_paint_colour(c)?);
+                    index.insert(key, materials.len() as u32 - 1);
+                    materials.len() as u32 - 1
+                }
+            };
+            of_cell.push(i);
+        }
+        Ok(Self { cells, materials, of_cell })
+    }
+}
