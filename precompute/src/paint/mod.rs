@@ -166,9 +166,7 @@ pub fn precompute(
         });
     }
     let started = std::time::Instant::now();
-    let yarn_of_cell = cells.yarn_of_cells();
-    let scene_colours =
-        yarn_of_cell.iter().map(|&y| f32s(scene.yarn_materials[y as usize].paint_colour())).collect();
+    let scene_colours = scene_colours(scene, &cells).into_iter().map(f32s).collect();
     let rows_done = AtomicUsize::new(0);
     let rows: Vec<Vec<PixelResult>> = (0..h)
         .into_par_iter()
@@ -438,6 +436,12 @@ impl PaintData {
         }
         sum
     }
+}
+
+/// Each cell's colour in `scene` as it is (its yarn material's paintable colour).
+#[must_use]
+pub fn scene_colours(scene: &PathScene, cells: &PaintCells) -> Vec<Rgb> {
+    cells.yarn_of_cells().iter().map(|&y| scene.yarn_materials[y as usize].paint_colour()).collect()
 }
 
 /// Renders the cloth at cell colours `colours` with the colour-free paths themselves: every
