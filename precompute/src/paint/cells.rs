@@ -34,8 +34,11 @@ pub struct ThreadSet {
     pub inside: u32,
     /// Sections along each thread.
     pub sections: u32,
-    /// Length of one section along the thread (cm).
+    /// Length of one section along the thread (cm); sections are centred on the crossings
+    /// (their edges at whole multiples of it from the period's origin).
     section_cm: f64,
+    /// Which multiple of `section_cm` section 0 starts at (the one holding the swatch's edge).
+    first_section: i64,
     /// First cell of this set.
     offset: u32,
 }
@@ -66,8 +69,6 @@ pub struct PaintCells {
     /// Exemplar copies along x and y: the first copy and how many.
     tiles_x: (i32, u32),
     tiles_y: (i32, u32),
-    /// The swatch's corner of smallest x and y (cm).
-    origin: [f64; 2],
     pub warp: ThreadSet,
     pub weft: ThreadSet,
     /// Yarns with no weave role per exemplar copy; their cells come after weft's.
@@ -147,7 +148,7 @@ impl PaintCells {
             tiles_x,
             (min.x, max.x),
             period.y / crossings(weft_y.len()),
-            max.y - min.y,
+            (min.y, max.y),
             0,
         );
         let weft = thread_set(
@@ -156,7 +157,7 @@ impl PaintCells {
             tiles_y,
             (min.y, max.y),
             period.x / crossings(warp_x.len()),
-            max.x - min.x,
+            (min.x, max.x),
             warp.cells(),
         );
         let other_offset = warp.cells() + weft.cells();
@@ -168,7 +169,6 @@ impl PaintCells {
             yarns,
             tiles_x,
             tiles_y,
-            origin: [min.x, min.y],
             warp,
             weft,
             other_per_tile: other,
@@ -192,7 +192,9 @@ impl PaintCells {
                 || !permutation
                 || set.threads != set.per_period.saturating_mul(copies)
                 || set.first_inside.saturating_add(set.inside) > set.threads
-                || (set.per_period > 0 && (set.sections == 0 || !(set.section_cm > 0.0)))
+                || (set.per_period > 0
+                    && (set.sections == 0
+                        || set.section_cm.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)))
             {
                 return Err(format!("paint cells: the {name} layout does not add up"));
             }
@@ -228,18 +230,19 @@ impl PaintCells {
         let tile = |t: i32, (first, n): (i32, u32)| (t - first).clamp(0, n as i32 - 1) as u32;
         let (tx, ty) = (tile(hit.tile[0], self.tiles_x), tile(hit.tile[1], self.tiles_y));
         let section = |set: &ThreadSet, along: f64| {
-            ((along / set.section_cm).floor().max(0.0) as u32).min(set.sections - 1)
+            let k = (along / set.section_cm).floor() as i64 - set.first_section;
+            k.clamp(0, i64::from(set.sections) - 1) as u32
         };
         match self.yarns[hit.yarn as usize] {
             YarnPlace::Warp { rank } => {
                 let set = &self.warp;
                 let thread = tx * set.per_period + set.order_in_period[rank as usize];
-                set.cell(thread, section(set, f64::from(hit.position.y) - self.origin[1]))
+                set.cell(thread, section(set, f64::from(hit.position.y)))
             }
             YarnPlace::Weft { rank } => {
                 let set = &self.weft;
                 let thread = ty * set.per_period + set.order_in_period[rank as usize];
-                set.cell(thread, section(set, f64::from(hit.position.x) - self.origin[0]))
+                set.cell(thread, section(set, f64::from(hit.position.x)))
             }
             YarnPlace::Other { rank } => {
                 self.other_offset + (ty * self.tiles_x.1 + tx) * self.other_per_tile + rank
@@ -301,15 +304,15 @@ impl PaintCells {
 }
 
 /// The thread set of yarns centred at `centres` (across their direction, within one period
-/// `period` along that axis), repeated over `tiles`, with sections `section_cm` long over a
-/// swatch `length` long.
+/// `period` along that axis), repeated over `tiles`, with sections `section_cm` long over the
+/// swatch's extent `along` their direction.
 fn thread_set(
     centres: &[f64],
     period: f64,
     tiles: (i32, u32),
     (lo, hi): (f64, f64),
     section_cm: f64,
-    length: f64,
+    along: (f64, f64),
     offset: u32,
 ) -> ThreadSet {
     let per_period = centres.len() as u32;
@@ -325,7 +328,9 @@ fn thread_set(
         f64::from(tiles.0 + copy as i32) * period + centres[by_centre[pos as usize] as usize]
     };
     let inside: Vec<u32> = (0..threads).filter(|&t| (lo..hi).contains(&centre_of(t))).collect();
-    let sections = if per_period == 0 { 0 } else { ((length / section_cm).ceil() as u32).max(1) };
+    let first_section = (along.0 / section_cm).floor() as i64;
+    let last_section = (along.1 / section_cm).ceil() as i64;
+    let sections = if per_period == 0 { 0 } else { (last_section - first_section).max(1) as u32 };
     ThreadSet {
         per_period,
         order_in_period,
@@ -334,6 +339,7 @@ fn thread_set(
         inside: inside.len() as u32,
         sections,
         section_cm,
+        first_section,
         offset,
     }
 }

@@ -17,9 +17,18 @@
 //!   α0 = [`EXPANSION_ALBEDO`] (the event-counting estimator, from the first `gradient_spp`
 //!   paths), normalized to sum to 1, stored sparsely (a path touches a few cells).
 //!
-//! [`PaintData::evaluate`] is Theorem 1: `J(α) = I_h(W α)` per pixel and channel, the curve
-//! read by cubic Hermite interpolation; exact for homogeneous paintings, with the true
-//! gradient at α0. [`PaintData::save`]/[`PaintData::load`] keep it in a checksummed file,
+//! Beyond the paper, a path whose TT events all lie in **one cell** is a function of that
+//! cell's colour alone: per pixel, the [`PURE_CELLS_PER_PIXEL`] strongest such cells keep
+//! their own exact curve, and only the other paths (through several cells, or through the
+//! weaker single cells) form the mixed class that the curve `I_h` and the weights `W` above
+//! describe. A fiber pixel is mostly light scattered in the cell it sees (single scattering,
+//! and multiple scattering within one crossing of its yarn): measured on the default twill,
+//! this cut the error against the very paths it was computed from from 5–35% to 4–8%
+//! (relative L2; stripes, a check, random cells, one highlighted yarn).
+//!
+//! [`PaintData::evaluate`] is then Theorem 1 for the mixed class plus the exact curves:
+//! `J(α) = I_mixed(W α) + Σ_c I_c(α_c)` per pixel and channel, every curve read by cubic
+//! Hermite interpolation; exact for homogeneous paintings, with the true gradient at α0. [`PaintData::save`]/[`PaintData::load`] keep it in a checksummed file,
 //! [`Painting`] reads the designer's strokes, and [`PaintedMaterials`] gives the path tracer a
 //! painted cloth to check against.
 
@@ -48,6 +57,8 @@ use crate::pathtrace::{Camera, PathScene};
 
 /// The albedos at which the homogeneous curve is kept (value and slope), denser toward 1.
 pub const CURVE_ALBEDOS: [f64; 11] = [0.0, 0.2, 0.4, 0.55, 0.68, 0.78, 0.86, 0.92, 0.96, 0.985, 1.0];
+/// Most single-cell classes kept exactly per pixel (the rest join the mixed class).
+pub const PURE_CELLS_PER_PIXEL: usize = 4;
 /// The expansion point α0 of the weights (Hašan & Ramamoorthy use 0.772).
 pub const EXPANSION_ALBEDO: f64 = 0.78;
 const EXPANSION_INDEX: usize = 5;
@@ -85,9 +96,16 @@ pub struct PaintData {
     pub cells: PaintCells,
     /// Each cell's colour in the scene as precomputed (what an unpainted cell keeps).
     pub scene_colours: Vec<[f32; 3]>,
-    /// Per pixel, per grid albedo: `I_h` and its slope (`[pixel * POINTS + k]`).
+    /// Per pixel, per grid albedo: the mixed class's `I_h` and its slope
+    /// (`[pixel * POINTS + k]`).
     curve_values: Vec<[f32; 3]>,
     curve_slopes: Vec<[f32; 3]>,
+    /// The single-cell classes, pixel by pixel: `pure_rows[p]..pure_rows[p + 1]` index
+    /// `pure_cells`, and entry e's curve is `pure_values[e * POINTS..]` (and slopes).
+    pure_rows: Vec<u32>,
+    pure_cells: Vec<u32>,
+    pure_values: Vec<[f32; 3]>,
+    pure_slopes: Vec<[f32; 3]>,
     /// Per pixel, per grid albedo: the standard error of `I_h` (from the spread of its paths).
     curve_errors: Vec<[f32; 3]>,
     /// The weights, row by row (a row per pixel): `rows[p]..rows[p + 1]` index `weight_cells`
@@ -112,23 +130,40 @@ pub enum PaintError {
     AlreadyPainted,
 }
 
-/// One pixel's accumulation.
-struct PixelSums {
+/// A curve's sums over a pixel's paths: `Σ a α_k^B` and `Σ a B α_k^(B−1)` at every grid albedo.
+#[derive(Clone, Copy)]
+struct CurveSums {
     values: [Rgb; POINTS],
     slopes: [Rgb; POINTS],
-    squares: [Rgb; POINTS],
-    gradient: Vec<(u32, Rgb)>,
 }
 
-impl PixelSums {
-    fn new() -> Self {
-        Self {
-            values: [Rgb::ZERO; POINTS],
-            slopes: [Rgb::ZERO; POINTS],
-            squares: [Rgb::ZERO; POINTS],
-            gradient: Vec::new(),
+impl CurveSums {
+    const ZERO: Self = Self { values: [Rgb::ZERO; POINTS], slopes: [Rgb::ZERO; POINTS] };
+
+    fn add(&mut self, value: Rgb, b: u32) {
+        for (k, &alpha) in CURVE_ALBEDOS.iter().enumerate() {
+            self.values[k] += value * power(alpha, b);
+            if b > 0 {
+                self.slopes[k] += value * (f64::from(b) * power(alpha, b - 1));
+            }
         }
     }
+
+    fn merge(&mut self, other: &Self) {
+        for k in 0..POINTS {
+            self.values[k] += other.values[k];
+            self.slopes[k] += other.slopes[k];
+        }
+    }
+}
+
+/// One pixel's accumulation: the mixed class with its gradient, the single-cell classes, and
+/// the squares of every path's whole estimate (for the standard error).
+struct PixelSums {
+    mixed: CurveSums,
+    gradient: Vec<(u32, Rgb)>,
+    pure: Vec<(u32, CurveSums)>,
+    squares: [Rgb; POINTS],
 }
 
 /// One pixel's result.
@@ -137,10 +172,19 @@ struct PixelResult {
     slopes: [[f32; 3]; POINTS],
     errors: [[f32; 3]; POINTS],
     weights: Vec<(u32, [f32; 3])>,
+    /// `(cell, values, slopes)` of each kept single-cell class.
+    pure: Vec<(u32, Curve, Curve)>,
 }
+
+/// A curve's values (or slopes) at [`CURVE_ALBEDOS`], per channel.
+type Curve = [[f32; 3]; POINTS];
 
 fn f32s(v: Rgb) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
+}
+
+fn rgb(v: [f32; 3]) -> Rgb {
+    Rgb::new(v[0].into(), v[1].into(), v[2].into())
 }
 
 /// Traces the colour-free paths of every pixel and keeps the curves and weights; `cells` are
@@ -183,13 +227,24 @@ pub fn precompute(
         curve_values: Vec::with_capacity(w * h * POINTS),
         curve_slopes: Vec::with_capacity(w * h * POINTS),
         curve_errors: Vec::with_capacity(w * h * POINTS),
+        pure_rows: Vec::with_capacity(w * h + 1),
+        pure_cells: Vec::new(),
+        pure_values: Vec::new(),
+        pure_slopes: Vec::new(),
         rows: Vec::with_capacity(w * h + 1),
         weight_cells: Vec::new(),
         weights: Vec::new(),
         seconds: 0.0,
     };
     data.rows.push(0);
+    data.pure_rows.push(0);
     for pixel in rows.into_iter().flatten() {
+        for (cell, values, slopes) in pixel.pure {
+            data.pure_cells.push(cell);
+            data.pure_values.extend_from_slice(&values);
+            data.pure_slopes.extend_from_slice(&slopes);
+        }
+        data.pure_rows.push(data.pure_cells.len() as u32);
         data.curve_values.extend_from_slice(&pixel.values);
         data.curve_slopes.extend_from_slice(&pixel.slopes);
         data.curve_errors.extend_from_slice(&pixel.errors);
@@ -212,7 +267,12 @@ fn trace_pixel(
     y: usize,
 ) -> PixelResult {
     let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
-    let mut sums = PixelSums::new();
+    let mut sums = PixelSums {
+        mixed: CurveSums::ZERO,
+        gradient: Vec::new(),
+        pure: Vec::new(),
+        squares: [Rgb::ZERO; POINTS],
+    };
     let mut path_values = [Rgb::ZERO; POINTS];
     for sample in 0..settings.curve_spp {
         let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
@@ -222,13 +282,21 @@ fn trace_pixel(
         walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, &mut |c| {
             let b = c.tt_events;
             for (k, &alpha) in CURVE_ALBEDOS.iter().enumerate() {
-                let v = c.value * power(alpha, b);
-                path_values[k] += v;
-                sums.values[k] += v;
-                if b > 0 {
-                    sums.slopes[k] += c.value * (f64::from(b) * power(alpha, b - 1));
-                }
+                path_values[k] += c.value * power(alpha, b);
             }
+            // A path whose TT events all lie in one cell is a curve of that cell's colour
+            // alone: kept exactly (up to PURE_CELLS_PER_PIXEL cells per pixel).
+            if let [(cell, _)] = c.cells {
+                if let Some((_, curve)) = sums.pure.iter_mut().find(|(p, _)| p == cell) {
+                    curve.add(c.value, b);
+                } else {
+                    let mut curve = CurveSums::ZERO;
+                    curve.add(c.value, b);
+                    sums.pure.push((*cell, curve));
+                }
+                return;
+            }
+            sums.mixed.add(c.value, b);
             if with_gradient && b > 0 {
                 let base = c.value * power(EXPANSION_ALBEDO, b - 1);
                 for &(cell, count) in c.cells {
@@ -250,16 +318,34 @@ fn power(a: f64, b: u32) -> f64 {
 
 fn finish_pixel(mut sums: PixelSums, settings: &PaintSettings) -> PixelResult {
     let n = f64::from(settings.curve_spp);
+    let g = f64::from(settings.gradient_spp);
     let mut result = PixelResult {
         values: [[0.0; 3]; POINTS],
         slopes: [[0.0; 3]; POINTS],
         errors: [[0.0; 3]; POINTS],
         weights: Vec::new(),
+        pure: Vec::new(),
     };
+    // Keep the strongest single-cell classes; the rest join the mixed class with their
+    // gradient (all of it on their one cell: the curve's slope at α0, from every path, so
+    // scaled to the gradient's path count).
+    let strength = |c: &CurveSums| c.values[EXPANSION_INDEX].element_sum();
+    sums.pure.sort_by(|a, b| strength(&b.1).total_cmp(&strength(&a.1)).then(a.0.cmp(&b.0)));
+    let mut total = sums.mixed;
+    for (i, (cell, curve)) in sums.pure.iter().enumerate() {
+        total.merge(curve);
+        if i < PURE_CELLS_PER_PIXEL {
+            let scaled = |v: &[Rgb; POINTS]| v.map(|x| f32s(x / n));
+            result.pure.push((*cell, scaled(&curve.values), scaled(&curve.slopes)));
+        } else {
+            sums.mixed.merge(curve);
+            sums.gradient.push((*cell, curve.slopes[EXPANSION_INDEX] * (g / n)));
+        }
+    }
     for k in 0..POINTS {
-        let mean = sums.values[k] / n;
-        result.values[k] = f32s(mean);
-        result.slopes[k] = f32s(sums.slopes[k] / n);
+        result.values[k] = f32s(sums.mixed.values[k] / n);
+        result.slopes[k] = f32s(sums.mixed.slopes[k] / n);
+        let mean = total.values[k] / n;
         let variance = (sums.squares[k] / n - mean * mean).max(Rgb::ZERO) / (n - 1.0).max(1.0);
         result.errors[k] = f32s(Rgb::new(variance.x.sqrt(), variance.y.sqrt(), variance.z.sqrt()));
     }
@@ -309,6 +395,16 @@ impl PaintData {
         sized("curve_slopes", self.curve_slopes.len(), pixels * POINTS)?;
         sized("curve_errors", self.curve_errors.len(), pixels * POINTS)?;
         sized("rows", self.rows.len(), pixels + 1)?;
+        sized("pure_rows", self.pure_rows.len(), pixels + 1)?;
+        if self.pure_rows[0] != 0 || self.pure_rows.windows(2).any(|r| r[0] > r[1]) {
+            return Err("pure_rows are not in order".into());
+        }
+        sized("pure_cells", self.pure_cells.len(), self.pure_rows[pixels] as usize)?;
+        sized("pure_values", self.pure_values.len(), self.pure_cells.len() * POINTS)?;
+        sized("pure_slopes", self.pure_slopes.len(), self.pure_cells.len() * POINTS)?;
+        if let Some(c) = self.pure_cells.iter().find(|&&c| c as usize >= cells) {
+            return Err(format!("curve of cell {c}; the swatch has {cells} cells"));
+        }
         sized("scene_colours", self.scene_colours.len(), cells)?;
         sized("weights", self.weights.len(), self.weight_cells.len())?;
         if self.rows[0] != 0 || self.rows.windows(2).any(|r| r[0] > r[1]) {
@@ -324,6 +420,8 @@ impl PaintData {
             ("curve_slopes", &self.curve_slopes),
             ("curve_errors", &self.curve_errors),
             ("weights", &self.weights),
+            ("pure_values", &self.pure_values),
+            ("pure_slopes", &self.pure_slopes),
             ("scene_colours", &self.scene_colours),
         ] {
             if let Some(i) = values.iter().position(|v| !finite(v)) {
@@ -350,9 +448,11 @@ impl PaintData {
     pub fn bytes(&self) -> usize {
         12 * (self.curve_values.len()
             + self.curve_slopes.len()
+            + self.pure_values.len()
+            + self.pure_slopes.len()
             + self.curve_errors.len()
             + self.weights.len())
-            + 4 * (self.rows.len() + self.weight_cells.len())
+            + 4 * (self.rows.len() + self.weight_cells.len() + self.pure_rows.len() + self.pure_cells.len())
     }
 
     /// The scene's own colours, one per cell (an unpainted cloth).
@@ -373,18 +473,39 @@ impl PaintData {
         let pixels: Vec<Rgb> = (0..w * h)
             .into_par_iter()
             .map(|p| {
-                let albedo = self.local_albedo(p, colours);
-                let values = &self.curve_values[p * POINTS..(p + 1) * POINTS];
-                let slopes = &self.curve_slopes[p * POINTS..(p + 1) * POINTS];
-                Rgb::new(
-                    hermite(values, slopes, 0, albedo.x),
-                    hermite(values, slopes, 1, albedo.y),
-                    hermite(values, slopes, 2, albedo.z),
-                )
+                let curve = |values: &[[f32; 3]], slopes: &[[f32; 3]], a: Rgb| {
+                    Rgb::new(
+                        hermite(values, slopes, 0, a.x),
+                        hermite(values, slopes, 1, a.y),
+                        hermite(values, slopes, 2, a.z),
+                    )
+                };
+                let at = p * POINTS..(p + 1) * POINTS;
+                let mut value = curve(
+                    &self.curve_values[at.clone()],
+                    &self.curve_slopes[at],
+                    self.local_albedo(p, colours),
+                );
+                for e in self.pure_rows[p] as usize..self.pure_rows[p + 1] as usize {
+                    let at = e * POINTS..(e + 1) * POINTS;
+                    let colour = colours[self.pure_cells[e] as usize];
+                    value += curve(&self.pure_values[at.clone()], &self.pure_slopes[at], colour);
+                }
+                value
             })
             .collect();
         let mut image = Image::new(w, h);
         image.pixels = pixels;
+        image
+    }
+
+    /// Step R1 of every pixel ([`Self::evaluate`] before the curves): the blended albedo per
+    /// channel, as an image.
+    #[must_use]
+    pub fn local_albedos(&self, colours: &[Rgb]) -> Image {
+        let (w, h) = self.size();
+        let mut image = Image::new(w, h);
+        image.pixels = (0..w * h).map(|p| self.local_albedo(p, colours)).collect();
         image
     }
 
@@ -411,9 +532,12 @@ impl PaintData {
         let mut value = Image::new(w, h);
         let mut error = Image::new(w, h);
         for p in 0..w * h {
-            let v = self.curve_values[p * POINTS + k];
+            let mut v = rgb(self.curve_values[p * POINTS + k]);
+            for e in self.pure_rows[p] as usize..self.pure_rows[p + 1] as usize {
+                v += rgb(self.pure_values[e * POINTS + k]);
+            }
             let e = self.curve_errors[p * POINTS + k];
-            value.pixels[p] = Rgb::new(v[0].into(), v[1].into(), v[2].into());
+            value.pixels[p] = v;
             error.pixels[p] = Rgb::new(e[0].into(), e[1].into(), e[2].into());
         }
         (value, error)
@@ -425,8 +549,12 @@ impl PaintData {
     pub fn gradient_sum(&self, pixels: &[usize], of: &[u32]) -> Rgb {
         let mut sum = Rgb::ZERO;
         for &p in pixels {
-            let slope = self.curve_slopes[p * POINTS + EXPANSION_INDEX];
-            let slope = Rgb::new(slope[0].into(), slope[1].into(), slope[2].into());
+            for e in self.pure_rows[p] as usize..self.pure_rows[p + 1] as usize {
+                if of.contains(&self.pure_cells[e]) {
+                    sum += rgb(self.pure_slopes[e * POINTS + EXPANSION_INDEX]);
+                }
+            }
+            let slope = rgb(self.curve_slopes[p * POINTS + EXPANSION_INDEX]);
             let (lo, hi) = (self.rows[p] as usize, self.rows[p + 1] as usize);
             for (&cell, w) in self.weight_cells[lo..hi].iter().zip(&self.weights[lo..hi]) {
                 if of.contains(&cell) {
@@ -508,13 +636,12 @@ impl PaintedMaterials {
                 check_range("paint colour", v, 0.0, 1.0)?;
             }
             let key = (yarn, c.x.to_bits(), c.y.to_bits(), c.z.to_bits());
-            let i = match index.get(&key) {
-                Some(&i) => i,
-                None => {
-                    materials.push(scene.yarn_materials[yarn as usize].with_paint_colour(c)?);
-                    index.insert(key, materials.len() as u32 - 1);
-                    materials.len() as u32 - 1
-                }
+            let i = if let Some(&i) = index.get(&key) {
+                i
+            } else {
+                materials.push(scene.yarn_materials[yarn as usize].with_paint_colour(c)?);
+                index.insert(key, materials.len() as u32 - 1);
+                materials.len() as u32 - 1
             };
             of_cell.push(i);
         }

@@ -187,12 +187,11 @@ fn parse_ranges(text: &str, count: i64) -> Result<Vec<i64>, String> {
     for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         let number =
             |s: &str| s.trim().parse::<i64>().map_err(|_| format!("`{}` is not a whole number", s.trim()));
-        let (lo, hi) = match part.split_once('-') {
-            Some((a, b)) => (number(a)?, number(b)?),
-            None => {
-                let n = number(part)?;
-                (n, n)
-            }
+        let (lo, hi) = if let Some((a, b)) = part.split_once('-') {
+            (number(a)?, number(b)?)
+        } else {
+            let n = number(part)?;
+            (n, n)
         };
         if lo > hi {
             return Err(format!("`{part}` runs backwards"));
