@@ -15,6 +15,7 @@ use twill_precompute::bake::pipeline::{
 use twill_precompute::bake::settings::{BakeSettings, Quality};
 use twill_precompute::fabric::{Exemplar, exemplar::volume_fraction, fiber_io, presets};
 use twill_precompute::image::Image;
+use twill_precompute::paint::Painting;
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::raycast::mean_free_path;
 use twill_precompute::scene::SceneFile;
@@ -142,6 +143,8 @@ pub struct ReferenceOptions {
     pub max_depth: Option<u32>,
     pub only: Option<Component>,
     pub seed: Option<u64>,
+    /// A painting to paint the cloth with first.
+    pub painting: Option<PathBuf>,
 }
 
 pub fn reference(options: &ReferenceOptions) -> Result<()> {
@@ -150,7 +153,13 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     render.max_depth = options.max_depth.unwrap_or(render.max_depth);
     render.seed = options.seed.unwrap_or(render.seed);
     refuse_pattern(&file, "`twill reference` (the path tracer)")?;
-    let scene = file.build()?;
+    let mut scene = file.build()?;
+    if let Some(path) = &options.painting {
+        let cells = crate::paint::scene_cells(&scene, &file.path)?;
+        let own = twill_precompute::paint::scene_colours(&scene.path_scene, &cells);
+        let colours = Painting::load(path)?.colours(&cells, &own, path)?;
+        crate::paint::paint_scene(&mut scene, cells, &colours, path)?;
+    }
     let camera = file.camera(file.render.width, file.render.height)?;
     let settings = file.render_settings(options.only);
 

@@ -7,6 +7,7 @@
 mod accuracy_report;
 mod colorways;
 mod commands;
+mod paint;
 mod shard;
 mod viewer;
 
@@ -62,6 +63,13 @@ enum Command {
         command: Option<AccuracyCommand>,
         #[command(flatten)]
         report: ReportArgs,
+    },
+    /// Albedo painting at path-traced quality (Hašan & Ramamoorthy 2013): precompute a view
+    /// once, then see paintings of the yarns in milliseconds, and check them against the path
+    /// tracer.
+    Paint {
+        #[command(subcommand)]
+        command: paint::PaintCommand,
     },
     /// Measure speed and accuracy (figures for docs/BENCHMARKS.md).
     Bench {
@@ -399,6 +407,9 @@ struct ReferenceArgs {
     /// Random seed (default: the scene's).
     #[arg(long)]
     seed: Option<u64>,
+    /// Paint the cloth with this painting first (TOML strokes, as `twill paint apply` takes).
+    #[arg(long)]
+    painting: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -659,7 +670,9 @@ fn run(cli: Cli) -> Result<()> {
                 Only::Multiple => twill_precompute::pathtrace::Component::Multiple,
             }),
             seed: args.seed,
+            painting: args.painting,
         }),
+        Command::Paint { command } => paint::run(command),
     }
 }
 

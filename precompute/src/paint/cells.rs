@@ -10,8 +10,9 @@
 //! Numbering, as a painting names threads: warp ends from the swatch's left edge (smallest x)
 //! rightwards, weft picks from its near edge (smallest y) away, sections from the same edges,
 //! each counted from 0 at the first thread whose centre lies inside the swatch. Threads of the
-//! exemplar copies just outside the edge (whose fibers reach into the swatch) have cells too,
-//! at negative indices. Yarns with no weave role (imported fibers) get one cell per exemplar
+//! exemplar copies just outside the edge (whose fibers reach into the swatch) have cells too
+//! (negative thread numbers here; a painting reaches them only through `base`, `all` or
+//! `random`). Yarns with no weave role (imported fibers) get one cell per exemplar
 //! copy.
 
 use glam::{DVec2, DVec3};
