@@ -11,7 +11,6 @@
 
 use std::path::Path;
 
-use twill_precompute::image::Image;
 use twill_precompute::paint::{self, PaintCells, PaintSettings, PaintedMaterials, Painting};
 use twill_precompute::pathtrace::{self, Component, RenderSettings};
 use twill_precompute::scene::SceneFile;
@@ -63,15 +62,6 @@ const PAINTINGS: [(&str, &str, f64); 4] = [
     ("highlight", "base = [0.15, 0.15, 0.2]\n[[stroke]]\ncolour = [0.95, 0.9, 0.3]\nwarp = \"5\"\n", 0.10),
 ];
 
-fn relative_l2(a: &Image, b: &Image) -> f64 {
-    let (mut d, mut n) = (0.0, 0.0);
-    for (x, y) in a.pixels.iter().zip(&b.pixels) {
-        d += (*x - *y).length_squared();
-        n += y.length_squared();
-    }
-    (d / n).sqrt()
-}
-
 #[test]
 fn paintings_stay_within_twice_the_reference_floor() {
     let file = SceneFile::parse(SCENE, Path::new("painting.toml")).unwrap();
@@ -98,9 +88,9 @@ fn paintings_stay_within_twice_the_reference_floor() {
             pathtrace::render(&scene.path_scene, &camera, &s, &|_| {}).mean()
         };
         let (first, second) = (reference(11), reference(12));
-        let error = relative_l2(&painted, &first);
-        let floor = relative_l2(&second, &first);
-        let approximation = relative_l2(&painted, &own);
+        let error = painted.relative_l2(&first);
+        let floor = second.relative_l2(&first);
+        let approximation = painted.relative_l2(&own);
         eprintln!(
             "{name}: relative L2 {error:.4} against a reference floor of {floor:.4} (ratio {:.2}); \
              against its own paths {approximation:.4}",

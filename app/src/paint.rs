@@ -399,16 +399,6 @@ struct VerifyOptions {
     images: Option<PathBuf>,
 }
 
-/// `sqrt(Σ |a − b|² / Σ |b|²)` over pixels and channels.
-fn relative_l2(a: &Image, b: &Image) -> f64 {
-    let (mut difference, mut norm) = (0.0, 0.0);
-    for (x, y) in a.pixels.iter().zip(&b.pixels) {
-        difference += (*x - *y).length_squared();
-        norm += y.length_squared();
-    }
-    (difference / norm).sqrt()
-}
-
 fn verify(options: &VerifyOptions) -> Result<()> {
     let data = PaintData::load(&options.file)?;
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
@@ -506,8 +496,8 @@ fn verify(options: &VerifyOptions) -> Result<()> {
         "{}: the reference is black: the camera sees no lit cloth, so there is nothing to compare",
         file.path.display()
     );
-    let error = relative_l2(&painted, first);
-    let floor = relative_l2(second, first);
+    let error = painted.relative_l2(first);
+    let floor = second.relative_l2(first);
     println!(
         "painting {} on {} ({w}x{h}, precomputed at {} spp, seed {}); references at {} spp, seeds {seed} and \
          {second_seed}, max depth {}",

@@ -18,6 +18,18 @@ pub struct Image {
 }
 
 impl Image {
+    /// The relative L2 error of `self` against `reference`, `sqrt(Σ |a − b|² / Σ |b|²)` over
+    /// pixels and channels (Hašan & Ramamoorthy's measure).
+    #[must_use]
+    pub fn relative_l2(&self, reference: &Image) -> f64 {
+        let (mut difference, mut norm) = (0.0, 0.0);
+        for (a, b) in self.pixels.iter().zip(&reference.pixels) {
+            difference += (*a - *b).length_squared();
+            norm += b.length_squared();
+        }
+        (difference / norm).sqrt()
+    }
+
     #[must_use]
     pub fn new(width: usize, height: usize) -> Self {
         Self { width, height, pixels: vec![Rgb::ZERO; width * height] }

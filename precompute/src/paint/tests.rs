@@ -54,15 +54,6 @@ fn data(scene: &Scene, camera: &Camera, s: &PaintSettings) -> PaintData {
     precompute(&scene.path_scene, cells(scene), camera, s, &|_| {}).expect("precomputes")
 }
 
-fn relative_l2(a: &Image, b: &Image) -> f64 {
-    let (mut d, mut n) = (0.0, 0.0);
-    for (x, y) in a.pixels.iter().zip(&b.pixels) {
-        d += (*x - *y).length_squared();
-        n += y.length_squared();
-    }
-    (d / n).sqrt()
-}
-
 fn stripes(data: &PaintData) -> Vec<Rgb> {
     let painting = Painting::parse(
         "base = [0.8, 0.75, 0.6]\n[[stroke]]\ncolour = [0.05, 0.1, 0.5]\nwarp = \"1-2, 5\"\n\
@@ -83,7 +74,7 @@ fn homogeneous_paintings_are_their_own_paths_up_to_the_curve_interpolation() {
         let colours = vec![Rgb::splat(alpha); cells.count()];
         let exact = render_painted_paths(&scene.path_scene, &cells, &camera, &s, &colours).unwrap().mean();
         let painted = data.evaluate(&colours);
-        let error = relative_l2(&painted, &exact);
+        let error = painted.relative_l2(&exact);
         eprintln!("homogeneous α = {alpha}: relative L2 {error:.2e}");
         assert!(painted.is_finite());
         assert!(error < 2e-3, "α = {alpha}: relative L2 {error:.2e} between Theorem 1 and its own paths");
@@ -206,7 +197,7 @@ fn theorem_one_stays_near_its_own_paths_on_stripes() {
     let exact =
         render_painted_paths(&scene.path_scene, &cells(&scene), &camera, &s, &colours).unwrap().mean();
     let painted = data.evaluate(&colours);
-    let error = relative_l2(&painted, &exact);
+    let error = painted.relative_l2(&exact);
     let mean_error = (painted.mean() - exact.mean()) / exact.mean();
     eprintln!("stripes: relative L2 {error:.4}, image mean {mean_error:.4?}");
     assert!(error < 0.025, "relative L2 {error:.4} against its own paths");
