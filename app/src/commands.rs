@@ -127,7 +127,7 @@ pub fn fabric_export(scene_path: Option<&Path>, hair: bool, output: &Path) -> Re
 }
 
 /// Refuses a patterned scene for a command that traces only one exemplar.
-fn refuse_pattern(file: &SceneFile, command: &str) -> Result<()> {
+pub(crate) fn refuse_pattern(file: &SceneFile, command: &str) -> Result<()> {
     anyhow::ensure!(
         file.pattern.is_none(),
         "{}: [pattern]: {command} cannot trace patterned cloth: the path tracer holds one exemplar; \
@@ -165,11 +165,10 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
 
     let started = Instant::now();
 
-    let bar = ProgressBar::new(camera.height() as u64).with_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, eta {eta}")
-            .expect("the progress template is valid"),
+    let bar = rows_bar(
+        camera.height(),
+        format!("path tracing {}x{} at {} spp", camera.width(), camera.height(), settings.spp),
     );
-    bar.set_message(format!("path tracing {}x{} at {} spp", camera.width(), camera.height(), settings.spp));
     let film =
         pathtrace::render(&scene.path_scene, &camera, &settings, &|rows| bar.set_position(rows as u64));
     bar.finish_and_clear();
@@ -198,6 +197,16 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
         render_s
     );
     Ok(())
+}
+
+/// A progress bar over image rows.
+pub(crate) fn rows_bar(rows: usize, message: String) -> ProgressBar {
+    let bar = ProgressBar::new(rows as u64).with_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, eta {eta}")
+            .expect("the progress template is valid"),
+    );
+    bar.set_message(message);
+    bar
 }
 
 /// Options of `twill render`.

@@ -21,7 +21,6 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
 use clap::Subcommand;
-use indicatif::{ProgressBar, ProgressStyle};
 use twill_precompute::Rgb;
 use twill_precompute::image::Image;
 use twill_precompute::paint::{
@@ -31,7 +30,7 @@ use twill_precompute::pathtrace::{self, Component, RenderSettings};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, write_image};
 
-use crate::commands::parse_size;
+use crate::commands::{parse_size, refuse_pattern, rows_bar};
 
 /// Largest image side of a paint precompute (what `PaintSettings` accepts).
 const MAX_SIDE: usize = 4096;
@@ -131,17 +130,6 @@ fn parse_exposure(text: &str) -> Result<f64, String> {
     }
 }
 
-/// Refuses patterned cloth: painting traces one exemplar, as the path tracer does.
-fn refuse_pattern(file: &SceneFile) -> Result<()> {
-    ensure!(
-        file.pattern.is_none(),
-        "{}: [pattern]: painting cannot trace patterned cloth: the path tracer holds one exemplar; \
-         remove [pattern] to paint [fabric]'s weave alone",
-        file.path.display()
-    );
-    Ok(())
-}
-
 /// The scene's paint cells; an error names the scene file.
 pub(crate) fn scene_cells(scene: &Scene, scene_path: &Path) -> Result<PaintCells> {
     PaintCells::new(&scene.exemplar, &scene.path_scene.fibers)
@@ -160,16 +148,6 @@ pub(crate) fn paint_scene(
         .map_err(|e| anyhow!("{}: {e}", painting_path.display()))?;
     scene.path_scene.painted = Some(painted);
     Ok(())
-}
-
-/// A progress bar over image rows, as `twill reference` shows.
-fn rows_bar(rows: usize, message: String) -> ProgressBar {
-    let bar = ProgressBar::new(rows as u64).with_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rows, {elapsed} elapsed, eta {eta}")
-            .expect("the progress template is valid"),
-    );
-    bar.set_message(message);
-    bar
 }
 
 /// Fails early (before minutes of work) when `path`'s folder does not exist.
@@ -225,7 +203,7 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
         };
         bail!("{given} {width}x{height}: a paint precompute takes 1 to {MAX_SIDE} pixels on a side");
     }
-    refuse_pattern(&file)?;
+    refuse_pattern(&file, "`twill paint` (the path tracer's paths)")?;
     check_folder_of(&options.output)?;
     let gradient_spp = if options.gradient_spp > options.spp {
         eprintln!(
@@ -402,7 +380,7 @@ struct VerifyOptions {
 fn verify(options: &VerifyOptions) -> Result<()> {
     let data = PaintData::load(&options.file)?;
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
-    refuse_pattern(&file)?;
+    refuse_pattern(&file, "`twill paint` (the path tracer's paths)")?;
     let seed = options.seed.unwrap_or(data.settings.seed.wrapping_add(1));
     let second_seed = seed
         .checked_add(1)

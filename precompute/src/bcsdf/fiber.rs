@@ -172,8 +172,8 @@ impl FiberScattering {
         let sum = theta_i + to.clamp(-FRAC_PI_2, FRAC_PI_2);
         let cos_i = theta_i.cos();
         let f = self.fresnel(cos_i);
-        let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
-        let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+        let m_r = self.m_r(theta_i, sum);
+        let m_tt = self.m_tt(theta_i, sum);
         let azimuth = self.tt_azimuthal(po - pi);
         (f * (m_r / (2.0 * PI) * cos_i), (Rgb::ONE - f) * (m_tt * azimuth * cos_i))
     }
@@ -222,9 +222,19 @@ impl FiberScattering {
         let theta_o = theta_o.clamp(-FRAC_PI_2, FRAC_PI_2);
         let f = self.fresnel(theta_i.cos());
         let sum = theta_i + theta_o;
-        let m_r = (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
-        let m_tt = (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+        let m_r = self.m_r(theta_i, sum);
+        let m_tt = self.m_tt(theta_i, sum);
         (f * (m_r / (2.0 * PI)), (Rgb::ONE - f) * self.c_tt * m_tt)
+    }
+
+    /// The R lobe's longitudinal density over its Gn normalizer at θi and `sum` = θi + θo.
+    fn m_r(&self, theta_i: f64, sum: f64) -> f64 {
+        (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i)
+    }
+
+    /// The TT lobe's, as [`Self::m_r`].
+    fn m_tt(&self, theta_i: f64, sum: f64) -> f64 {
+        (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i)
     }
 
     /// The TT lobe's azimuthal density at `phi_o − phi_i` (a von Mises lobe about π).
@@ -325,15 +335,13 @@ impl FiberScattering {
         let weight = match lobe {
             Lobe::R => {
                 let pdf = TruncGauss::new(-theta_f, self.beta_r).pdf(theta_i) / (2.0 * PI) / cos_i;
-                let m_r =
-                    (self.lam_r / PI).sqrt() * (-self.lam_r * sum * sum).exp() / self.gn_r.eval(-theta_i);
+                let m_r = self.m_r(theta_i, sum);
                 m_r / (2.0 * PI) * cos_i / (choice * pdf)
             }
             Lobe::Tt => {
                 let azimuth = self.von_mises.pdf(phi_f - phi_i - PI);
                 let pdf = TruncGauss::new(-theta_f, self.beta_tt).pdf(theta_i) * azimuth / cos_i;
-                let m_tt =
-                    (self.lam_tt / PI).sqrt() * (-self.lam_tt * sum * sum).exp() / self.gn_tt.eval(-theta_i);
+                let m_tt = self.m_tt(theta_i, sum);
                 (1.0 - schlick) * m_tt * azimuth * cos_i / (choice * pdf)
             }
         };

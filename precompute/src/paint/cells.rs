@@ -282,21 +282,20 @@ impl PaintCells {
     pub fn yarn_of_cells(&self) -> Vec<u32> {
         let mut out = vec![0_u32; self.count()];
         for (y, place) in self.yarns.iter().enumerate() {
-            match *place {
-                YarnPlace::Warp { rank } | YarnPlace::Weft { rank } => {
-                    let set = if matches!(place, YarnPlace::Warp { .. }) { &self.warp } else { &self.weft };
-                    let pos = set.order_in_period[rank as usize];
-                    let copies = set.threads / set.per_period.max(1);
-                    for copy in 0..copies {
-                        for s in 0..set.sections {
-                            out[set.cell(copy * set.per_period + pos, s) as usize] = y as u32;
-                        }
-                    }
-                }
+            let (set, rank) = match *place {
+                YarnPlace::Warp { rank } => (&self.warp, rank),
+                YarnPlace::Weft { rank } => (&self.weft, rank),
                 YarnPlace::Other { rank } => {
                     for tile in 0..self.tiles_x.1 * self.tiles_y.1 {
                         out[(self.other_offset + tile * self.other_per_tile + rank) as usize] = y as u32;
                     }
+                    continue;
+                }
+            };
+            let pos = set.order_in_period[rank as usize];
+            for copy in 0..set.threads / set.per_period.max(1) {
+                for s in 0..set.sections {
+                    out[set.cell(copy * set.per_period + pos, s) as usize] = y as u32;
                 }
             }
         }

@@ -266,7 +266,6 @@ fn trace_pixel(
     x: usize,
     y: usize,
 ) -> PixelResult {
-    let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
     let mut sums = PixelSums {
         mixed: CurveSums::ZERO,
         gradient: Vec::new(),
@@ -274,12 +273,10 @@ fn trace_pixel(
         squares: [Rgb::ZERO; POINTS],
     };
     let mut path_values = [Rgb::ZERO; POINTS];
-    for sample in 0..settings.curve_spp {
-        let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
-        let (origin, dir) = camera.ray(px, py);
+    pixel_paths(scene, cells, camera, settings, x, y, |sample, walk_path| {
         let with_gradient = sample < settings.gradient_spp;
         path_values.fill(Rgb::ZERO);
-        walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, &mut |c| {
+        walk_path(&mut |c| {
             let b = c.tt_events;
             for (k, &alpha) in CURVE_ALBEDOS.iter().enumerate() {
                 path_values[k] += c.value * power(alpha, b);
@@ -307,8 +304,28 @@ fn trace_pixel(
         for (k, v) in path_values.iter().enumerate() {
             sums.squares[k] += *v * *v;
         }
-    }
+    });
     finish_pixel(sums, settings)
+}
+
+/// Walks the `curve_spp` colour-free paths of pixel (x, y): for each, `path` gets its index and
+/// a walk to hand the path's terms to. The one place a pixel's paths come from, so the
+/// precompute and [`render_painted_paths`] trace the very same paths for a seed.
+fn pixel_paths(
+    scene: &PathScene,
+    cells: &PaintCells,
+    camera: &Camera,
+    settings: &PaintSettings,
+    x: usize,
+    y: usize,
+    mut path: impl FnMut(u32, &mut dyn FnMut(&mut dyn FnMut(&walk::Contribution<'_>))),
+) {
+    let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
+    for sample in 0..settings.curve_spp {
+        let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
+        let (origin, dir) = camera.ray(px, py);
+        path(sample, &mut |add| walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, add));
+    }
 }
 
 /// `a^b` with `0^0 = 1`.
@@ -394,26 +411,24 @@ impl PaintData {
         sized("curve_values", self.curve_values.len(), pixels * POINTS)?;
         sized("curve_slopes", self.curve_slopes.len(), pixels * POINTS)?;
         sized("curve_errors", self.curve_errors.len(), pixels * POINTS)?;
-        sized("rows", self.rows.len(), pixels + 1)?;
-        sized("pure_rows", self.pure_rows.len(), pixels + 1)?;
-        if self.pure_rows[0] != 0 || self.pure_rows.windows(2).any(|r| r[0] > r[1]) {
-            return Err("pure_rows are not in order".into());
-        }
-        sized("pure_cells", self.pure_cells.len(), self.pure_rows[pixels] as usize)?;
+        // Both sparse structures: a row per pixel, in order, indexing cells of the swatch.
+        let sparse = |name: &str, rows: &[u32], entry_cells: &[u32]| {
+            sized(name, rows.len(), pixels + 1)?;
+            if rows[0] != 0 || rows.windows(2).any(|r| r[0] > r[1]) {
+                return Err(format!("{name} are not in order"));
+            }
+            sized(name, entry_cells.len(), rows[pixels] as usize)?;
+            match entry_cells.iter().find(|&&c| c as usize >= cells) {
+                Some(c) => Err(format!("{name}: an entry of cell {c}; the swatch has {cells} cells")),
+                None => Ok(()),
+            }
+        };
+        sparse("pure_rows", &self.pure_rows, &self.pure_cells)?;
         sized("pure_values", self.pure_values.len(), self.pure_cells.len() * POINTS)?;
         sized("pure_slopes", self.pure_slopes.len(), self.pure_cells.len() * POINTS)?;
-        if let Some(c) = self.pure_cells.iter().find(|&&c| c as usize >= cells) {
-            return Err(format!("curve of cell {c}; the swatch has {cells} cells"));
-        }
-        sized("scene_colours", self.scene_colours.len(), cells)?;
+        sparse("rows", &self.rows, &self.weight_cells)?;
         sized("weights", self.weights.len(), self.weight_cells.len())?;
-        if self.rows[0] != 0 || self.rows.windows(2).any(|r| r[0] > r[1]) {
-            return Err("rows are not in order".into());
-        }
-        sized("weight_cells", self.weight_cells.len(), self.rows[pixels] as usize)?;
-        if let Some(c) = self.weight_cells.iter().find(|&&c| c as usize >= cells) {
-            return Err(format!("weight of cell {c}; the swatch has {cells} cells"));
-        }
+        sized("scene_colours", self.scene_colours.len(), cells)?;
         let finite = |v: &[f32; 3]| v.iter().all(|x| x.is_finite());
         for (name, values) in [
             ("curve_values", &self.curve_values),
@@ -458,7 +473,7 @@ impl PaintData {
     /// The scene's own colours, one per cell (an unpainted cloth).
     #[must_use]
     pub fn scene_painting(&self) -> Vec<Rgb> {
-        self.scene_colours.iter().map(|c| Rgb::new(c[0].into(), c[1].into(), c[2].into())).collect()
+        self.scene_colours.iter().copied().map(rgb).collect()
     }
 
     /// Theorem 1 at cell colours `colours` (one per cell, each channel in [0, 1]): per pixel
@@ -516,7 +531,7 @@ impl PaintData {
         let mut blend = Rgb::ZERO;
         let mut total = Rgb::ZERO;
         for (&cell, w) in self.weight_cells[lo..hi].iter().zip(&self.weights[lo..hi]) {
-            let w = Rgb::new(w[0].into(), w[1].into(), w[2].into());
+            let w = rgb(*w);
             blend += w * colours[cell as usize];
             total += w;
         }
@@ -536,9 +551,8 @@ impl PaintData {
             for e in self.pure_rows[p] as usize..self.pure_rows[p + 1] as usize {
                 v += rgb(self.pure_values[e * POINTS + k]);
             }
-            let e = self.curve_errors[p * POINTS + k];
             value.pixels[p] = v;
-            error.pixels[p] = Rgb::new(e[0].into(), e[1].into(), e[2].into());
+            error.pixels[p] = rgb(self.curve_errors[p * POINTS + k]);
         }
         (value, error)
     }
@@ -558,7 +572,7 @@ impl PaintData {
             let (lo, hi) = (self.rows[p] as usize, self.rows[p + 1] as usize);
             for (&cell, w) in self.weight_cells[lo..hi].iter().zip(&self.weights[lo..hi]) {
                 if of.contains(&cell) {
-                    sum += slope * Rgb::new(w[0].into(), w[1].into(), w[2].into());
+                    sum += slope * rgb(*w);
                 }
             }
         }
@@ -591,16 +605,11 @@ pub fn render_painted_paths(
         .map(|y| {
             let mut row = PixelRow::new(w);
             for x in 0..w {
-                let mut rng = pixel_rng(settings.seed, (y * settings.width as usize + x) as u64);
-                for _ in 0..settings.curve_spp {
-                    let (px, py) = (x as f64 + rng.random::<f64>(), y as f64 + rng.random::<f64>());
-                    let (origin, dir) = camera.ray(px, py);
+                pixel_paths(scene, cells, camera, settings, x, y, |_, walk_path| {
                     let mut total = Rgb::ZERO;
-                    walk::walk(scene, cells, origin, dir, settings.max_depth, &mut rng, &mut |c| {
-                        total += c.at(colours);
-                    });
+                    walk_path(&mut |c| total += c.at(colours));
                     row.add(x, total);
-                }
+                });
             }
             row
         })

@@ -82,7 +82,7 @@ pub(crate) fn walk(
     dir: DVec3,
     max_depth: u32,
     rng: &mut Pcg64Mcg,
-    add: &mut impl FnMut(&Contribution<'_>),
+    add: &mut (impl FnMut(&Contribution<'_>) + ?Sized),
 ) {
     let Some(mut hit) = trace(scene, origin, dir, None) else {
         return;
