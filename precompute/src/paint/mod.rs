@@ -39,7 +39,7 @@ mod painting;
 mod tests;
 mod walk;
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use rand::Rng;
 use rayon::prelude::*;
@@ -128,6 +128,8 @@ pub enum PaintError {
     CameraSize { camera_w: usize, camera_h: usize, width: u32, height: u32 },
     #[error("a painted scene cannot be precomputed: paint the precomputed data instead")]
     AlreadyPainted,
+    #[error("the painting precompute was cancelled")]
+    Cancelled,
 }
 
 /// A curve's sums over a pixel's paths: `Σ a α_k^B` and `Σ a B α_k^(B−1)` at every grid albedo.
@@ -196,6 +198,19 @@ pub fn precompute(
     settings: &PaintSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<PaintData, PaintError> {
+    precompute_cancellable(scene, cells, camera, settings, progress, &AtomicBool::new(false))
+}
+
+/// [`precompute`] that stops early with [`PaintError::Cancelled`] once `cancel` is set (rows
+/// already started finish first; the viewer's paint mode sets it when the designer leaves).
+pub fn precompute_cancellable(
+    scene: &PathScene,
+    cells: PaintCells,
+    camera: &Camera,
+    settings: &PaintSettings,
+    progress: &(dyn Fn(usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<PaintData, PaintError> {
     settings.validate()?;
     if scene.painted.is_some() {
         return Err(PaintError::AlreadyPainted);
@@ -215,11 +230,17 @@ pub fn precompute(
     let rows: Vec<Vec<PixelResult>> = (0..h)
         .into_par_iter()
         .map(|y| {
+            if cancel.load(Ordering::Relaxed) {
+                return Vec::new();
+            }
             let row = (0..w).map(|x| trace_pixel(scene, &cells, camera, settings, x, y)).collect();
             progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1);
             row
         })
         .collect();
+    if cancel.load(Ordering::Relaxed) {
+        return Err(PaintError::Cancelled);
+    }
     let mut data = PaintData {
         settings: *settings,
         cells,
@@ -578,6 +599,16 @@ impl PaintData {
         }
         sum
     }
+}
+
+/// The cell seen through film position (`px`, `py`) of `camera` (pixel units, as
+/// [`Camera::ray`] takes them): the first fiber the eye ray meets above the ground, as the
+/// path tracer finds it; `None` where it meets none. `cells` must be the scene's.
+#[must_use]
+pub fn cell_at(scene: &PathScene, cells: &PaintCells, camera: &Camera, px: f64, py: f64) -> Option<u32> {
+    let (origin, dir) = camera.ray(px, py);
+    let hit = crate::pathtrace::integrator::trace(scene, origin, dir, None)?;
+    Some(cells.cell_of(&hit))
 }
 
 /// Each cell's colour in `scene` as it is (its yarn material's paintable colour).

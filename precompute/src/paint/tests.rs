@@ -268,3 +268,36 @@ fn threads_are_numbered_across_the_swatch_from_its_edges() {
     }
     assert!(seen[0] > 40 && seen[1] > 40, "hits on weft and warp: {seen:?}");
 }
+
+#[test]
+fn pixels_pick_the_cell_their_eye_ray_meets_and_a_cancelled_precompute_stops() {
+    let (scene, camera) = scene(SCENE);
+    let cells = cells(&scene);
+    // Pixel centres' eye rays: the swatch fills the image, so most meet a fiber of a woven
+    // thread (the rest look through the gaps between yarns at the ground).
+    let mut on_cloth = 0;
+    for y in 0..camera.height() {
+        for x in 0..camera.width() {
+            if let Some(cell) = cell_at(&scene.path_scene, &cells, &camera, x as f64 + 0.5, y as f64 + 0.5) {
+                assert!(cells.thread_of(cell).is_some(), "pixel ({x}, {y}): a woven thread's cell");
+                on_cloth += 1;
+            }
+        }
+    }
+    assert!(on_cloth > camera.width() * camera.height() / 2, "{on_cloth} pixel centres on the cloth");
+    let far_up = Camera::new(
+        glam::DVec3::new(0.0, 0.0, 5.0),
+        glam::DVec3::new(0.0, 0.0, 10.0),
+        glam::DVec3::Y,
+        crate::pathtrace::camera::Projection::Perspective { fov_y_deg: 10.0 },
+        8,
+        8,
+    )
+    .unwrap();
+    assert_eq!(cell_at(&scene.path_scene, &cells, &far_up, 4.0, 4.0), None, "looking away from the cloth");
+
+    let cancel = AtomicBool::new(true);
+    let s = settings(4, 1);
+    let outcome = precompute_cancellable(&scene.path_scene, cells, &camera, &s, &|_| {}, &cancel);
+    assert!(matches!(outcome, Err(PaintError::Cancelled)), "a set flag cancels");
+}
