@@ -13,8 +13,11 @@
 //! picks and sections a painting may name). `paint verify` is the paper's section 6 check of one
 //! painting: the painted cloth path-traced twice with the standard path tracer (independent
 //! seeds), the painting's relative L2 error against the first reference beside the references'
-//! own (the noise floor). `twill reference --painting` (in commands.rs) path-traces a painted
-//! cloth through [`paint_scene`].
+//! own (the noise floor). `paint commit` takes a painting that is a colour order (every thread one
+//! colour, repeating) into the scene as its colourway (`paint::commit_colour_orders`) and writes
+//! the scene atomically. `verify` and `commit` first check, in `precomputed_scene`, that the
+//! scene given is the one the paint file was precomputed from. `twill reference --painting` (in
+//! commands.rs) path-traces a painted cloth through [`paint_scene`].
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,7 +29,7 @@ use twill_precompute::image::Image;
 use twill_precompute::paint::{
     self, PaintCells, PaintData, PaintSettings, PaintedMaterials, Painting, ThreadSet,
 };
-use twill_precompute::pathtrace::{self, Component, RenderSettings};
+use twill_precompute::pathtrace::{self, Camera, Component, RenderSettings};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, write_image};
 
@@ -105,6 +108,20 @@ pub enum PaintCommand {
         #[arg(long)]
         images: Option<PathBuf>,
     },
+    /// Take a painting that is a colour order (every thread one colour along its length,
+    /// repeating within 64 threads) into the scene as its palette and warp and weft orders.
+    Commit {
+        /// Paint file (`twill paint precompute`).
+        file: PathBuf,
+        /// The scene the paint file was precomputed from (default: the built-in default scene).
+        scene: Option<PathBuf>,
+        /// Painting (TOML strokes).
+        #[arg(long)]
+        painting: PathBuf,
+        /// Output scene file (written atomically).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 /// Runs one `twill paint` command.
@@ -119,6 +136,9 @@ pub fn run(command: PaintCommand) -> Result<()> {
         PaintCommand::Threads { file } => threads(&file),
         PaintCommand::Verify { file, scene, painting, spp, seed, images } => {
             verify(&VerifyOptions { file, scene, painting, spp, seed, images })
+        }
+        PaintCommand::Commit { file, scene, painting, output } => {
+            commit(&file, scene.as_deref(), &painting, &output)
         }
     }
 }
@@ -368,6 +388,51 @@ fn threads(file: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The scene `file` built, with its camera at the paint file's image size and its paint cells,
+/// checked to be the scene `data` (read from `paint_file`) was precomputed from: the same image
+/// size and the same cells. An error names both files.
+fn precomputed_scene(
+    data: &PaintData,
+    paint_file: &Path,
+    file: &SceneFile,
+) -> Result<(Scene, Camera, PaintCells)> {
+    let scene = file.build()?;
+    let (w, h) = data.size();
+    let camera = file.camera(w, h).map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
+    let cells = scene_cells(&scene, &file.path)?;
+    let other_scene = |what: String| {
+        anyhow!(
+            "{} was not precomputed from {}: {what}; give the scene it was precomputed from",
+            paint_file.display(),
+            file.path.display()
+        )
+    };
+    if (camera.width(), camera.height()) != (w, h) {
+        return Err(other_scene(format!(
+            "its images are {w}x{h}, the scene's camera {}x{}",
+            camera.width(),
+            camera.height()
+        )));
+    }
+    if cells != data.cells {
+        return Err(other_scene(format!(
+            "its swatch divides into {} cells ({} warp ends x {} sections, {} weft picks x {} sections), \
+             the scene's into {} ({} x {}, {} x {})",
+            data.cells.count(),
+            data.cells.warp.inside,
+            data.cells.warp.sections,
+            data.cells.weft.inside,
+            data.cells.weft.sections,
+            cells.count(),
+            cells.warp.inside,
+            cells.warp.sections,
+            cells.weft.inside,
+            cells.weft.sections
+        )));
+    }
+    Ok((scene, camera, cells))
+}
+
 struct VerifyOptions {
     file: PathBuf,
     scene: Option<PathBuf>,
@@ -397,40 +462,8 @@ fn verify(options: &VerifyOptions) -> Result<()> {
     if let Some(dir) = &options.images {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot make the folder", dir.display()))?;
     }
-    let mut scene = file.build()?;
+    let (mut scene, camera, cells) = precomputed_scene(&data, &options.file, &file)?;
     let (w, h) = data.size();
-    let camera = file.camera(w, h).map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
-    let cells = scene_cells(&scene, &file.path)?;
-    let other_scene = |what: String| {
-        anyhow!(
-            "{} was not precomputed from {}: {what}; give the scene it was precomputed from",
-            options.file.display(),
-            file.path.display()
-        )
-    };
-    if (camera.width(), camera.height()) != (w, h) {
-        return Err(other_scene(format!(
-            "its images are {w}x{h}, the scene's camera {}x{}",
-            camera.width(),
-            camera.height()
-        )));
-    }
-    if cells != data.cells {
-        return Err(other_scene(format!(
-            "its swatch divides into {} cells ({} warp ends x {} sections, {} weft picks x {} sections), \
-             the scene's into {} ({} x {}, {} x {})",
-            data.cells.count(),
-            data.cells.warp.inside,
-            data.cells.warp.sections,
-            data.cells.weft.inside,
-            data.cells.weft.sections,
-            cells.count(),
-            cells.warp.inside,
-            cells.warp.sections,
-            cells.weft.inside,
-            cells.weft.sections
-        )));
-    }
     // Unpainted cells take the paint file's colours on both sides, whatever the scene's are now.
     let scene_colours = data.scene_painting();
     let now: Vec<[f32; 3]> = paint::scene_colours(&scene.path_scene, &cells)
@@ -514,6 +547,35 @@ fn verify(options: &VerifyOptions) -> Result<()> {
             write_image(&dir.join(name), image, display)?;
         }
         eprintln!("wrote painted.png, reference.png and difference.png (x4) into {}", dir.display());
+    }
+    Ok(())
+}
+
+fn commit(file: &Path, scene: Option<&Path>, painting: &Path, output: &Path) -> Result<()> {
+    check_folder_of(output)?;
+    let data = PaintData::load(file)?;
+    let scene_file = SceneFile::load_or_default(scene)?;
+    refuse_pattern(&scene_file, "`twill paint` (the path tracer's paths)")?;
+    let (_, _, cells) = precomputed_scene(&data, file, &scene_file)?;
+    // Unpainted cells take the paint file's colours, as `apply` shows them.
+    let colours = load_painting(painting, &cells, &data.scene_painting())?;
+    let committed = paint::commit_colour_orders(&scene_file, &cells, &colours)
+        .map_err(|e| anyhow!("{}: {e}", painting.display()))?;
+    committed.scene.save(output)?;
+    let m = &committed.scene.materials;
+    println!(
+        "wrote {} (painting {} as a colourway): {}",
+        output.display(),
+        painting.display(),
+        committed.summary
+    );
+    println!(
+        "  warp_order = {:?}\n  weft_order = {:?}",
+        m.warp_order.as_deref().unwrap_or_default(),
+        m.weft_order.as_deref().unwrap_or_default()
+    );
+    if let Some(note) = committed.edge_note() {
+        eprintln!("note: {note}");
     }
     Ok(())
 }

@@ -182,3 +182,57 @@ fn a_painting_is_precomputed_applied_listed_verified_and_path_traced() {
     );
     assert!(!d.join("x.twillpaint").exists() && !d.join("x.png").exists());
 }
+
+#[test]
+fn a_painting_that_is_a_colour_order_is_committed_into_the_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/paintings");
+    let painting = |name: &str| assets.join(name).to_string_lossy().into_owned();
+    // The cells are all a commit reads of the paint file: the smallest precompute does.
+    succeeds(
+        &["paint", "precompute", "--size", "4x4", "--spp", "1", "--gradient-spp", "1", "-o", "p.twillpaint"],
+        d,
+    );
+
+    // The check: red blocks of 8 threads in every 16 over cream, both ways.
+    let check = painting("check.toml");
+    let (stdout, stderr) =
+        succeeds(&["paint", "commit", "p.twillpaint", "--painting", &check, "-o", "checked.toml"], d);
+    assert!(stdout.contains("warp: 2 colours over 16 threads; weft: 2 colours over 16 threads"), "{stdout}");
+    assert!(stdout.contains("checked.toml") && stdout.contains("check.toml"), "{stdout}");
+    // The cream base reaches the copies beyond the edges, where the order puts red too.
+    assert!(stderr.contains("just beyond the swatch's edges"), "{stderr}");
+    let scene = twill_precompute::scene::SceneFile::load(&d.join("checked.toml")).unwrap();
+    let colourway = scene.colourway().unwrap().expect("a colourway");
+    assert_eq!(colourway.names, ["paint01", "paint02", "paint03", "paint04"]);
+    assert_eq!((colourway.warp.threads().len(), colourway.weft.threads().len()), (16, 16));
+    for order in [&colourway.warp, &colourway.weft] {
+        let red = order.threads().iter().filter(|&&k| order.threads()[0] != k).count();
+        assert_eq!(red.min(16 - red), 8, "8 threads of each colour: {:?}", order.threads());
+    }
+    let built = scene.build().unwrap();
+    assert_eq!(built.exemplar.yarns.len(), 32, "a 16 x 16 exemplar repeat");
+
+    // A pick painted in sections is no colour order; nor is another scene's paint file.
+    fails_naming(
+        &["paint", "commit", "p.twillpaint", "--painting", &painting("highlight.toml"), "-o", "x.toml"],
+        d,
+        &[
+            "highlight.toml",
+            "weft pick 30 has 2 colours along it (sections 0-19, 20-35 and 36-",
+            "whole threads",
+        ],
+    );
+    let small =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/default.toml"))
+            .unwrap()
+            .replace("size_cm = [2.0, 2.0]", "size_cm = [1.0, 1.0]");
+    std::fs::write(d.join("small.toml"), small).unwrap();
+    fails_naming(
+        &["paint", "commit", "p.twillpaint", "small.toml", "--painting", &check, "-o", "x.toml"],
+        d,
+        &["p.twillpaint", "was not precomputed from", "small.toml"],
+    );
+    assert!(!d.join("x.toml").exists());
+}

@@ -879,22 +879,31 @@ impl SceneFile {
     /// The message `build` would give.
     pub fn check_colourway(&self) -> Result<(), String> {
         let Some(colourway) = self.colourway()? else { return Ok(()) };
+        // An unknown preset or a missing fabric is build's to report.
+        let Some(draft) = self.colour_order_draft()? else { return Ok(()) };
+        exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
+            .map_err(|e| e.to_string())?;
+        exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    }
+
+    /// The weave draft that colour orders repeat against (warp orders against its columns,
+    /// weft orders against its rows): `[fabric]`'s own draft, for a woven fabric without
+    /// `[pattern]`; `Ok(None)` for an unknown preset or a missing fabric (which
+    /// [`SceneFile::build`] reports).
+    ///
+    /// # Errors
+    /// Imported fibers or patterned cloth: they take no colour orders (the message says so).
+    pub fn colour_order_draft(&self) -> Result<Option<WeaveDraft>, String> {
         let spec = match (&self.fabric.preset, &self.fabric.spec) {
             (Some(name), None) => fabric_preset(name).map(|p| p.fabric),
             (None, Some(spec)) => Some(spec.clone()),
             _ => None,
         };
         match spec {
-            Some(FabricSpec::Woven(woven)) if self.pattern.is_none() => {
-                let draft = woven.weave.draft();
-                exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
-                    .map_err(|e| e.to_string())?;
-                exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
-                    .map_err(|e| e.to_string())?;
-                Ok(())
-            }
-            // An unknown preset or a missing fabric is build's to report.
-            None => Ok(()),
+            Some(FabricSpec::Woven(woven)) if self.pattern.is_none() => Ok(Some(woven.weave.draft())),
+            None => Ok(None),
             Some(_) => Err(COLOUR_ORDERS_NEED_WOVEN.into()),
         }
     }

@@ -263,6 +263,20 @@ impl PaintCells {
         Some(sections.map(|s| set.cell(t as u32, s)).collect())
     }
 
+    /// The global index of a thread set's thread (numbered as a painting names it, so possibly
+    /// negative or past the inside threads): the thread's column (warp) or row (weft) of the
+    /// exemplar tiled over the whole plane, 0 being the first yarn of the copy at the origin.
+    /// It is yarn `g.rem_euclid(per_period)` of copy `g.div_euclid(per_period)`, wherever the
+    /// swatch's edges fall, and does not depend on the exemplar's repeat: for a woven
+    /// exemplar it is the weave column (row) of the warp end (weft pick) centred at
+    /// `(g + 0.5)` spacings, so a colour order of `L` threads gives it `order[g mod L]`.
+    #[must_use]
+    pub fn global_thread(&self, warp: bool, thread: i64) -> i64 {
+        let (set, first_tile) =
+            if warp { (&self.warp, self.tiles_x.0) } else { (&self.weft, self.tiles_y.0) };
+        i64::from(first_tile) * i64::from(set.per_period) + i64::from(set.first_inside) + thread
+    }
+
     /// Which thread set (`Some(true)` warp, `Some(false)` weft) and which thread (numbered as
     /// a painting names it) and section a cell is; `None` for cells of yarns with no weave role.
     #[must_use]

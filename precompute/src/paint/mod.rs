@@ -33,6 +33,7 @@
 //! painted cloth to check against.
 
 mod cells;
+mod commit;
 mod file;
 mod painting;
 #[cfg(test)]
@@ -45,6 +46,7 @@ use rand::Rng;
 use rayon::prelude::*;
 
 pub use cells::{CellsError, MAX_CELLS, PaintCells, ThreadSet};
+pub use commit::{CommittedOrder, CommittedOrders, NotAColourOrder, commit_colour_orders};
 pub use file::PaintFileError;
 pub use painting::{Painting, PaintingError, Stroke};
 
