@@ -418,3 +418,87 @@ fn a_failed_bake_and_a_missing_scene_are_shown_in_the_window() {
     let run = run_viewer(&xvfb, out, &["no-such-scene.toml", "--script", "missing.script"]);
     assert!(run.success, "the viewer failed:\n{}", run.stderr);
 }
+
+/// The `ratio N` a verification report printed by `wait-verify` gives, for the report whose
+/// text contains `what`.
+fn verification_ratio(stderr: &str, what: &str) -> f64 {
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("verification of") && l.contains(what))
+        .unwrap_or_else(|| panic!("no verification of {what} reported:\n{stderr}"));
+    let ratio = line.split("(ratio ").nth(1).and_then(|r| r.split(')').next()).expect("a ratio");
+    ratio.parse().unwrap_or_else(|_| panic!("{line}"))
+}
+
+#[test]
+fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commits_one() {
+    // Paint mode on the default scene: a small precompute of the frozen view, one section
+    // painted (no colour order: the commit is refused, naming the thread), undone, then every
+    // thread of the set under the pointer painted blue, verified against the path tracer,
+    // committed as colour orders (which queues a verification of the committed scene) and
+    // saved. The painted picture must change where the yarns were painted, and both
+    // verifications must be within 2x the references' own noise (the CLI check's bound).
+    let test = "paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commits_one";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    let script = "\
+        wait-fabric draft\n\
+        paint-start 40 16 16\n\
+        wait-paint\n\
+        screenshot before.png\n\
+        paint-colour 0.05 0.1 0.6\n\
+        paint-scope section\n\
+        paint-at 0.52 0.55\n\
+        paint-commit\n\
+        expect-error has 2 colours along it\n\
+        paint-undo\n\
+        paint-scope set\n\
+        paint-at 0.52 0.55\n\
+        screenshot painted.png\n\
+        paint-verify\n\
+        wait-verify\n\
+        paint-commit\n\
+        wait-verify\n\
+        save committed.toml\n\
+        quit\n";
+    std::fs::write(out.join("paint.script"), script).unwrap();
+    let run = run_viewer(
+        &xvfb,
+        out,
+        &["--quality", "draft", "--window-size", "1000x640", "--script", "paint.script"],
+    );
+    assert!(run.success && run.stderr.contains("script finished"), "the viewer failed:\n{}", run.stderr);
+
+    let (_, _, before) = read_png_rgba(&out.join("before.viewport.png"));
+    let (_, _, painted) = read_png_rgba(&out.join("painted.viewport.png"));
+    assert_eq!(before.len(), painted.len());
+    let changed: Vec<([u8; 4], [u8; 4])> = before
+        .iter()
+        .zip(&painted)
+        .filter(|(a, b)| (0..3).any(|c| a[c].abs_diff(b[c]) > 16))
+        .map(|(a, b)| (*a, *b))
+        .collect();
+    assert!(
+        changed.len() > before.len() / 20,
+        "painting a thread set changes the picture: {} pixels",
+        changed.len()
+    );
+    // Where it changed, it turned blue.
+    let blue_minus_red = |p: &[u8; 4]| f64::from(p[2]) - f64::from(p[0]);
+    let shift = changed.iter().map(|(a, b)| blue_minus_red(b) - blue_minus_red(a)).sum::<f64>()
+        / changed.len() as f64;
+    assert!(shift > 20.0, "painted blue: blue - red rose by {shift:.1} levels where the picture changed");
+
+    for what in ["the painted cloth", "the committed colour orders"] {
+        let ratio = verification_ratio(&run.stderr, what);
+        assert!(ratio < 2.0, "{what}: relative L2 {ratio} times the references' own");
+    }
+    let committed = SceneFile::load(&out.join("committed.toml")).expect("the committed scene loads");
+    committed.build().expect("the committed scene builds");
+    let materials = &committed.materials;
+    assert!(materials.palette.len() >= 2, "a blue and the other yarn: {:?}", materials.palette);
+    assert!(materials.warp_order.is_some() && materials.weft_order.is_some(), "{materials:?}");
+    let blue = materials.palette.values().filter_map(|c| c.c_tt).any(|c| (c.z - 0.6).abs() < 1e-6);
+    assert!(blue, "the painted blue is a palette colour: {:?}", materials.palette);
+}

@@ -33,7 +33,7 @@ use twill_precompute::bake::settings::Quality;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::pathtrace::light::SG_SHARPNESS_RANGE;
 use twill_precompute::scene::{CameraSection, GpuSection, RenderSection, SceneFile};
-use twill_renderer::export::write_rgb8_png;
+use twill_renderer::export::{Display, ToneCurve, write_rgb8_png};
 use twill_renderer::frame::FrameSettings;
 use twill_renderer::plan::Components;
 
@@ -47,6 +47,9 @@ use super::fabric::{WeaveAction, WeaveForm, fibers_panel, import_wif, weave_pane
 use super::history::History;
 use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
 use super::mesh::{MeshForm, mesh_panel};
+use super::paint::{
+    PaintForm, PaintSession, SIDE_CHOICES, SPP_CHOICES, Scope, VERIFY_SPP_CHOICES, Verification,
+};
 use super::quality::{
     FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, quality_panel,
@@ -237,6 +240,12 @@ pub struct ViewerApp {
     export_status: ExportStatus,
     last_export: Option<ExportOutcome>,
 
+    /// Paint mode, while it is on ([`super::paint`]).
+    paint: Option<PaintSession>,
+    paint_form: PaintForm,
+    /// The last path-traced check of a painting (it runs on after paint mode ends).
+    verification: Option<Verification>,
+
     messages: Messages,
     script: Option<ScriptRun>,
     outcome: Arc<Mutex<Option<Result<(), String>>>>,
@@ -347,6 +356,9 @@ impl ViewerApp {
             export_form: ExportForm::default(),
             export_status: ExportStatus::Idle,
             last_export: None,
+            paint: None,
+            paint_form: PaintForm::default(),
+            verification: None,
             messages,
             script: script.map(|lines| ScriptRun {
                 lines,
@@ -555,6 +567,7 @@ impl ViewerApp {
         self.selected_light = 0;
         self.controls = default_controls(&file);
         self.source_path = path.to_path_buf();
+        self.paint = None;
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
         self.recolour = None;
@@ -841,6 +854,13 @@ impl ViewerApp {
                 || i.consume_key(egui::Modifiers::COMMAND, egui::Key::Y);
             (i.consume_key(egui::Modifiers::COMMAND, egui::Key::Z), redo)
         });
+        if let Some(paint) = &mut self.paint {
+            // The scene is frozen while painting: Ctrl+Z undoes a stroke.
+            if undo {
+                paint.undo();
+            }
+            return;
+        }
         if undo {
             self.undo();
         }
@@ -867,12 +887,13 @@ impl ViewerApp {
             }
             ui.separator();
             let current = self.snapshot();
-            let can_undo = current.as_ref().is_some_and(|c| self.history.can_undo(c));
+            let painting = self.paint.is_some();
+            let can_undo = !painting && current.as_ref().is_some_and(|c| self.history.can_undo(c));
             if ui.add_enabled(can_undo, egui::Button::new("Undo")).on_hover_text("Ctrl+Z").clicked() {
                 self.undo();
             }
             if ui
-                .add_enabled(self.history.can_redo(), egui::Button::new("Redo"))
+                .add_enabled(!painting && self.history.can_redo(), egui::Button::new("Redo"))
                 .on_hover_text("Ctrl+Shift+Z or Ctrl+Y")
                 .clicked()
             {
@@ -962,7 +983,13 @@ impl ViewerApp {
     }
 
     fn left_panel(&mut self, ui: &mut egui::Ui) {
+        if self.paint.is_some() {
+            // The view, lights and fabric are frozen while painting: only the paint panel.
+            egui::ScrollArea::vertical().show(ui, |ui| self.paint_panel(ui));
+            return;
+        }
         egui::ScrollArea::vertical().show(ui, |ui| {
+            egui::CollapsingHeader::new("Paint").default_open(false).show(ui, |ui| self.paint_panel(ui));
             egui::CollapsingHeader::new("Lights").default_open(true).show(ui, |ui| {
                 let outcome = lights_panel(
                     ui,
@@ -1020,6 +1047,246 @@ impl ViewerApp {
         });
     }
 
+    /// Takes paint mode's precompute and the verification's references when they arrive.
+    fn handle_paint_events(&mut self) {
+        if let Some(outcome) = self.paint.as_mut().and_then(PaintSession::poll) {
+            match outcome {
+                Ok(line) => self.messages.info(line),
+                Err(e) => self.messages.error(e),
+            }
+        }
+        if let Some(outcome) = self.verification.as_mut().and_then(Verification::poll) {
+            match outcome {
+                Ok(line) => self.messages.info(line),
+                Err(e) => self.messages.error(e),
+            }
+        }
+    }
+
+    /// Freezes the view and starts paint mode's precompute.
+    fn start_paint(&mut self, ctx: &egui::Context) -> Result<(), String> {
+        let scene = self.current_scene_file()?;
+        let [w, h] = self.viewport_px;
+        if w < MIN_VIEWPORT_PX || h < MIN_VIEWPORT_PX {
+            return Err("the viewport is too small to paint in".into());
+        }
+        self.paint = Some(PaintSession::start(scene, [w, h], &self.paint_form, ctx)?);
+        Ok(())
+    }
+
+    /// Turns the painting into the scene's colour orders, leaves paint mode and queues the
+    /// verification of the committed scene.
+    fn commit_paint(&mut self, ctx: &egui::Context) -> Result<(), String> {
+        let paint = self.paint.as_ref().ok_or("paint mode is not on")?;
+        let (committed, line) = paint.commit()?;
+        let verification = paint.verify(Some(&committed), self.paint_form.verify_spp, ctx)?;
+        let scene = self.scene_file.as_mut().ok_or("no scene is loaded")?;
+        // Only the colours change: the view and render settings stay as they are on screen.
+        scene.materials = committed.materials;
+        self.verification = Some(verification);
+        self.paint = None;
+        self.messages.info(format!("{line}; a path-traced verification is queued"));
+        Ok(())
+    }
+
+    /// Path-traces the painted cloth to check the painting (paint mode stays on).
+    fn verify_paint(&mut self, ctx: &egui::Context) -> Result<(), String> {
+        let paint = self.paint.as_ref().ok_or("paint mode is not on")?;
+        self.verification = Some(paint.verify(None, self.paint_form.verify_spp, ctx)?);
+        Ok(())
+    }
+
+    fn paint_panel(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        let Some(paint) = &mut self.paint else {
+            ui.label(
+                "Freeze this view and paint colours onto single yarns and yarn sections, seeing the \
+                 path-traced result at once (Hašan & Ramamoorthy 2013).",
+            );
+            let form = &mut self.paint_form;
+            ui.horizontal(|ui| {
+                ui.label("image side");
+                choice(ui, "twill.paint.side", &mut form.side, &SIDE_CHOICES, "px");
+            });
+            ui.horizontal(|ui| {
+                ui.label("paths per pixel");
+                choice(ui, "twill.paint.spp", &mut form.spp, &SPP_CHOICES, "");
+            });
+            let can_start = self.scene_file.is_some();
+            if ui
+                .add_enabled(can_start, egui::Button::new("Paint this view"))
+                .on_hover_text("Freezes the view and lights, then precomputes in the background")
+                .clicked()
+                && let Err(e) = self.start_paint(&ctx)
+            {
+                self.messages.error(e);
+            }
+            self.verification_status(ui);
+            return;
+        };
+        let [w, h] = paint.size();
+        ui.label(egui::RichText::new("Paint mode").strong());
+        if let Some((fraction, seconds)) = paint.progress() {
+            ui.label(format!("Precomputing {w}x{h} at {} spp…", self.paint_form.spp));
+            ui.add(egui::ProgressBar::new(fraction).show_percentage().text(format!("{seconds:.0} s")));
+        } else if let Some(e) = paint.failure() {
+            ui.colored_label(ui.visuals().error_fg_color, e.to_owned());
+        } else {
+            ui.horizontal(|ui| {
+                ui.label("brush");
+                // egui's picker round-trips the colour through HSV every frame: only a change
+                // the designer made is taken.
+                let mut rgb = paint.colour;
+                if ui.color_edit_button_rgb(&mut rgb).on_hover_text("Linear RGB: the yarn's C_TT").changed() {
+                    paint.colour = rgb.map(|c| c.clamp(0.0, 1.0));
+                }
+                for c in paint.colours_in_use(6) {
+                    let swatch = super::fabric::srgb(c.map(f64::from));
+                    let button = egui::Button::new("").fill(swatch).min_size(egui::vec2(16.0, 16.0));
+                    if ui.add(button).on_hover_text("A colour on the cloth now").clicked() {
+                        paint.colour = c;
+                    }
+                }
+            });
+            ui.horizontal(|ui| {
+                ui.label("paints");
+                for scope in Scope::ALL {
+                    ui.radio_value(&mut paint.scope, scope, scope.label());
+                }
+            });
+            ui.horizontal(|ui| {
+                if ui.add_enabled(paint.can_undo(), egui::Button::new("Undo stroke")).clicked() {
+                    paint.undo();
+                }
+                if ui.button("Reset").on_hover_text("The scene's own colours").clicked() {
+                    paint.reset();
+                }
+            });
+            ui.label(format!("each stroke: {:.1} ms ({w}x{h})", paint.edit_ms));
+            if let Some(action) = &paint.last_action {
+                ui.label(egui::RichText::new(action).weak());
+            }
+            ui.separator();
+            ui.horizontal(|ui| {
+                ui.label("verification");
+                choice(
+                    ui,
+                    "twill.paint.verify_spp",
+                    &mut self.paint_form.verify_spp,
+                    &VERIFY_SPP_CHOICES,
+                    "spp",
+                );
+            });
+            let mut action = None;
+            ui.horizontal(|ui| {
+                if ui
+                    .button("Commit")
+                    .on_hover_text(
+                        "The painting as the scene's colour orders (each thread one colour, repeating), \
+                         then a path-traced check",
+                    )
+                    .clicked()
+                {
+                    action = Some(true);
+                }
+                if ui.button("Verify").on_hover_text("Path-trace the painted cloth and compare").clicked() {
+                    action = Some(false);
+                }
+            });
+            let outcome = match action {
+                Some(true) => self.commit_paint(&ctx),
+                Some(false) => self.verify_paint(&ctx),
+                None => Ok(()),
+            };
+            if let Err(e) = outcome {
+                self.messages.error(e);
+            }
+        }
+        if self.paint.is_some() && ui.button("Leave paint mode").clicked() {
+            self.paint = None;
+        }
+        self.verification_status(ui);
+    }
+
+    fn verification_status(&self, ui: &mut egui::Ui) {
+        let Some(verification) = &self.verification else { return };
+        if let Some(fraction) = verification.progress() {
+            ui.add(egui::ProgressBar::new(fraction).show_percentage().text("verifying"));
+        } else if let Some(report) = verification.report() {
+            let (text, colour) = match report {
+                Ok(text) => (text, ui.visuals().text_color()),
+                Err(e) => (e, ui.visuals().error_fg_color),
+            };
+            ui.add(egui::Label::new(egui::RichText::new(text).small().color(colour)).wrap());
+        }
+    }
+
+    /// The viewport in paint mode: the painted picture; a click or drag paints, a right click
+    /// picks a colour.
+    fn paint_viewport(&mut self, ui: &mut egui::Ui, rect: egui::Rect, response: &egui::Response) {
+        let painter = ui.painter_at(rect);
+        painter.rect_filled(rect, 0.0, egui::Color32::from_gray(18));
+        let display = Display {
+            exposure: self.controls.exposure,
+            curve: if self.controls.filmic { ToneCurve::Filmic } else { ToneCurve::Clamp },
+        };
+        let ctx = ui.ctx().clone();
+        let Some(paint) = &mut self.paint else { return };
+        let [w, h] = paint.size().map(|s| s as f32);
+        let scale = (rect.width() / w).min(rect.height() / h);
+        let image_rect = egui::Rect::from_center_size(rect.center(), egui::vec2(w, h) * scale);
+        if let Some(texture) = paint.texture(&ctx, display, self.controls.filmic) {
+            let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+            painter.image(texture.id(), image_rect, uv, egui::Color32::WHITE);
+        } else {
+            let text = match (paint.progress(), paint.failure()) {
+                (Some((fraction, _)), _) => format!("Precomputing the paint view… {:.0}%", 100.0 * fraction),
+                (None, Some(_)) => "The paint precompute failed: see the messages.".to_owned(),
+                _ => String::new(),
+            };
+            painter.text(
+                rect.center(),
+                egui::Align2::CENTER_CENTER,
+                text,
+                egui::FontId::proportional(16.0),
+                egui::Color32::from_gray(200),
+            );
+        }
+        let at = response.interact_pointer_pos().map(|p| {
+            let f = (p - image_rect.min) / image_rect.size();
+            (f64::from(f.x), f64::from(f.y))
+        });
+        if paint.is_ready()
+            && let Some((fx, fy)) = at
+        {
+            let outcome = if response.clicked_by(egui::PointerButton::Secondary) {
+                paint.pick_at(fx, fy).map(|_| ())
+            } else if response.clicked_by(egui::PointerButton::Primary)
+                || response.dragged_by(egui::PointerButton::Primary)
+            {
+                let new_stroke = response.clicked() || response.drag_started();
+                paint.paint_at(fx, fy, new_stroke).map(|_| ())
+            } else {
+                Ok(())
+            };
+            if let Err(e) = outcome {
+                self.messages.error(e);
+            }
+        }
+        overlay_text(
+            &painter,
+            rect.left_top() + egui::vec2(4.0, 4.0),
+            egui::Align2::LEFT_TOP,
+            format!("paint mode · {}×{} · view frozen", w as u32, h as u32),
+        );
+        overlay_text(
+            &painter,
+            rect.left_bottom() + egui::vec2(4.0, -4.0),
+            egui::Align2::LEFT_BOTTOM,
+            "click or drag: paint · right click: pick a colour · Ctrl+Z: undo a stroke".into(),
+        );
+    }
+
     fn right_panel(&mut self, ui: &mut egui::Ui) {
         let view = QualityView {
             fabric: self.fabric.as_ref(),
@@ -1052,6 +1319,10 @@ impl ViewerApp {
         let response = ui.allocate_rect(rect, egui::Sense::click_and_drag());
         self.viewport_px = [size_px.x as u32, size_px.y as u32];
         self.viewport_rect_px = egui::Rect::from_min_size(min_px.to_pos2(), size_px);
+        if self.paint.is_some() {
+            self.paint_viewport(ui, rect, &response);
+            return;
+        }
 
         let delta = response.drag_delta();
         if response.dragged_by(egui::PointerButton::Primary) {
@@ -1127,6 +1398,13 @@ impl ViewerApp {
             }
         };
         let (Some(worker), Some(fabric)) = (&self.worker, &self.fabric) else { return };
+        if self.paint.is_some() {
+            // Paint mode shows its own picture: the live renderer rests (and leaves the cores
+            // to the precompute).
+            worker.clear_frame_request();
+            self.in_flight = None;
+            return;
+        }
         let [w, h] = self.viewport_px;
         if w < MIN_VIEWPORT_PX || h < MIN_VIEWPORT_PX {
             return;
@@ -1516,6 +1794,65 @@ impl ViewerApp {
                 self.ui_timing.clear();
                 Ok(true)
             }
+            Step::PaintStart { side, spp, verify_spp } => {
+                self.paint_form.side = *side;
+                self.paint_form.spp = *spp;
+                self.paint_form.verify_spp = verify_spp.unwrap_or(self.paint_form.verify_spp);
+                self.start_paint(ctx).map(|()| true)
+            }
+            Step::WaitPaint => {
+                let paint = self.paint.as_ref().ok_or("paint mode is not on")?;
+                match paint.failure() {
+                    Some(e) => Err(format!("the paint precompute failed: {e}")),
+                    None => Ok(paint.is_ready()),
+                }
+            }
+            Step::PaintColour(rgb) => {
+                self.paint.as_mut().ok_or("paint mode is not on")?.colour = *rgb;
+                Ok(true)
+            }
+            Step::PaintScope(scope) => {
+                self.paint.as_mut().ok_or("paint mode is not on")?.scope = *scope;
+                Ok(true)
+            }
+            Step::PaintAt { x, y } => {
+                let paint = self.paint.as_mut().ok_or("paint mode is not on")?;
+                let what = paint.paint_at(*x, *y, true)?.ok_or("no yarn there")?;
+                eprintln!("painted {what}: evaluated in {:.2} ms", paint.edit_ms);
+                Ok(true)
+            }
+            Step::PaintPick { x, y } => {
+                let paint = self.paint.as_mut().ok_or("paint mode is not on")?;
+                paint.pick_at(*x, *y)?.then_some(true).ok_or_else(|| "no yarn there".into())
+            }
+            Step::PaintUndo => {
+                let paint = self.paint.as_mut().ok_or("paint mode is not on")?;
+                paint.undo().then_some(true).ok_or_else(|| "no stroke to undo".into())
+            }
+            Step::PaintCommit => {
+                // As the panel's button does: a painting that is no colour order is an error in
+                // the message list (a script expects it with `expect-error`).
+                if let Err(e) = self.commit_paint(ctx) {
+                    self.messages.error(e);
+                }
+                Ok(true)
+            }
+            Step::PaintVerify => self.verify_paint(ctx).map(|()| true),
+            Step::WaitVerify => {
+                let verification = self.verification.as_ref().ok_or("no verification was started")?;
+                match verification.report() {
+                    None => Ok(false),
+                    Some(Ok(report)) => {
+                        eprintln!("{report}");
+                        Ok(true)
+                    }
+                    Some(Err(e)) => Err(e.clone()),
+                }
+            }
+            Step::PaintLeave => {
+                self.paint.take().ok_or("paint mode is not on")?;
+                Ok(true)
+            }
             Step::Quit => {
                 run.next = run.lines.len() - 1;
                 Ok(true)
@@ -1555,6 +1892,15 @@ fn edit_scene(scene: &mut SceneFile, step: &Step) -> Result<(), String> {
 }
 
 /// Small text on a dark plate over the picture.
+/// A drop-down of choices for a number (`unit` after each).
+fn choice(ui: &mut egui::Ui, id: &str, value: &mut u32, choices: &[u32], unit: &str) {
+    egui::ComboBox::from_id_salt(id).selected_text(format!("{value} {unit}")).show_ui(ui, |ui| {
+        for &c in choices {
+            ui.selectable_value(value, c, format!("{c} {unit}"));
+        }
+    });
+}
+
 fn overlay_text(painter: &egui::Painter, anchor: egui::Pos2, align: egui::Align2, text: String) {
     if text.is_empty() {
         return;
@@ -1730,6 +2076,7 @@ impl eframe::App for ViewerApp {
         self.shortcuts(&ctx);
         self.handle_bake_events();
         self.handle_worker_events();
+        self.handle_paint_events();
         self.release_bake_for_picture();
         self.refresh_texture(&ctx);
 

@@ -17,6 +17,8 @@
 //!   ([`mesh`]); a material edit shows new single scattering at once
 //!   and rebakes multiple scattering in the background, a weave edit rebakes what depends on
 //!   geometry, a mesh edit only swaps the shell; undo and redo cover every edit ([`history`]);
+//! - paints colours onto single yarns and yarn sections of a frozen view at path-traced
+//!   quality, and commits a painting that is a colour order to the scene ([`paint`]);
 //! - saves and opens scenes in the CLI's format;
 //! - measures its own frame times, above all while a bake runs ([`timing`]);
 //! - exports the view at any size and sample count as PNG or EXR with its scene settings
@@ -36,6 +38,7 @@ mod fabric;
 mod history;
 mod lights;
 mod mesh;
+mod paint;
 mod quality;
 mod render_worker;
 mod script;

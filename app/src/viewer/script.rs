@@ -3,8 +3,8 @@
 //!
 //! How it works: [`parse_script`] reads one command per line (`#` starts a comment) into
 //! [`Step`]s, with the line number in every error. The viewer runs one step per frame; waiting
-//! steps (`wait-fabric`, `wait-spp`, `wait-export`, `expect-error`, `screenshot`, `lose-device`) hold the
-//! script until their condition holds, each for at most [`STEP_TIMEOUT`]. An error the viewer
+//! steps (`wait-fabric`, `wait-spp`, `wait-export`, `expect-error`, `screenshot`, `lose-device`,
+//! `wait-paint`, `wait-verify`) hold the script until their condition holds, each for at most [`STEP_TIMEOUT`]. An error the viewer
 //! shows while a script runs fails the script unless an `expect-error` step is waiting for it.
 //! When the script ends (`quit`, or its last line) the window closes; a failed script makes
 //! `twill view` exit with an error naming the line.
@@ -51,6 +51,20 @@
 //! frame-times PATH                      # the UI frame times so far, as text; then forget them
 //! lose-device                           # destroy the render device (a simulated loss) and wait
 //!                                       # until the viewer renders on a new one
+//! paint-start SIDE SPP [VERIFY_SPP]     # paint mode: freeze the view, precompute a paint image
+//!                                       # SIDE pixels along its longer side at SPP paths (and
+//!                                       # verify later at VERIFY_SPP samples per pixel)
+//! wait-paint                            # until paint mode's precompute is done
+//! paint-colour R G B                    # the brush colour (linear RGB)
+//! paint-scope section|thread|set        # what a click paints
+//! paint-at X Y                          # click at (X, Y), fractions of the paint image (0-1)
+//! paint-pick X Y                        # take the colour of the yarn at (X, Y)
+//! paint-undo
+//! paint-commit                          # the painting as colour orders; leaves paint mode and
+//!                                       # queues a verification
+//! paint-verify                          # path-trace the painted cloth to check the painting
+//! wait-verify                           # until the verification is done (its report is printed)
+//! paint-leave
 //! quit
 //! ```
 
@@ -72,6 +86,7 @@ fn yarn_slot(word: Option<&str>) -> Result<YarnSlot, String> {
     }
 }
 use super::lights::LightKind;
+use super::paint::Scope;
 
 /// Longest a waiting step may wait.
 pub const STEP_TIMEOUT: Duration = Duration::from_mins(5);
@@ -131,6 +146,17 @@ pub enum Step {
     Spin(f64),
     FrameTimes(PathBuf),
     LoseDevice,
+    PaintStart { side: u32, spp: u32, verify_spp: Option<u32> },
+    WaitPaint,
+    PaintColour([f32; 3]),
+    PaintScope(Scope),
+    PaintAt { x: f64, y: f64 },
+    PaintPick { x: f64, y: f64 },
+    PaintUndo,
+    PaintCommit,
+    PaintVerify,
+    WaitVerify,
+    PaintLeave,
     Quit,
 }
 
@@ -312,6 +338,40 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
         }
         "frame-times" => Step::FrameTimes(PathBuf::from(args.next().ok_or("missing output file")?)),
         "lose-device" => Step::LoseDevice,
+        "paint-start" => {
+            let side: u32 = number(args.next(), "paint image side")?;
+            let spp: u32 = number(args.next(), "paths per pixel")?;
+            let verify_spp: Option<u32> =
+                args.next().map(|w| number(Some(w), "verification spp")).transpose()?;
+            let counts = [Some(spp), verify_spp].into_iter().flatten();
+            if !(8..=4096).contains(&side) || !counts.into_iter().all(|n| (1..=1_048_576).contains(&n)) {
+                return Err("paint-start takes 8 <= SIDE <= 4096 and sample counts from 1 to 1048576".into());
+            }
+            Step::PaintStart { side, spp, verify_spp }
+        }
+        "wait-paint" => Step::WaitPaint,
+        "paint-colour" | "paint-color" => {
+            let rgb: [f32; 3] =
+                [number(args.next(), "red")?, number(args.next(), "green")?, number(args.next(), "blue")?];
+            if !rgb.iter().all(|c| (0.0..=1.0).contains(c)) {
+                return Err("paint colours are linear RGB from 0 to 1".into());
+            }
+            Step::PaintColour(rgb)
+        }
+        "paint-scope" => Step::PaintScope(Scope::parse(args.next().ok_or("missing paint scope")?)?),
+        "paint-at" | "paint-pick" => {
+            let x: f64 = number(args.next(), "x (fraction of the image)")?;
+            let y: f64 = number(args.next(), "y (fraction of the image)")?;
+            if !((0.0..=1.0).contains(&x) && (0.0..=1.0).contains(&y)) {
+                return Err("paint positions are fractions of the paint image, 0 to 1".into());
+            }
+            if words[0] == "paint-at" { Step::PaintAt { x, y } } else { Step::PaintPick { x, y } }
+        }
+        "paint-undo" => Step::PaintUndo,
+        "paint-commit" => Step::PaintCommit,
+        "paint-verify" => Step::PaintVerify,
+        "wait-verify" => Step::WaitVerify,
+        "paint-leave" => Step::PaintLeave,
         "quit" => Step::Quit,
         other => return Err(format!("unknown command {other:?}")),
     };
@@ -385,6 +445,31 @@ mod tests {
         );
         assert_eq!(steps[19], Step::Order { slot: YarnSlot::Weft, text: "2 cream, 1 navy".into() });
         assert_eq!(steps.len(), 20);
+    }
+
+    #[test]
+    fn the_paint_commands_parse() {
+        let text = "paint-start 64 128 16\nwait-paint\npaint-colour 0.1 0.2 0.3\npaint-scope thread\n\
+                    paint-at 0.5 0.25\npaint-pick 0 1\npaint-undo\npaint-commit\npaint-verify\nwait-verify\n\
+                    paint-leave\n";
+        let steps: Vec<Step> =
+            parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
+        assert_eq!(steps[0], Step::PaintStart { side: 64, spp: 128, verify_spp: Some(16) });
+        assert_eq!(steps[2], Step::PaintColour([0.1, 0.2, 0.3]));
+        assert_eq!(steps[3], Step::PaintScope(Scope::Thread));
+        assert_eq!(steps[4], Step::PaintAt { x: 0.5, y: 0.25 });
+        assert_eq!(steps[5], Step::PaintPick { x: 0.0, y: 1.0 });
+        assert_eq!(steps[10], Step::PaintLeave);
+        assert_eq!(steps.len(), 11);
+        for (text, needle) in [
+            ("paint-start 4 16\n", "8 <= SIDE"),
+            ("paint-colour 2 0 0\n", "0 to 1"),
+            ("paint-scope yarn\n", "section, thread or set"),
+            ("paint-at 1.5 0\n", "fractions"),
+        ] {
+            let err = parse_script(text, Path::new("s.txt")).unwrap_err();
+            assert!(err.contains(needle), "{err}");
+        }
     }
 
     #[test]
