@@ -434,7 +434,7 @@ fn verification_ratio(stderr: &str, what: &str) -> f64 {
 fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commits_one() {
     // Paint mode on the default scene: a small precompute of the frozen view, one section
     // painted (no colour order: the commit is refused, naming the thread), undone, then every
-    // thread of the set under the pointer painted blue, verified against the path tracer,
+    // thread of the set under the pointer painted red, verified against the path tracer,
     // committed as colour orders (which queues a verification of the committed scene) and
     // saved. The painted picture must change where the yarns were painted, and both
     // verifications must be within 2x the references' own noise (the CLI check's bound).
@@ -447,7 +447,7 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         paint-start 40 16 16\n\
         wait-paint\n\
         screenshot before.png\n\
-        paint-colour 0.05 0.1 0.6\n\
+        paint-colour 0.6 0.05 0.05\n\
         paint-scope section\n\
         paint-at 0.52 0.55\n\
         paint-commit\n\
@@ -484,11 +484,11 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         "painting a thread set changes the picture: {} pixels",
         changed.len()
     );
-    // Where it changed, it turned blue.
-    let blue_minus_red = |p: &[u8; 4]| f64::from(p[2]) - f64::from(p[0]);
-    let shift = changed.iter().map(|(a, b)| blue_minus_red(b) - blue_minus_red(a)).sum::<f64>()
+    // Where it changed, it turned red (the default warp is blue).
+    let red_minus_blue = |p: &[u8; 4]| f64::from(p[0]) - f64::from(p[2]);
+    let shift = changed.iter().map(|(a, b)| red_minus_blue(b) - red_minus_blue(a)).sum::<f64>()
         / changed.len() as f64;
-    assert!(shift > 20.0, "painted blue: blue - red rose by {shift:.1} levels where the picture changed");
+    assert!(shift > 20.0, "painted red: red - blue rose by {shift:.1} levels where the picture changed");
 
     for what in ["the painted cloth", "the committed colour orders"] {
         let ratio = verification_ratio(&run.stderr, what);
@@ -497,8 +497,8 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
     let committed = SceneFile::load(&out.join("committed.toml")).expect("the committed scene loads");
     committed.build().expect("the committed scene builds");
     let materials = &committed.materials;
-    assert!(materials.palette.len() >= 2, "a blue and the other yarn: {:?}", materials.palette);
+    assert!(materials.palette.len() >= 2, "a red and the other yarn: {:?}", materials.palette);
     assert!(materials.warp_order.is_some() && materials.weft_order.is_some(), "{materials:?}");
-    let blue = materials.palette.values().filter_map(|c| c.c_tt).any(|c| (c.z - 0.6).abs() < 1e-6);
-    assert!(blue, "the painted blue is a palette colour: {:?}", materials.palette);
+    let red = materials.palette.values().filter_map(|c| c.c_tt).any(|c| c.to_array() == [0.6, 0.05, 0.05]);
+    assert!(red, "the painted red is a palette colour, as painted: {:?}", materials.palette);
 }
