@@ -27,7 +27,7 @@ use clap::Subcommand;
 use twill_precompute::Rgb;
 use twill_precompute::image::Image;
 use twill_precompute::paint::{
-    self, PaintCells, PaintData, PaintSettings, PaintedMaterials, Painting, ThreadSet,
+    self, PaintCells, PaintData, PaintSettings, PaintedMaterials, Painting, SceneKeys, ThreadSet,
 };
 use twill_precompute::pathtrace::{self, Camera, Component, RenderSettings};
 use twill_precompute::scene::{Scene, SceneFile};
@@ -237,6 +237,7 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
     let scene = file.build()?;
     let camera = file.camera(width, height).map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
     let cells = scene_cells(&scene, &file.path)?;
+    let keys = SceneKeys::of(&file).map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
     let settings = PaintSettings {
         width: width as u32,
         height: height as u32,
@@ -250,11 +251,12 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
         height,
         format!("painting precompute {width}x{height} at {} spp ({gradient_spp} with weights)", options.spp),
     );
-    let data = paint::precompute(&scene.path_scene, cells, &camera, &settings, &|rows| {
+    let mut data = paint::precompute(&scene.path_scene, cells, &camera, &settings, &|rows| {
         bar.set_position(rows as u64);
     })
     .map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
     bar.finish_and_clear();
+    data.scene_keys = Some(keys);
     data.save(&options.output)?;
     let file_bytes = std::fs::metadata(&options.output)
         .with_context(|| format!("{}: written but cannot be read back", options.output.display()))?
@@ -413,6 +415,14 @@ fn precomputed_scene(
             camera.width(),
             camera.height()
         )));
+    }
+    if let Some(keys) = &data.scene_keys {
+        let now = SceneKeys::of(file).map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
+        let differences = keys.differences(&now);
+        if !differences.is_empty() {
+            let verb = if differences.len() == 1 { "differs" } else { "differ" };
+            return Err(other_scene(format!("{} {verb}", differences.join(" and "))));
+        }
     }
     if cells != data.cells {
         return Err(other_scene(format!(

@@ -171,6 +171,19 @@ fn a_painting_is_precomputed_applied_listed_verified_and_path_traced() {
         d,
         &["p.twillpaint", "was not precomputed from", "small.toml"],
     );
+    // The same cloth from another eye: the paths were traced from the first, and the
+    // fingerprints the paint file keeps say so.
+    let default_scene =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/default.toml"))
+            .unwrap();
+    let eye =
+        default_scene.lines().find(|l| l.starts_with("eye")).expect("the default scene's eye").to_owned();
+    std::fs::write(d.join("moved.toml"), default_scene.replace(&eye, "eye = [0.3, -1.4, 1.6]")).unwrap();
+    fails_naming(
+        &["paint", "verify", "p.twillpaint", "moved.toml", "--painting", "stripes.toml", "--spp", "1"],
+        d,
+        &["p.twillpaint", "was not precomputed from", "moved.toml", "the camera differs"],
+    );
     let patterned = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../assets/scenes/patterned.toml")
         .to_string_lossy()

@@ -35,6 +35,7 @@
 mod cells;
 mod commit;
 mod file;
+mod keys;
 mod painting;
 #[cfg(test)]
 mod tests;
@@ -48,6 +49,7 @@ use rayon::prelude::*;
 pub use cells::{CellsError, MAX_CELLS, PaintCells, ThreadSet};
 pub use commit::{CommittedOrder, CommittedOrders, NotAColourOrder, commit_colour_orders};
 pub use file::PaintFileError;
+pub use keys::SceneKeys;
 pub use painting::{Painting, PaintingError, Stroke};
 
 use crate::Rgb;
@@ -117,6 +119,10 @@ pub struct PaintData {
     weights: Vec<[f32; 3]>,
     /// Seconds the precompute took (curves and weights together).
     pub seconds: f64,
+    /// What the paths were traced in, when the caller knew the scene file
+    /// ([`SceneKeys::of`]; `twill paint precompute` records them, `verify` and `commit`
+    /// check them).
+    pub scene_keys: Option<SceneKeys>,
 }
 
 /// Why a painting cannot be precomputed.
@@ -258,6 +264,7 @@ pub fn precompute_cancellable(
         weight_cells: Vec::new(),
         weights: Vec::new(),
         seconds: 0.0,
+        scene_keys: None,
     };
     data.rows.push(0);
     data.pure_rows.push(0);
