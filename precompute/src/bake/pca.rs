@@ -24,10 +24,11 @@
 //!   each time), `Q = qr(Y)`; the data's row space is then captured by `W = Xᵀ Q` (`dims x l`,
 //!   `X ≈ Q Wᵀ`). The small `l x l` eigendecomposition `Wᵀ W = V Σ² Vᵀ` gives the principal
 //!   directions `W V` (orthonormalized by one more QR), of which the `K` largest are kept.
-//!   Cost: about 7 streaming passes of `2 segments dims l` flops.
+//!   The first pass also sums the mean (`X Ω` of the raw rows, less `1 μᵀΩ`).
+//!   Cost: 6 streaming passes of `2 segments dims l` flops.
 //!
 //! Stats ([`PcaStats`]) come from one more pass that projects and reconstructs every segment in
-//! f64: explained variance fraction (kept eigenvalues over the total sum of squares about the
+//! f64 (and sums the squares about the mean): explained variance fraction (kept eigenvalues over the total sum of squares about the
 //! mean), RMS reconstruction error in radians over all pixels, and the fraction of pixels whose
 //! reconstructed SSDF has the sign of the original (which by construction is the binary
 //! visibility, see [`super::ssdf`]).
@@ -112,6 +113,9 @@ pub const COVARIANCE_EIGEN_MAX_DIMS: usize = 4096;
 const OVERSAMPLING: usize = 10;
 /// Power iterations of the randomized range finder.
 const POWER_ITERATIONS: usize = 2;
+/// Blocks read in parallel per window of the randomized method's first pass (their column
+/// sums are held until the window is added in order).
+const WINDOW_BLOCKS: usize = 32;
 
 /// How the principal directions are found; see the module docs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -287,13 +291,17 @@ fn compress_rows(
     }
     let k = k.min(segments).min(dims);
     let mut data = Data { rows, dims, segments, block_rows: block_rows(dims), mean: Vec::new() };
-    data.mean = data.mean(cancel)?;
-    let total_square = data.total_square(cancel)?;
+    // Each method's first pass finds the mean; the last pass (the projection) also sums the
+    // squares about it.
     let (basis, kept_square) = match method {
-        PcaMethod::CovarianceEigen => covariance_eigen(&data, k, cancel)?,
-        PcaMethod::RandomizedRangeFinder => randomized(&data, k, seed, cancel)?,
+        PcaMethod::CovarianceEigen => {
+            data.mean = data.mean(cancel)?;
+            covariance_eigen(&data, k, cancel)?
+        }
+        PcaMethod::RandomizedRangeFinder => randomized(&mut data, k, seed, cancel)?,
     };
-    let (coefficients, square_error, agree) = data.project(basis.as_ref(), cancel)?;
+    let Projection { coefficients, square_error, agree, total_square } =
+        data.project(basis.as_ref(), cancel)?;
     let explained_variance =
         if total_square > 0.0 { (kept_square / total_square).clamp(0.0, 1.0) } else { 1.0 };
     let pixels = (segments * dims) as f64;
@@ -318,6 +326,16 @@ fn compress_rows(
         coefficients,
         stats,
     })
+}
+
+/// What the last pass gives: coefficients (f32, `segments x K`), the squared reconstruction
+/// error, the number of pixels whose reconstruction has the original's sign, and the sum of
+/// squares about the mean (row by row in order, for the explained variance).
+struct Projection {
+    coefficients: Vec<f32>,
+    square_error: f64,
+    agree: usize,
+    total_square: f64,
 }
 
 /// The input and its mean; yields blocks of rows, centred in f64.
@@ -367,15 +385,60 @@ impl Data<'_> {
         Ok(sum.iter().map(|s| s / self.segments as f64).collect())
     }
 
-    fn total_square(&self, cancel: &Cancel) -> Result<f64, Cancelled> {
-        let mut total = 0.0;
-        for (start, end) in self.blocks() {
+    /// The mean row and the centred data times `right` (`dims x l`) in one pass: the product
+    /// of the raw rows, less `1 (μᵀ right)` once the mean is known. Blocks run in parallel in
+    /// windows of [`WINDOW_BLOCKS`], their column sums added in block order (so the result does
+    /// not depend on the thread count); fails on the first value that is not finite.
+    fn mean_and_times(
+        &self,
+        right: MatRef<'_, f64>,
+        cancel: &Cancel,
+    ) -> Result<(Vec<f64>, Mat<f64>), PcaError> {
+        let d = self.dims;
+        let mut sum = vec![0.0_f64; d];
+        let mut product = Mat::zeros(self.segments, right.ncols());
+        let blocks: Vec<(usize, usize)> = self.blocks().collect();
+        for window in blocks.chunks(WINDOW_BLOCKS) {
             cancel.check()?;
-            for row in self.raw(start, end).chunks_exact(self.dims) {
-                total += row.iter().zip(&self.mean).map(|(&v, m)| (f64::from(v) - m).powi(2)).sum::<f64>();
+            let parts: Vec<Result<(Vec<f64>, Mat<f64>), PcaError>> = window
+                .par_iter()
+                .map(|&(start, end)| {
+                    cancel.check()?;
+                    let raw = self.raw(start, end);
+                    if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+                        return Err(PcaError::NonFinite { index: start * d + i });
+                    }
+                    let mut block_sum = vec![0.0_f64; d];
+                    for row in raw.chunks_exact(d) {
+                        for (s, &v) in block_sum.iter_mut().zip(row) {
+                            *s += f64::from(v);
+                        }
+                    }
+                    let block = Mat::from_fn(end - start, d, |i, j| f64::from(raw[i * d + j]));
+                    let mut out = Mat::zeros(end - start, right.ncols());
+                    matmul(out.as_mut(), Accum::Replace, block.as_ref(), right, 1.0, PAR);
+                    Ok((block_sum, out))
+                })
+                .collect();
+            for (&(start, end), part) in window.iter().zip(parts) {
+                let (block_sum, block_product) = part?;
+                for (s, b) in sum.iter_mut().zip(block_sum) {
+                    *s += b;
+                }
+                product.as_mut().subrows_mut(start, end - start).copy_from(block_product.as_ref());
             }
         }
-        Ok(total)
+        let mean: Vec<f64> = sum.iter().map(|s| s / self.segments as f64).collect();
+        // (X − 1 μᵀ) R = X R − 1 (μᵀ R): the data are SSDFs of a few radians, so the
+        // subtraction loses nothing the range finder's f64 would notice.
+        let shift: Vec<f64> =
+            (0..right.ncols()).map(|c| (0..d).map(|p| mean[p] * right[(p, c)]).sum()).collect();
+        for i in 0..self.segments {
+            for (c, s) in shift.iter().enumerate() {
+                product[(i, c)] -= s;
+            }
+        }
+        Ok((mean, product))
     }
 
     /// `X R` for the centred data `X` (`segments x dims`) and `R` (`dims x l`).
@@ -415,11 +478,11 @@ impl Data<'_> {
         Ok(out)
     }
 
-    /// Coefficients (f32, `segments x K`), squared reconstruction error and the number of
-    /// pixels whose reconstruction has the original's sign, for orthonormal `basis` (`dims x K`).
-    fn project(&self, basis: MatRef<'_, f64>, cancel: &Cancel) -> Result<(Vec<f32>, f64, usize), Cancelled> {
+    /// Coefficients, reconstruction error, sign agreement and the total square about the mean
+    /// for orthonormal `basis` (`dims x K`) ([`Projection`]).
+    fn project(&self, basis: MatRef<'_, f64>, cancel: &Cancel) -> Result<Projection, Cancelled> {
         let k = basis.ncols();
-        let parts: Vec<(Vec<f32>, f64, usize)> = self
+        let parts: Vec<(Vec<f32>, f64, usize, Vec<f64>)> = self
             .blocks()
             .collect::<Vec<_>>()
             .into_par_iter()
@@ -432,6 +495,13 @@ impl Data<'_> {
                 matmul(recon.as_mut(), Accum::Replace, coeffs.as_ref(), basis.transpose(), 1.0, PAR);
                 let mut coefficients = vec![0.0_f32; (end - start) * k];
                 let (mut square_error, mut agree) = (0.0, 0_usize);
+                // Each row's square about the mean, summed over the rows in order below.
+                let row_squares = raw
+                    .chunks_exact(self.dims)
+                    .map(|row| {
+                        row.iter().zip(&self.mean).map(|(&v, m)| (f64::from(v) - m).powi(2)).sum::<f64>()
+                    })
+                    .collect();
                 for i in 0..end - start {
                     for c in 0..k {
                         coefficients[i * k + c] = coeffs[(i, c)] as f32;
@@ -443,17 +513,24 @@ impl Data<'_> {
                         agree += usize::from((approx > 0.0) == (original > 0.0));
                     }
                 }
-                Ok((coefficients, square_error, agree))
+                Ok((coefficients, square_error, agree, row_squares))
             })
             .collect::<Result<_, Cancelled>>()?;
-        let mut coefficients = Vec::with_capacity(self.segments * k);
-        let (mut square_error, mut agree) = (0.0, 0_usize);
-        for (c, e, a) in parts {
-            coefficients.extend(c);
-            square_error += e;
-            agree += a;
+        let mut out = Projection {
+            coefficients: Vec::with_capacity(self.segments * k),
+            square_error: 0.0,
+            agree: 0,
+            total_square: 0.0,
+        };
+        for (c, e, a, rows) in parts {
+            out.coefficients.extend(c);
+            out.square_error += e;
+            out.agree += a;
+            for r in rows {
+                out.total_square += r;
+            }
         }
-        Ok((coefficients, square_error, agree))
+        Ok(out)
     }
 }
 
@@ -556,11 +633,14 @@ fn orthonormalize(m: &Mat<f64>) -> Mat<f64> {
 }
 
 /// Randomized range finder (see the module docs): `k` leading directions and their variance.
-fn randomized(data: &Data, k: usize, seed: u64, cancel: &Cancel) -> Result<(Mat<f64>, f64), PcaError> {
+/// Its first pass also finds the mean (into `data`).
+fn randomized(data: &mut Data, k: usize, seed: u64, cancel: &Cancel) -> Result<(Mat<f64>, f64), PcaError> {
     let l = (k + OVERSAMPLING).min(data.dims).min(data.segments);
     let mut rng = Pcg64::seed_from_u64(seed ^ 0x5EED_F00D_5CA1_AB1E);
     let omega = Mat::from_fn(data.dims, l, |_, _| standard_normal(&mut rng));
-    let mut y = data.times(omega.as_ref(), cancel)?;
+    let (mean, mut y) = data.mean_and_times(omega.as_ref(), cancel)?;
+    data.mean = mean;
+    let data = &*data;
     for _ in 0..POWER_ITERATIONS {
         let q = orthonormalize(&y);
         let z = orthonormalize(&data.transpose_times(q.as_ref(), cancel)?);
@@ -657,8 +737,10 @@ mod tests {
         let (segments, dims) = (800, 64);
         let mut data = low_rank(segments, dims, 40, 3);
         let mut rng = Pcg64::seed_from_u64(9);
+        // An offset far above the spread: the randomized method subtracts the mean from its
+        // first product after the fact (`X Ω − 1 μᵀΩ`), which must not cost it accuracy.
         for v in &mut data {
-            *v += 1e-3 * standard_normal(&mut rng) as f32;
+            *v += 3.0 + 1e-3 * standard_normal(&mut rng) as f32;
         }
         let exact = compress_with(&data, dims, 5, PcaMethod::CovarianceEigen, 1, &Cancel::new()).unwrap();
         let approx =
@@ -691,6 +773,16 @@ mod tests {
         let cancelled = Cancel::new();
         cancelled.cancel();
         assert_eq!(compress(&[1.0; 8], 4, 1, 0, &cancelled), Err(PcaError::Cancelled(Cancelled)));
+        // The randomized method finds the mean in its first product's pass: the same errors,
+        // the first bad value named (2,100 segments of 8 values: three blocks read in parallel).
+        let mut values = vec![1.0_f32; 2100 * 8];
+        values[1500 * 8 + 2] = f32::INFINITY;
+        values[1800 * 8] = f32::NAN;
+        values[2090 * 8] = f32::NAN;
+        let randomized =
+            |v: &[f32], c: &Cancel| compress_with(v, 8, 2, PcaMethod::RandomizedRangeFinder, 0, c);
+        assert_eq!(randomized(&values, &c), Err(PcaError::NonFinite { index: 1500 * 8 + 2 }));
+        assert_eq!(randomized(&[1.0; 16], &cancelled), Err(PcaError::Cancelled(Cancelled)));
         // k is clamped to min(segments, dims); constant data has zero variance.
         let basis = compress(&[1.0; 8], 4, 10, 0, &c).unwrap();
         assert_eq!(basis.component_count, 2);
