@@ -328,6 +328,9 @@ fn compress_rows(
     })
 }
 
+/// A block's column sums and its rows' product (the randomized method's first pass).
+type BlockSumAndProduct = (Vec<f64>, Mat<f64>);
+
 /// What the last pass gives: coefficients (f32, `segments x K`), the squared reconstruction
 /// error, the number of pixels whose reconstruction has the original's sign, and the sum of
 /// squares about the mean (row by row in order, for the explained variance).
@@ -400,7 +403,7 @@ impl Data<'_> {
         let blocks: Vec<(usize, usize)> = self.blocks().collect();
         for window in blocks.chunks(WINDOW_BLOCKS) {
             cancel.check()?;
-            let parts: Vec<Result<(Vec<f64>, Mat<f64>), PcaError>> = window
+            let parts: Vec<Result<BlockSumAndProduct, PcaError>> = window
                 .par_iter()
                 .map(|&(start, end)| {
                     cancel.check()?;
