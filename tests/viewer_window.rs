@@ -436,7 +436,8 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
     // painted (no colour order: the commit is refused, naming the thread), undone, then every
     // thread of the set under the pointer painted red, verified against the path tracer,
     // committed as colour orders (which queues a verification of the committed scene) and
-    // saved. The painted picture must change where the yarns were painted, and both
+    // saved. On the way the painting and the precompute are saved (`twill paint apply` reads
+    // them back), and leaving paint mode and painting the same view again resumes both. The painted picture must change where the yarns were painted, and both
     // verifications must be within 2x the references' own noise (the CLI check's bound).
     let test = "paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commits_one";
     let Some(xvfb) = xvfb_run_for(test) else { return };
@@ -456,6 +457,12 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         paint-scope set\n\
         paint-at 0.52 0.55\n\
         screenshot painted.png\n\
+        paint-save painting.toml\n\
+        paint-save-data view.twillpaint\n\
+        paint-leave\n\
+        paint-start 40 16 16\n\
+        wait-paint\n\
+        screenshot resumed.png\n\
         paint-verify\n\
         wait-verify\n\
         paint-commit\n\
@@ -490,6 +497,23 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         / changed.len() as f64;
     assert!(shift > 20.0, "painted red: red - blue rose by {shift:.1} levels where the picture changed");
 
+    // Leaving and painting the same view again resumes the precompute and the painting.
+    // (The top half: messages are drawn over the viewport's bottom.)
+    let (_, _, resumed) = read_png_rgba(&out.join("resumed.viewport.png"));
+    let top = painted.len() / 2;
+    assert!(resumed[..top] == painted[..top], "the resumed painting is the one left");
+    // The saved painting and precompute are what `twill paint` reads.
+    let saved = std::fs::read_to_string(out.join("painting.toml")).expect("the painting is saved");
+    assert!(saved.contains("colour = [0.6, 0.05, 0.05]"), "{saved}");
+    let apply = std::process::Command::new(twill_binary())
+        .args(["paint", "apply", "view.twillpaint", "--painting", "painting.toml", "-o", "applied.png"])
+        .current_dir(out)
+        .output()
+        .unwrap();
+    assert!(apply.status.success(), "{}", String::from_utf8_lossy(&apply.stderr));
+    let (aw, ah, _) = read_png_rgba(&out.join("applied.png"));
+    assert!(aw > 0 && ah == 40, "the paint image's size: {aw}x{ah}");
+
     for what in ["the painted cloth", "the committed colour orders"] {
         let ratio = verification_ratio(&run.stderr, what);
         assert!(ratio < 2.0, "{what}: relative L2 {ratio} times the references' own");
@@ -499,6 +523,10 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
     let materials = &committed.materials;
     assert!(materials.palette.len() >= 2, "a red and the other yarn: {:?}", materials.palette);
     assert!(materials.warp_order.is_some() && materials.weft_order.is_some(), "{materials:?}");
-    let red = materials.palette.values().filter_map(|c| c.c_tt).any(|c| c.to_array() == [0.6, 0.05, 0.05]);
+    let red = materials
+        .palette
+        .values()
+        .filter_map(|c| c.c_tt)
+        .any(|c| c.to_array().map(f64::to_bits) == [0.6, 0.05, 0.05].map(f64::to_bits));
     assert!(red, "the painted red is a palette colour, as painted: {:?}", materials.palette);
 }

@@ -48,7 +48,7 @@ use super::history::History;
 use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
 use super::mesh::{MeshForm, mesh_panel};
 use super::paint::{
-    PaintForm, PaintSession, SIDE_CHOICES, SPP_CHOICES, Scope, VERIFY_SPP_CHOICES, Verification,
+    KeptPaint, PaintForm, PaintSession, SIDE_CHOICES, SPP_CHOICES, Scope, VERIFY_SPP_CHOICES, Verification,
 };
 use super::quality::{
     FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
@@ -243,6 +243,8 @@ pub struct ViewerApp {
     /// Paint mode, while it is on ([`super::paint`]).
     paint: Option<PaintSession>,
     paint_form: PaintForm,
+    /// The last paint session's precompute and painting, for painting the same view again.
+    paint_kept: Option<KeptPaint>,
     /// The last path-traced check of a painting (it runs on after paint mode ends).
     verification: Option<Verification>,
 
@@ -358,6 +360,7 @@ impl ViewerApp {
             last_export: None,
             paint: None,
             paint_form: PaintForm::default(),
+            paint_kept: None,
             verification: None,
             messages,
             script: script.map(|lines| ScriptRun {
@@ -568,6 +571,7 @@ impl ViewerApp {
         self.controls = default_controls(&file);
         self.source_path = path.to_path_buf();
         self.paint = None;
+        self.paint_kept = None;
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
         self.recolour = None;
@@ -1070,7 +1074,35 @@ impl ViewerApp {
         if w < MIN_VIEWPORT_PX || h < MIN_VIEWPORT_PX {
             return Err("the viewport is too small to paint in".into());
         }
+        if let Some(kept) = self.paint_kept.take_if(|k| k.fits(&scene, &self.paint_form)) {
+            self.paint = Some(PaintSession::resume(kept));
+            self.messages.info("paint mode: the same view as before, its precompute and painting kept");
+            return Ok(());
+        }
         self.paint = Some(PaintSession::start(scene, [w, h], &self.paint_form, ctx)?);
+        Ok(())
+    }
+
+    /// Ends paint mode, keeping its precompute and painting for the same view.
+    fn leave_paint(&mut self) {
+        if let Some(session) = self.paint.take() {
+            self.paint_kept = session.into_kept();
+        }
+    }
+
+    /// Saves the painting, opens one, or saves the precompute, at the panel's file.
+    fn paint_file_action(&mut self, action: PaintFileAction) -> Result<(), String> {
+        let paint = self.paint.as_mut().ok_or("paint mode is not on")?;
+        let path = PathBuf::from(self.paint_form.file.trim());
+        if path.as_os_str().is_empty() {
+            return Err("give a file name".into());
+        }
+        let line = match action {
+            PaintFileAction::SavePainting => paint.save_painting(&path)?,
+            PaintFileAction::OpenPainting => paint.open_painting(&path)?,
+            PaintFileAction::SavePaintFile => paint.save_paint_file(&path.with_extension("twillpaint"))?,
+        };
+        self.messages.info(line);
         Ok(())
     }
 
@@ -1084,7 +1116,7 @@ impl ViewerApp {
         // Only the colours change: the view and render settings stay as they are on screen.
         scene.materials = committed.materials;
         self.verification = Some(verification);
-        self.paint = None;
+        self.leave_paint();
         self.messages.info(format!("{line}; a path-traced verification is queued"));
         Ok(())
     }
@@ -1202,8 +1234,41 @@ impl ViewerApp {
                 self.messages.error(e);
             }
         }
+        if self.paint.as_ref().is_some_and(PaintSession::is_ready) {
+            ui.separator();
+            ui.add(egui::TextEdit::singleline(&mut self.paint_form.file).hint_text("painting.toml"));
+            let mut action = None;
+            ui.horizontal(|ui| {
+                if ui
+                    .button("Save painting")
+                    .on_hover_text("The strokes, as `twill paint` reads them")
+                    .clicked()
+                {
+                    action = Some(PaintFileAction::SavePainting);
+                }
+                if ui.button("Open painting").on_hover_text("Paint a painting file's strokes").clicked() {
+                    action = Some(PaintFileAction::OpenPainting);
+                }
+            });
+            ui.horizontal(|ui| {
+                if ui
+                    .button("Save precompute")
+                    .on_hover_text(
+                        "A .twillpaint file beside it, for `twill paint apply`, `verify` and `commit`",
+                    )
+                    .clicked()
+                {
+                    action = Some(PaintFileAction::SavePaintFile);
+                }
+            });
+            if let Some(action) = action
+                && let Err(e) = self.paint_file_action(action)
+            {
+                self.messages.error(e);
+            }
+        }
         if self.paint.is_some() && ui.button("Leave paint mode").clicked() {
-            self.paint = None;
+            self.leave_paint();
         }
         self.verification_status(ui);
     }
@@ -1850,8 +1915,15 @@ impl ViewerApp {
                 }
             }
             Step::PaintLeave => {
-                self.paint.take().ok_or("paint mode is not on")?;
+                if self.paint.is_none() {
+                    return Err("paint mode is not on".into());
+                }
+                self.leave_paint();
                 Ok(true)
+            }
+            Step::PaintFile { action, path } => {
+                self.paint_form.file = path.display().to_string();
+                self.paint_file_action(*action).map(|()| true)
             }
             Step::Quit => {
                 run.next = run.lines.len() - 1;
@@ -1892,6 +1964,14 @@ fn edit_scene(scene: &mut SceneFile, step: &Step) -> Result<(), String> {
 }
 
 /// Small text on a dark plate over the picture.
+/// What the Paint panel's file buttons do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PaintFileAction {
+    SavePainting,
+    OpenPainting,
+    SavePaintFile,
+}
+
 /// A drop-down of choices for a number (`unit` after each).
 fn choice(ui: &mut egui::Ui, id: &str, value: &mut u32, choices: &[u32], unit: &str) {
     egui::ComboBox::from_id_salt(id).selected_text(format!("{value} {unit}")).show_ui(ui, |ui| {

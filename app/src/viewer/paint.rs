@@ -18,15 +18,25 @@
 //! reference beside the references' own (the noise floor), as `twill paint verify` reports it.
 //! "Verify" does the same for a painting that is not a colour order, path-tracing the painted
 //! cloth itself.
+//!
+//! A painting can be saved as strokes ([`Painting::from_colours`], the TOML `twill paint`
+//! reads) and opened again, and the precompute saved as a paint file for `twill paint apply`,
+//! `verify` and `commit`. Leaving paint mode keeps the precompute and the painting
+//! ([`KeptPaint`]): painting the same view again resumes them at once.
 
+use std::io::Write as _;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, mpsc};
 use std::time::Instant;
 
 use eframe::egui;
 use twill_precompute::Rgb;
+use twill_precompute::atomic_file::write_atomically;
 use twill_precompute::image::Image;
-use twill_precompute::paint::{self, PaintCells, PaintData, PaintSettings, PaintedMaterials};
+use twill_precompute::paint::{
+    self, PaintCells, PaintData, PaintSettings, PaintedMaterials, Painting, SceneKeys,
+};
 use twill_precompute::pathtrace::{self, Camera, Component, RenderSettings};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, display_srgb8};
@@ -86,11 +96,13 @@ pub struct PaintForm {
     pub spp: u32,
     /// Samples per pixel of each verification reference.
     pub verify_spp: u32,
+    /// The file a painting is saved to or opened from (the paint file goes beside it).
+    pub file: String,
 }
 
 impl Default for PaintForm {
     fn default() -> Self {
-        Self { side: 96, spp: 128, verify_spp: 64 }
+        Self { side: 96, spp: 128, verify_spp: 64, file: "painting.toml".to_owned() }
     }
 }
 
@@ -217,13 +229,14 @@ impl PaintSession {
             seed: scene.render.seed,
         };
         settings.validate().map_err(|e| e.to_string())?;
+        let keys = SceneKeys::of(&scene)?;
         let frozen = scene.clone();
         let job = Job::spawn("twill-paint-precompute", h as usize, ctx, move |rows, cancel| {
             let built = scene.build().map_err(|e| format!("the scene cannot be built: {e}"))?;
             let cells =
                 PaintCells::new(&built.exemplar, &built.path_scene.fibers).map_err(|e| e.to_string())?;
             let progress = |done: usize| rows.store(done, Ordering::Relaxed);
-            let data = paint::precompute_cancellable(
+            let mut data = paint::precompute_cancellable(
                 &built.path_scene,
                 cells,
                 &camera,
@@ -232,6 +245,8 @@ impl PaintSession {
                 cancel,
             )
             .map_err(|e| e.to_string())?;
+            // A paint file saved from the viewer says what it was traced in, as the CLI's do.
+            data.scene_keys = Some(keys);
             Ok(Ready { scene: Arc::new(built), camera, data: Arc::new(data) })
         })?;
         Ok(Self {
@@ -248,6 +263,71 @@ impl PaintSession {
             edit_ms: 0.0,
             last_action: None,
         })
+    }
+
+    /// Paint mode again on a view painted before ([`KeptPaint`]): its precompute and painting
+    /// as they were left.
+    #[must_use]
+    pub fn resume(kept: KeptPaint) -> Self {
+        let KeptPaint { frozen, size, ready, colours } = kept;
+        let mut session = Self {
+            frozen,
+            size,
+            stage: Stage::Ready(ready),
+            colours,
+            undo: Vec::new(),
+            colour: [0.05, 0.1, 0.45],
+            scope: Scope::Thread,
+            image: None,
+            texture: None,
+            texture_display: None,
+            edit_ms: 0.0,
+            last_action: None,
+        };
+        session.evaluate();
+        session
+    }
+
+    /// What to keep of a session that ends, for [`Self::resume`]: its precompute and painting
+    /// (`None` before the precompute is done).
+    #[must_use]
+    pub fn into_kept(self) -> Option<KeptPaint> {
+        match self.stage {
+            Stage::Ready(ready) => {
+                Some(KeptPaint { frozen: self.frozen, size: self.size, ready, colours: self.colours })
+            }
+            _ => None,
+        }
+    }
+
+    /// The painting as strokes (TOML, [`Painting::from_colours`]), written atomically.
+    pub fn save_painting(&self, path: &Path) -> Result<String, String> {
+        let Stage::Ready(ready) = &self.stage else { return Err("the precompute is not done".into()) };
+        let painting = Painting::from_colours(&ready.data.cells, &self.colours, &ready.data.scene_painting());
+        let text = toml::to_string(&painting).map_err(|e| format!("the painting cannot be written: {e}"))?;
+        write_atomically(path, |w| w.write_all(text.as_bytes()))
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(format!("saved the painting ({} strokes) to {}", painting.strokes.len(), path.display()))
+    }
+
+    /// Paints a painting file (TOML strokes) over the scene's colours, as one stroke.
+    pub fn open_painting(&mut self, path: &Path) -> Result<String, String> {
+        let Stage::Ready(ready) = &self.stage else { return Err("the precompute is not done".into()) };
+        let painting = Painting::load(path).map_err(|e| e.to_string())?;
+        let colours = painting
+            .colours(&ready.data.cells, &ready.data.scene_painting(), path)
+            .map_err(|e| e.to_string())?;
+        self.undo.push(std::mem::replace(&mut self.colours, colours));
+        self.evaluate();
+        Ok(format!("painted {} ({} strokes)", path.display(), painting.strokes.len()))
+    }
+
+    /// The precompute as a paint file (with the scene's fingerprints), for `twill paint apply`,
+    /// `verify` and `commit`.
+    pub fn save_paint_file(&self, path: &Path) -> Result<String, String> {
+        let Stage::Ready(ready) = &self.stage else { return Err("the precompute is not done".into()) };
+        ready.data.save(path).map_err(|e| e.to_string())?;
+        Ok(format!("saved the precompute to {}", path.display()))
     }
 
     /// Takes the precompute's outcome when it arrives: a line for the message list.
@@ -357,7 +437,7 @@ impl PaintSession {
                 .collect(),
         };
         let what = describe(place, self.scope);
-        let colour = Rgb::from_array(self.colour.map(|c| f64::from(c.clamp(0.0, 1.0))));
+        let colour = Rgb::from_array(self.colour.map(|c| brush_channel(c.clamp(0.0, 1.0))));
         if targets.iter().all(|&c| self.colours[c as usize] == colour) {
             return Ok(Some(what));
         }
@@ -514,6 +594,13 @@ impl PaintSession {
     }
 }
 
+/// A brush channel (egui's f32) as the f64 a designer would write: the shortest decimal that
+/// reads back as the same f32 (0.6, not 0.6000000238418579), so a saved painting and a
+/// committed palette say what was picked.
+fn brush_channel(c: f32) -> f64 {
+    c.to_string().parse().unwrap_or(f64::from(c))
+}
+
 /// "warp end 12, section 3" and the like, as a painting names them.
 fn describe(place: Option<(bool, i64, u32)>, scope: Scope) -> String {
     match (place, scope) {
@@ -527,6 +614,27 @@ fn describe(place: Option<(bool, i64, u32)>, scope: Scope) -> String {
         (Some((warp, thread, section)), Scope::Section) => {
             format!("{} {thread}, section {section}", if warp { "warp end" } else { "weft pick" })
         }
+    }
+}
+
+/// A session's precompute and painting, kept after it ends so that painting the same view
+/// again (the same scene, image size and paths) resumes at once.
+pub struct KeptPaint {
+    frozen: SceneFile,
+    size: [u32; 2],
+    ready: Ready,
+    colours: Vec<Rgb>,
+}
+
+impl KeptPaint {
+    /// Whether paint mode on `scene` with `form` would paint this again: the same scene (view,
+    /// lights, fabric), image side and paths. The viewport's aspect may have changed since (a
+    /// panel resized); the kept image is shown as it was, letterboxed.
+    #[must_use]
+    pub fn fits(&self, scene: &SceneFile, form: &PaintForm) -> bool {
+        self.frozen == *scene
+            && self.size.into_iter().max() == Some(form.side)
+            && self.ready.data.settings.curve_spp == form.spp
     }
 }
 
@@ -579,5 +687,25 @@ impl Verification {
     #[must_use]
     pub fn report(&self) -> Option<&Result<String, String>> {
         self.report.as_ref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_paint_image_takes_the_viewport_aspect_and_the_brush_its_decimal() {
+        assert_eq!(paint_size([371, 615], 128), [77, 128]);
+        assert_eq!(paint_size([800, 400], 96), [96, 48]);
+        assert_eq!(paint_size([0, 0], 32), [32, 32], "an empty viewport is square");
+        assert_eq!(paint_size([4000, 3], 32), [32, 1], "never zero");
+        for c in [0.6_f32, 0.05, 0.1, 1.0, 0.0, 0.123_456_79] {
+            let written = brush_channel(c);
+            assert_eq!(written.to_string(), c.to_string(), "{c} is written as picked");
+            assert_eq!((written as f32).to_bits(), c.to_bits(), "and reads back as the same f32");
+        }
+        assert_eq!(Scope::parse("set"), Ok(Scope::Set));
+        assert!(Scope::parse("yarn").is_err());
     }
 }

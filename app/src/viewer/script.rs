@@ -64,7 +64,10 @@
 //!                                       # queues a verification
 //! paint-verify                          # path-trace the painted cloth to check the painting
 //! wait-verify                           # until the verification is done (its report is printed)
-//! paint-leave
+//! paint-save PATH.toml                  # the painting as strokes (`twill paint` reads them)
+//! paint-open PATH.toml                  # paint a painting file's strokes
+//! paint-save-data PATH.twillpaint       # the precompute, for `twill paint apply|verify|commit`
+//! paint-leave                           # (paint-start on the same view resumes the painting)
 //! quit
 //! ```
 
@@ -85,6 +88,7 @@ fn yarn_slot(word: Option<&str>) -> Result<YarnSlot, String> {
         other => Err(format!("expected warp or weft, not {other:?}")),
     }
 }
+use super::app::PaintFileAction;
 use super::lights::LightKind;
 use super::paint::Scope;
 
@@ -157,6 +161,7 @@ pub enum Step {
     PaintVerify,
     WaitVerify,
     PaintLeave,
+    PaintFile { action: PaintFileAction, path: PathBuf },
     Quit,
 }
 
@@ -372,6 +377,14 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
         "paint-verify" => Step::PaintVerify,
         "wait-verify" => Step::WaitVerify,
         "paint-leave" => Step::PaintLeave,
+        "paint-save" | "paint-open" | "paint-save-data" => {
+            let action = match words[0] {
+                "paint-save" => PaintFileAction::SavePainting,
+                "paint-open" => PaintFileAction::OpenPainting,
+                _ => PaintFileAction::SavePaintFile,
+            };
+            Step::PaintFile { action, path: PathBuf::from(args.next().ok_or("missing file")?) }
+        }
         "quit" => Step::Quit,
         other => return Err(format!("unknown command {other:?}")),
     };
@@ -451,7 +464,7 @@ mod tests {
     fn the_paint_commands_parse() {
         let text = "paint-start 64 128 16\nwait-paint\npaint-colour 0.1 0.2 0.3\npaint-scope thread\n\
                     paint-at 0.5 0.25\npaint-pick 0 1\npaint-undo\npaint-commit\npaint-verify\nwait-verify\n\
-                    paint-leave\n";
+                    paint-leave\npaint-save p.toml\n";
         let steps: Vec<Step> =
             parse_script(text, Path::new("s.txt")).unwrap().into_iter().map(|l| l.step).collect();
         assert_eq!(steps[0], Step::PaintStart { side: 64, spp: 128, verify_spp: Some(16) });
@@ -460,7 +473,11 @@ mod tests {
         assert_eq!(steps[4], Step::PaintAt { x: 0.5, y: 0.25 });
         assert_eq!(steps[5], Step::PaintPick { x: 0.0, y: 1.0 });
         assert_eq!(steps[10], Step::PaintLeave);
-        assert_eq!(steps.len(), 11);
+        assert_eq!(
+            steps[11],
+            Step::PaintFile { action: PaintFileAction::SavePainting, path: "p.toml".into() }
+        );
+        assert_eq!(steps.len(), 12);
         for (text, needle) in [
             ("paint-start 4 16\n", "8 <= SIDE"),
             ("paint-colour 2 0 0\n", "0 to 1"),

@@ -16,9 +16,16 @@
 //!
 //! [[stroke]]
 //! random = { seed = 3, min = 0.05, max = 0.95 }   # every cell its own colour
+//!
+//! [[stroke]]
+//! cells = "8000-8003"           # cells by number (what the viewer writes for the cells a
+//! colour = [0.9, 0.9, 0.1]      # thread list cannot name: the copies beyond the edges)
 //! ```
 //!
 //! [`Painting::colours`] resolves it against a swatch's [`PaintCells`]: one colour per cell.
+//! [`Painting::from_colours`] writes one colour per cell back as strokes (the viewer's "Save
+//! painting"): whole threads as thread lists, parts of threads with their sections, the rest
+//! by cell number.
 //! Every number is checked; an error names the stroke and the value and gives the valid range.
 
 use std::path::{Path, PathBuf};
@@ -58,6 +65,9 @@ pub struct Stroke {
     /// Every cell.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub all: bool,
+    /// Cells by number, as `"0-3, 7"` (0 to the swatch's cell count − 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cells: Option<String>,
     /// Every cell a random colour, each channel uniform in `[min, max]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub random: Option<RandomColours>,
@@ -122,7 +132,12 @@ impl Painting {
                         r.min, r.max
                     )));
                 }
-                if stroke.colour.is_some() || stroke.warp.is_some() || stroke.weft.is_some() || stroke.all {
+                if stroke.colour.is_some()
+                    || stroke.warp.is_some()
+                    || stroke.weft.is_some()
+                    || stroke.all
+                    || stroke.cells.is_some()
+                {
                     return Err(at("`random` colours every cell: give it alone".into()));
                 }
                 let mut rng = Pcg64Mcg::seed_from_u64(r.seed);
@@ -138,14 +153,33 @@ impl Painting {
             let colour = check_colour(stroke.colour.ok_or_else(|| at("`colour` is missing".into()))?)
                 .map_err(|m| at(format!("colour: {m}")))?;
             if stroke.all {
-                if stroke.warp.is_some() || stroke.weft.is_some() || stroke.sections.is_some() {
-                    return Err(at("`all` paints every cell: give no `warp`, `weft` or `sections`".into()));
+                if stroke.warp.is_some()
+                    || stroke.weft.is_some()
+                    || stroke.sections.is_some()
+                    || stroke.cells.is_some()
+                {
+                    return Err(at(
+                        "`all` paints every cell: give no `warp`, `weft`, `sections` or `cells`".into()
+                    ));
                 }
                 out.fill(colour);
                 continue;
             }
+            if let Some(list) = &stroke.cells {
+                if stroke.warp.is_some() || stroke.weft.is_some() || stroke.sections.is_some() {
+                    return Err(at(
+                        "`cells` names cells by number: give no `warp`, `weft` or `sections`".into()
+                    ));
+                }
+                let numbers = parse_ranges(list, cells.count() as i64)
+                    .map_err(|m| at(format!("cells = \"{list}\": {m}")))?;
+                for c in numbers {
+                    out[c as usize] = colour;
+                }
+                continue;
+            }
             if stroke.warp.is_none() && stroke.weft.is_none() {
-                return Err(at("say which cells: `warp`, `weft`, `all` or `random`".into()));
+                return Err(at("say which cells: `warp`, `weft`, `cells`, `all` or `random`".into()));
             }
             for (warp, list, set) in [(true, &stroke.warp, &cells.warp), (false, &stroke.weft, &cells.weft)] {
                 let Some(list) = list else { continue };
@@ -171,6 +205,93 @@ impl Painting {
         }
         Ok(out)
     }
+}
+
+impl Painting {
+    /// The painting that gives `colours` (one per cell of `cells`) over `scene_colours`: per
+    /// colour that differs from the scene's somewhere, the threads inside the swatch painted
+    /// in it along their whole length as thread lists, parts of such threads with their
+    /// sections, and every other cell by number. [`Painting::colours`] of it gives `colours`
+    /// back exactly.
+    #[must_use]
+    pub fn from_colours(cells: &PaintCells, colours: &[Rgb], scene_colours: &[Rgb]) -> Self {
+        let key = |c: Rgb| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits()];
+        // The painted cells by colour, in order of first appearance (a deterministic file).
+        let mut by_colour: Vec<([u64; 3], Vec<u32>)> = Vec::new();
+        for (cell, (&c, &scene)) in colours.iter().zip(scene_colours).enumerate() {
+            if key(c) == key(scene) {
+                continue;
+            }
+            match by_colour.iter_mut().find(|(k, _)| *k == key(c)) {
+                Some((_, list)) => list.push(cell as u32),
+                None => by_colour.push((key(c), vec![cell as u32])),
+            }
+        }
+        let mut strokes = Vec::new();
+        for (k, painted) in by_colour {
+            let colour = Some(k.map(f64::from_bits));
+            let mut loose = Vec::new();
+            // Per thread set and thread (inside the swatch): its painted sections.
+            let mut threads: std::collections::BTreeMap<(bool, i64), Vec<i64>> =
+                std::collections::BTreeMap::new();
+            for &cell in &painted {
+                match cells.thread_of(cell) {
+                    Some((warp, thread, section)) => {
+                        let set = if warp { &cells.warp } else { &cells.weft };
+                        if (0..i64::from(set.inside)).contains(&thread) {
+                            threads.entry((warp, thread)).or_default().push(i64::from(section));
+                        } else {
+                            loose.push(i64::from(cell));
+                        }
+                    }
+                    None => loose.push(i64::from(cell)),
+                }
+            }
+            let mut whole: [Vec<i64>; 2] = [Vec::new(), Vec::new()];
+            for ((warp, thread), sections) in &threads {
+                let set = if *warp { &cells.warp } else { &cells.weft };
+                if sections.len() == set.sections as usize {
+                    whole[usize::from(*warp)].push(*thread);
+                } else {
+                    let name = Some(thread.to_string());
+                    strokes.push(Stroke {
+                        colour,
+                        warp: if *warp { name.clone() } else { None },
+                        weft: if *warp { None } else { name },
+                        sections: Some(write_ranges(sections)),
+                        ..Stroke::default()
+                    });
+                }
+            }
+            let [weft, warp] = whole;
+            if !warp.is_empty() || !weft.is_empty() {
+                let list = |v: &[i64]| (!v.is_empty()).then(|| write_ranges(v));
+                strokes.push(Stroke { colour, warp: list(&warp), weft: list(&weft), ..Stroke::default() });
+            }
+            if !loose.is_empty() {
+                strokes.push(Stroke { colour, cells: Some(write_ranges(&loose)), ..Stroke::default() });
+            }
+        }
+        Self { base: None, strokes }
+    }
+}
+
+/// `[0, 1, 2, 5]` as `"0-2, 5"` (sorted, no repeats).
+fn write_ranges(values: &[i64]) -> String {
+    let mut sorted = values.to_vec();
+    sorted.sort_unstable();
+    sorted.dedup();
+    let mut parts = Vec::new();
+    let mut i = 0;
+    while i < sorted.len() {
+        let mut j = i;
+        while j + 1 < sorted.len() && sorted[j + 1] == sorted[j] + 1 {
+            j += 1;
+        }
+        parts.push(if i == j { sorted[i].to_string() } else { format!("{}-{}", sorted[i], sorted[j]) });
+        i = j + 1;
+    }
+    parts.join(", ")
 }
 
 fn check_colour(c: [f64; 3]) -> Result<Rgb, String> {
@@ -218,6 +339,12 @@ mod tests {
         assert!(parse_ranges("6", 6).unwrap_err().contains("outside 0-5"));
         assert!(parse_ranges("x", 6).unwrap_err().contains("not a whole number"));
         assert!(parse_ranges(" , ", 6).unwrap_err().contains("nothing"));
+    }
+
+    #[test]
+    fn ranges_are_written_as_they_are_read() {
+        assert_eq!(write_ranges(&[5, 0, 1, 2, 2, 9, 10]), "0-2, 5, 9-10");
+        assert_eq!(parse_ranges(&write_ranges(&[7, 3, 4, 0]), 8).unwrap(), vec![0, 3, 4, 7]);
     }
 
     #[test]

@@ -301,3 +301,38 @@ fn pixels_pick_the_cell_their_eye_ray_meets_and_a_cancelled_precompute_stops() {
     let outcome = precompute_cancellable(&scene.path_scene, cells, &camera, &s, &|_| {}, &cancel);
     assert!(matches!(outcome, Err(PaintError::Cancelled)), "a set flag cancels");
 }
+
+#[test]
+fn a_painting_written_from_its_colours_reads_back_exactly() {
+    let (scene, _) = scene(SCENE);
+    let cells = cells(&scene);
+    let scene_colours = scene_colours(&scene.path_scene, &cells);
+    let mut colours = scene_colours.clone();
+    let (red, navy) = (Rgb::new(0.7, 0.1, 0.05), Rgb::new(0.05, 0.07, 0.3));
+    let paint = |colours: &mut Vec<Rgb>, warp: bool, thread: i64, sections: std::ops::Range<u32>, c: Rgb| {
+        for cell in cells.thread_cells(warp, thread, sections).expect("a thread of the swatch") {
+            colours[cell as usize] = c;
+        }
+    };
+    // Every 97th cell its own shade, then threads over them, and one cell back at the scene's
+    // colour.
+    for cell in (0..cells.count()).step_by(97) {
+        colours[cell] = Rgb::splat(0.2 + 0.6 * (cell as f64 / cells.count() as f64));
+    }
+    let sections = cells.warp.sections;
+    paint(&mut colours, true, 3, 0..sections, red); // a whole warp end
+    paint(&mut colours, true, 4, 0..sections, red);
+    paint(&mut colours, false, 2, 0..cells.weft.sections, navy); // a whole weft pick
+    paint(&mut colours, true, 7, 2..5, navy); // a part of one
+    paint(&mut colours, true, -1, 0..sections, red); // a copy beyond the left edge
+    let first_red = cells.thread_cells(true, 3, 0..1).unwrap()[0] as usize;
+    colours[first_red] = scene_colours[first_red];
+
+    let painting = Painting::from_colours(&cells, &colours, &scene_colours);
+    let text = toml::to_string(&painting).expect("a painting writes as TOML");
+    let read = Painting::parse(&text, Path::new("saved.toml")).expect("and reads back");
+    let again = read.colours(&cells, &scene_colours, Path::new("saved.toml")).unwrap();
+    assert!(again == colours, "the painting reads back cell for cell:\n{text}");
+    assert!(text.contains("warp = \"4\""), "a whole warp end is written as a thread:\n{text}");
+    assert!(text.contains("sections = \"2-4\""), "a part of one with its sections:\n{text}");
+}
