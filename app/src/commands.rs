@@ -713,7 +713,7 @@ pub fn bench_recolor(
     run: &RecolorRun,
 ) -> Result<()> {
     use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
-    let RecolorRun { count, seed, iirtf_paths, ref images } = *run;
+    let RecolorRun { count, seed, iirtf_paths, ref images, same_paths } = *run;
     if let Some(dir) = images {
         std::fs::create_dir_all(dir).with_context(|| format!("--images {}", dir.display()))?;
     }
@@ -763,6 +763,7 @@ pub fn bench_recolor(
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let reseeded = BakeSettings { seed: settings0.seed.wrapping_add(1), ..settings0 };
     let mut floor_session: Option<SceneRenderer> = None;
+    let (mut same_lines, mut worst_own_mean, mut worst_own_rms) = (Vec::new(), 0.0_f64, 0.0_f64);
     let mut worst_floor_mean = 0.0_f64;
     let (mut live_totals, mut rebake_totals, mut worst_mean, mut worst_excess) =
         (Vec::with_capacity(count), Vec::with_capacity(count), 0.0_f64, f64::NEG_INFINITY);
@@ -808,6 +809,20 @@ pub fn bench_recolor(
         (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
         session.render(&scene, &settings)?;
         let t_viewer = t0.elapsed().as_secs_f64();
+        // The basis's own paths at these colours, exactly: what the live picture approximates.
+        let same = if same_paths {
+            let exact = scene
+                .bake_inputs(settings0)
+                .iter()
+                .zip(&previews)
+                .map(|(inputs, preview)| same_paths_bake(inputs, preview))
+                .collect::<Result<Vec<_>>>()?;
+            let refs: Vec<&Baked> = exact.iter().collect();
+            (session, _) = upload_to(Some(session), &scene, &refs, &pattern)?;
+            Some(session.render(&scene, &settings)?.radiance_image())
+        } else {
+            None
+        };
         // Rebake.
         let t0 = Instant::now();
         let (exemplars, pattern) = bake_scene(&scene, settings0, cache.as_ref())?;
@@ -843,6 +858,18 @@ pub fn bench_recolor(
         };
         let reseeded_image = floor.render(&scene, &settings)?.radiance_image();
         floor_session = Some(floor);
+        if let Some(same) = &same {
+            let (own, estimators) = (image_mean_error(&live, same), image_mean_error(same, &rebaked));
+            worst_own_mean = worst_own_mean.max(own.abs());
+            worst_own_rms = worst_own_rms.max(per_pixel_rms(&live, same));
+            same_lines.push(format!(
+                "| {} | {:+.2}% | {:.2}% | {:+.2}% |",
+                k + 1,
+                100.0 * own,
+                100.0 * per_pixel_rms(&live, same),
+                100.0 * estimators
+            ));
+        }
         let (mean_error, floor_mean) =
             (image_mean_error(&live, &rebaked), image_mean_error(&reseeded_image, &rebaked));
         let (live_rms, floor_rms) =
@@ -884,7 +911,49 @@ pub fn bench_recolor(
         100.0 * worst_floor_mean,
         100.0 * worst_excess
     );
+    if same_paths {
+        println!(
+            "\n| colourway | live vs the same paths exactly: image mean | per-pixel RMS | the same paths vs the rebake \
+             (colour-free against colour-aware walks): image mean |"
+        );
+        println!("|---|---|---|---|");
+        for line in &same_lines {
+            println!("{line}");
+        }
+        println!(
+            "the recolouring's own error (live against its own paths at the new colours): worst image mean {:.2}% \
+             (target 2%), per-pixel RMS at most {:.2}%",
+            100.0 * worst_own_mean,
+            100.0 * worst_own_rms
+        );
+    }
     Ok(())
+}
+
+/// `preview` (a material preview of `inputs`) with its IIRTF replaced by the recolouring
+/// basis's own paths evaluated exactly at `inputs`' colours.
+fn same_paths_bake(
+    inputs: &twill_precompute::bake::pipeline::BakeInputs<'_>,
+    preview: &Baked,
+) -> Result<Baked> {
+    use twill_precompute::bake::recolour::{SlotColour, same_paths_iirtf};
+    use twill_precompute::bcsdf::Material;
+    let colours = inputs
+        .materials
+        .iter()
+        .map(|d| Material::from_desc(d).map(|m| SlotColour::of(&m)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut baked = preview.clone();
+    baked.transfer.iirtf = same_paths_iirtf(
+        inputs.exemplar,
+        inputs.materials,
+        &preview.transfer.cells,
+        &inputs.settings,
+        &colours,
+        &Cancel::new(),
+    )
+    .map_err(|e| anyhow::anyhow!("the basis's paths at the new colours: {e}"))?;
+    Ok(baked)
 }
 
 /// How many colourways `twill bench recolor` tries, their seed, and the IIRTF paths per cell
@@ -896,6 +965,9 @@ pub struct RecolorRun {
     pub iirtf_paths: Option<usize>,
     /// Where to write each colourway's live and rebaked pictures (`None`: nowhere).
     pub images: Option<PathBuf>,
+    /// Also compare with the basis's own paths evaluated exactly at each colourway
+    /// (`twill_precompute::bake::recolour::same_paths_iirtf`).
+    pub same_paths: bool,
 }
 
 /// Relative difference of the image means, the channel where it is largest (signed).

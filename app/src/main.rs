@@ -216,6 +216,11 @@ enum BenchCommand {
         /// look at side by side.
         #[arg(long)]
         images: Option<PathBuf>,
+        /// Also render each colourway from the basis's own paths evaluated exactly at its
+        /// colours (a rebake without path noise between it and the live picture): the live
+        /// picture's own error, apart from the transfer's noise (one basis pass per colourway).
+        #[arg(long)]
+        same_paths: bool,
     },
     /// The viewer's own frame times while a bake runs in the background (needs a display:
     /// run under `xvfb-run -a` without one). The bake starts from an empty stage cache.
@@ -622,15 +627,23 @@ fn run(cli: Cli) -> Result<()> {
                 println!("UI frame times (orbiting every frame; bake: {quality:?}, {seconds} s):\n{report}");
                 Ok(())
             }
-            BenchCommand::Recolor { scene, size, spp, quality, colourways, seed, iirtf_paths, images } => {
-                commands::bench_recolor(
-                    scene.as_deref(),
-                    size,
-                    spp,
-                    quality_of(quality),
-                    &commands::RecolorRun { count: colourways, seed, iirtf_paths, images },
-                )
-            }
+            BenchCommand::Recolor {
+                scene,
+                size,
+                spp,
+                quality,
+                colourways,
+                seed,
+                iirtf_paths,
+                images,
+                same_paths,
+            } => commands::bench_recolor(
+                scene.as_deref(),
+                size,
+                spp,
+                quality_of(quality),
+                &commands::RecolorRun { count: colourways, seed, iirtf_paths, images, same_paths },
+            ),
             BenchCommand::Raycast { scene, swatch_cm, rays, seconds, embree } => {
                 commands::bench_raycast(scene.as_deref(), swatch_cm, rays, seconds, embree)
             }

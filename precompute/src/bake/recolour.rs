@@ -592,6 +592,126 @@ pub fn bake_recolour_basis(
     })
 }
 
+/// The IIRTF at `colours` (one per slot) from the basis's own paths: the colour-free walk of
+/// [`bake_recolour_basis`] (the same cells, streams and paths), every light connection
+/// evaluated at the colours, exactly in the TT factors τ and to first order in C_R (as the basis
+/// holds C_R). Against [`RecolourBasis::iirtf`] at the same colours this is the basis's own
+/// approximation alone (its curves, Theorem 1 on the mixed classes, the low-rank compression):
+/// no path noise lies between the two. `twill bench recolor` reports both.
+///
+/// # Errors
+/// As [`bake_recolour_basis`], and colours that do not match the slots.
+pub fn same_paths_iirtf(
+    exemplar: &Exemplar,
+    materials: &[MaterialDesc],
+    grid: &CellGrid,
+    settings: &BakeSettings,
+    colours: &[SlotColour],
+    cancel: &Cancel,
+) -> Result<super::iirtf::Iirtf, RecolourError> {
+    if colours.len() != materials.len() {
+        return Err(RecolourError::SlotCount { colours: colours.len(), slots: materials.len() });
+    }
+    if grid.segment_count() != exemplar.segment_count() {
+        return Err(IirtfError::GridMismatch {
+            grid: grid.segment_count(),
+            exemplar: exemplar.segment_count(),
+        }
+        .into());
+    }
+    let (_, yarn_materials) = super::pipeline::yarn_materials(&super::pipeline::BakeInputs {
+        exemplar,
+        materials,
+        settings: *settings,
+    })?;
+    let light_domain = IirtfOptions::default().light_domain;
+    let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?;
+    let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
+    let cells = for_each_cell(
+        grid,
+        0..grid.cell_count(),
+        paths,
+        settings.seed,
+        cancel,
+        &|_| {},
+        &|segments, stream, tick| same_paths_cell(&sampler, segments, order, paths, colours, stream, tick),
+    )
+    .map_err(IirtfError::from)?;
+    Ok(super::iirtf::Iirtf { sh_order: order, light_domain, cells })
+}
+
+/// One cell of [`same_paths_iirtf`]; `None` when `tick` asks to stop.
+fn same_paths_cell(
+    sampler: &TransferSampler,
+    segments: &[u32],
+    order: usize,
+    paths: usize,
+    colours: &[SlotColour],
+    stream: u64,
+    tick: &dyn Fn(usize) -> bool,
+) -> Option<super::iirtf::CellTransfer> {
+    if segments.is_empty() || paths == 0 {
+        return Some(super::iirtf::CellTransfer::empty());
+    }
+    let (n, slots) = (sh_count(order), colours.len());
+    let mut sum = vec![[0.0_f64; 3]; n * n];
+    let mut sum2 = vec![[0.0_f64; 3]; n * n];
+    let mut light = vec![[0.0_f64; 3]; n];
+    let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
+    let mut sample = ColourFreeSample::default();
+    for p in 0..paths {
+        if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
+            return None;
+        }
+        sampler.sample_colour_free(segments, stream, p as u64, slots, &mut sample);
+        light.fill([0.0; 3]);
+        for (l, &(to_light, w, _)) in sample.lights.iter().enumerate() {
+            let counts = &sample.tt_events[l * slots..(l + 1) * slots];
+            let r_log = &sample.r_log_derivative[l * slots..(l + 1) * slots];
+            let mut factor = [w; 3];
+            for (s, colour) in colours.iter().enumerate() {
+                let (tau, c_r) = (colour.tau.to_array(), colour.c_r.to_array());
+                let k = counts[s].min(i32::MAX as u32) as i32;
+                for ch in 0..3 {
+                    factor[ch] *= tau[ch].powi(k) * (1.0 + (c_r[ch] - COLOUR_FREE_C_R) * r_log[s]);
+                }
+            }
+            sh_eval(order, to_light, &mut y0);
+            for (x, y) in light.iter_mut().zip(&y0) {
+                for ch in 0..3 {
+                    x[ch] += factor[ch] * y;
+                }
+            }
+        }
+        sh_eval(order, sample.view, &mut y1);
+        for (j1, y) in y1.iter().enumerate() {
+            for (j0, l) in light.iter().enumerate() {
+                let (a, a2) = (&mut sum[j1 * n + j0], &mut sum2[j1 * n + j0]);
+                for ch in 0..3 {
+                    let v = l[ch] * y;
+                    a[ch] += v;
+                    a2[ch] += v * v;
+                }
+            }
+        }
+    }
+    tick(paths % CHECK_EVERY);
+    let count = paths as f64;
+    let (matrix, std_error) = sum
+        .iter()
+        .zip(&sum2)
+        .map(|(a, a2)| {
+            let mean = a.map(|v| v / count);
+            let error = std::array::from_fn(|ch| {
+                let variance = (a2[ch] / count - mean[ch] * mean[ch]).max(0.0) / (count - 1.0).max(1.0);
+                variance.sqrt() as f32
+            });
+            (mean.map(|v| v as f32), error)
+        })
+        .unzip();
+    Some(super::iirtf::CellTransfer { paths, matrix, std_error })
+}
+
 /// One cell's basis (see the module docs); `None` when `tick` asks to stop.
 fn bake_cell_basis(
     sampler: &TransferSampler,
@@ -1156,6 +1276,45 @@ mod tests {
             }
         }
         sum / s.iirtf_paths_per_cell as f64
+    }
+
+    #[test]
+    fn the_same_paths_iirtf_reweighs_the_basis_paths_exactly() {
+        // The (0, 0) entry of every cell against the test's own reweighing of the same paths,
+        // and against the basis on the diagonal (where Theorem 1 is exact).
+        let s = settings(400, 1);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
+        let (_, yarns) = yarn_materials(&inputs).unwrap();
+        let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
+        let pair = [colour(0.3), colour(0.9)];
+        let exact = same_paths_iirtf(&exemplar, &materials, &grid, &s, &pair, &Cancel::new()).unwrap();
+        let diagonal = [colour(0.6), colour(0.6)];
+        let same = same_paths_iirtf(&exemplar, &materials, &grid, &s, &diagonal, &Cancel::new()).unwrap();
+        let from_basis = basis.iirtf(&diagonal).unwrap();
+        let mut checked = 0;
+        for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+            let reweighed = reweighed_dc(&sampler, &grid, c, &s, &[0.3, 0.9]);
+            let got = f64::from(exact.cells[c].matrix[0][0]);
+            assert!(
+                (got - reweighed).abs() <= 1e-5 * reweighed.abs() + 1e-12,
+                "cell {c}: {got} against {reweighed}"
+            );
+            let (a, b) = (f64::from(same.cells[c].matrix[0][1]), f64::from(from_basis.cells[c].matrix[0][1]));
+            assert!(
+                (a - b).abs() <= 2e-3 * a.abs() + 1e-9,
+                "cell {c}, on the diagonal: {a} against the basis's {b}"
+            );
+            checked += 1;
+        }
+        assert!(checked > 0);
+        assert!(matches!(
+            same_paths_iirtf(&exemplar, &materials, &grid, &s, &pair[..1], &Cancel::new()),
+            Err(RecolourError::SlotCount { colours: 1, slots: 2 })
+        ));
     }
 
     #[test]
