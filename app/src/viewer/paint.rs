@@ -249,31 +249,16 @@ impl PaintSession {
             data.scene_keys = Some(keys);
             Ok(Ready { scene: Arc::new(built), camera, data: Arc::new(data) })
         })?;
-        Ok(Self {
-            frozen,
-            size,
-            stage: Stage::Precomputing(job),
-            colours: Vec::new(),
-            undo: Vec::new(),
-            colour: [0.05, 0.1, 0.45],
-            scope: Scope::Thread,
-            image: None,
-            texture: None,
-            texture_display: None,
-            edit_ms: 0.0,
-            last_action: None,
-        })
+        Ok(Self::new(frozen, size, Stage::Precomputing(job), Vec::new()))
     }
 
-    /// Paint mode again on a view painted before ([`KeptPaint`]): its precompute and painting
-    /// as they were left.
-    #[must_use]
-    pub fn resume(kept: KeptPaint) -> Self {
-        let KeptPaint { frozen, size, ready, colours } = kept;
-        let mut session = Self {
+    /// A session at `stage` with the painting `colours` (empty until the precompute is done),
+    /// the brush at its defaults.
+    fn new(frozen: SceneFile, size: [u32; 2], stage: Stage, colours: Vec<Rgb>) -> Self {
+        Self {
             frozen,
             size,
-            stage: Stage::Ready(ready),
+            stage,
             colours,
             undo: Vec::new(),
             colour: [0.05, 0.1, 0.45],
@@ -283,7 +268,15 @@ impl PaintSession {
             texture_display: None,
             edit_ms: 0.0,
             last_action: None,
-        };
+        }
+    }
+
+    /// Paint mode again on a view painted before ([`KeptPaint`]): its precompute and painting
+    /// as they were left.
+    #[must_use]
+    pub fn resume(kept: KeptPaint) -> Self {
+        let KeptPaint { frozen, size, ready, colours } = kept;
+        let mut session = Self::new(frozen, size, Stage::Ready(ready), colours);
         session.evaluate();
         session
     }

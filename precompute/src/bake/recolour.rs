@@ -549,20 +549,7 @@ pub fn bake_recolour_basis(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<RecolourBasis, RecolourError> {
-    if grid.segment_count() != exemplar.segment_count() {
-        return Err(IirtfError::GridMismatch {
-            grid: grid.segment_count(),
-            exemplar: exemplar.segment_count(),
-        }
-        .into());
-    }
-    let (_, yarn_materials) = super::pipeline::yarn_materials(&super::pipeline::BakeInputs {
-        exemplar,
-        materials,
-        settings: *settings,
-    })?;
-    let light_domain = IirtfOptions::default().light_domain;
-    let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?;
+    let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let slots = materials.len();
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
     let cells = for_each_cell(
@@ -612,20 +599,7 @@ pub fn same_paths_iirtf(
     if colours.len() != materials.len() {
         return Err(RecolourError::SlotCount { colours: colours.len(), slots: materials.len() });
     }
-    if grid.segment_count() != exemplar.segment_count() {
-        return Err(IirtfError::GridMismatch {
-            grid: grid.segment_count(),
-            exemplar: exemplar.segment_count(),
-        }
-        .into());
-    }
-    let (_, yarn_materials) = super::pipeline::yarn_materials(&super::pipeline::BakeInputs {
-        exemplar,
-        materials,
-        settings: *settings,
-    })?;
-    let light_domain = IirtfOptions::default().light_domain;
-    let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?;
+    let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
     let cells = for_each_cell(
         grid,
@@ -710,6 +684,30 @@ fn same_paths_cell(
         })
         .unzip();
     Some(super::iirtf::CellTransfer { paths, matrix, std_error })
+}
+
+/// The walk of the basis's paths over `grid` (which must be `exemplar`'s), and its light
+/// domain.
+fn colour_free_sampler(
+    exemplar: &Exemplar,
+    materials: &[MaterialDesc],
+    grid: &CellGrid,
+    settings: &BakeSettings,
+) -> Result<(TransferSampler, LightDomain), RecolourError> {
+    if grid.segment_count() != exemplar.segment_count() {
+        return Err(IirtfError::GridMismatch {
+            grid: grid.segment_count(),
+            exemplar: exemplar.segment_count(),
+        }
+        .into());
+    }
+    let (_, yarn_materials) = super::pipeline::yarn_materials(&super::pipeline::BakeInputs {
+        exemplar,
+        materials,
+        settings: *settings,
+    })?;
+    let light_domain = IirtfOptions::default().light_domain;
+    Ok((TransferSampler::new(exemplar, &yarn_materials, light_domain)?, light_domain))
 }
 
 /// One cell's basis (see the module docs); `None` when `tick` asks to stop.
@@ -1439,8 +1437,11 @@ mod tests {
             let slot = slot_colours(&m);
             let ours = basis.iirtf(&slot).unwrap();
             let direct = direct_bake(&exemplar, &grid, &m, &s);
+            let same = same_paths_iirtf(&exemplar, &m, &grid, &s, &slot, &Cancel::new()).unwrap();
             let (a, sa) = total_dc(ours.cells.clone().into_iter());
             let (b, sb) = total_dc(direct.cells.clone().into_iter());
+            let (c, sc) = total_dc(same.cells.into_iter());
+            eprintln!("{label}: same paths DC {c:.4} ± {sc:.4}, against the bake {:.4}", c / b);
             let all = |i: &Iirtf| {
                 i.cells
                     .iter()
@@ -1452,6 +1453,82 @@ mod tests {
                 a / b,
                 all(&ours) / all(&direct)
             );
+        }
+    }
+
+    /// Diagnostic: the default fabric at interactive settings, the transfer from light
+    /// direction L to view direction V summed over cells (`Σ a[j0, j1] Y_j0(L) Y_j1(V)`), by the
+    /// bake's colour-aware walk and by the basis's colour-free paths evaluated exactly, for
+    /// directions of the default scene (its sun, its camera) and the zenith.
+    #[test]
+    #[ignore = "diagnostic"]
+    fn default_fabric_directional_transfer_by_both_walks() {
+        let preset = crate::fabric::presets::fabric_preset("default").unwrap();
+        let exemplar = preset.fabric.build(std::path::Path::new(".")).unwrap();
+        let materials = vec![preset.warp_material, preset.weft_material];
+        let mut s = Quality::Interactive.settings();
+        // TWILL_DIAGNOSTIC_PATHS: paths per cell (default: the preset's).
+        if let Some(paths) = std::env::var("TWILL_DIAGNOSTIC_PATHS").ok().and_then(|p| p.parse().ok()) {
+            s.iirtf_paths_per_cell = paths;
+        }
+        let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
+        let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
+        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+        let n = sh_count(s.sh_order);
+        let directions = [
+            (
+                "sun -> camera",
+                DVec3::new(-0.6, 0.35, 0.5).normalize(),
+                DVec3::new(0.0, -0.55, 0.75).normalize(),
+            ),
+            ("zenith -> zenith", DVec3::Z, DVec3::Z),
+            (
+                "grazing -> camera",
+                DVec3::new(0.9, 0.0, 0.2).normalize(),
+                DVec3::new(0.0, -0.55, 0.75).normalize(),
+            ),
+        ];
+        let transfer = |i: &Iirtf, l: DVec3, v: DVec3| {
+            let (mut yl, mut yv) = (vec![0.0; n], vec![0.0; n]);
+            sh_eval(s.sh_order, l, &mut yl);
+            sh_eval(s.sh_order, v, &mut yv);
+            let (mut sum, mut var) = (Rgb::ZERO, Rgb::ZERO);
+            for c in i.cells.iter().filter(|c| !c.is_empty()) {
+                for (j1, y1) in yv.iter().enumerate() {
+                    for (j0, y0) in yl.iter().enumerate() {
+                        let w = y0 * y1;
+                        sum += glam::Vec3::from(c.matrix[j1 * n + j0]).as_dvec3() * w;
+                        var += (glam::Vec3::from(c.std_error[j1 * n + j0]).as_dvec3() * w).powf(2.0);
+                    }
+                }
+            }
+            (sum, var.powf(0.5))
+        };
+        for (label, colours) in [
+            ("preset", vec![]),
+            (
+                "contrast",
+                vec![
+                    (Rgb::new(0.04, 0.04, 0.04), Rgb::new(0.2, 0.5, 0.9)),
+                    (Rgb::splat(0.04), Rgb::new(0.9, 0.5, 0.2)),
+                ],
+            ),
+            (
+                "light",
+                vec![(Rgb::new(0.03, 0.03, 0.05), Rgb::splat(0.85)), (Rgb::splat(0.04), Rgb::splat(0.9))],
+            ),
+        ] {
+            let m = if colours.is_empty() { materials.clone() } else { with_colours(&materials, &colours) };
+            let slot = slot_colours(&m);
+            let direct = direct_bake(&exemplar, &grid, &m, &s);
+            let same = same_paths_iirtf(&exemplar, &m, &grid, &s, &slot, &Cancel::new()).unwrap();
+            for (what, l, v) in directions {
+                let ((a, sa), (b, sb)) = (transfer(&same, l, v), transfer(&direct, l, v));
+                eprintln!(
+                    "{label}, {what}: colour-free {a:.3} ± {sa:.3}, colour-aware {b:.3} ± {sb:.3}, ratio {:.4}",
+                    a / b
+                );
+            }
         }
     }
 
