@@ -1467,7 +1467,8 @@ mod tests {
         let exemplar = preset.fabric.build(std::path::Path::new(".")).unwrap();
         let materials = vec![preset.warp_material, preset.weft_material];
         let mut s = Quality::Interactive.settings();
-        // TWILL_DIAGNOSTIC_PATHS: paths per cell (default: the preset's).
+        // TWILL_DIAGNOSTIC_PATHS: paths per cell (default: the preset's); TWILL_DIAGNOSTIC_ONLY
+        // (below): one colour set.
         if let Some(paths) = std::env::var("TWILL_DIAGNOSTIC_PATHS").ok().and_then(|p| p.parse().ok()) {
             s.iirtf_paths_per_cell = paths;
         }
@@ -1518,6 +1519,10 @@ mod tests {
                 vec![(Rgb::new(0.03, 0.03, 0.05), Rgb::splat(0.85)), (Rgb::splat(0.04), Rgb::splat(0.9))],
             ),
         ] {
+            // TWILL_DIAGNOSTIC_ONLY: one colour set by its label.
+            if std::env::var("TWILL_DIAGNOSTIC_ONLY").is_ok_and(|only| only != label) {
+                continue;
+            }
             let m = if colours.is_empty() { materials.clone() } else { with_colours(&materials, &colours) };
             let slot = slot_colours(&m);
             let direct = direct_bake(&exemplar, &grid, &m, &s);
