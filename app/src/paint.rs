@@ -75,9 +75,9 @@ pub enum PaintCommand {
         /// Output image: .exr (linear HDR) or .png (tone-mapped sRGB).
         #[arg(short, long)]
         output: PathBuf,
-        /// Exposure in stops for PNG output, -30 to 30.
-        #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = parse_exposure)]
-        exposure: f64,
+        /// Exposure in stops for PNG output, -30 to 30 (default: the scene's, as precomputed).
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_exposure)]
+        exposure: Option<f64>,
     },
     /// Print how a paint file's swatch divides: the warp ends, weft picks and sections a
     /// painting may name, and the cells in all.
@@ -257,6 +257,7 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
     .map_err(|e| anyhow!("{}: {e}", file.path.display()))?;
     bar.finish_and_clear();
     data.scene_keys = Some(keys);
+    data.exposure = Some(file.render.exposure);
     data.save(&options.output)?;
     let file_bytes = std::fs::metadata(&options.output)
         .with_context(|| format!("{}: written but cannot be read back", options.output.display()))?
@@ -283,7 +284,7 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
     Ok(())
 }
 
-fn apply(file: &Path, painting: Option<&Path>, output: &Path, exposure: f64) -> Result<()> {
+fn apply(file: &Path, painting: Option<&Path>, output: &Path, exposure: Option<f64>) -> Result<()> {
     check_image_name(output)?;
     let data = PaintData::load(file)?;
     let scene_colours = data.scene_painting();
@@ -298,6 +299,7 @@ fn apply(file: &Path, painting: Option<&Path>, output: &Path, exposure: f64) -> 
     let started = Instant::now();
     let _again = data.evaluate(&colours);
     let warm_ms = started.elapsed().as_secs_f64() * 1e3;
+    let exposure = exposure.or(data.exposure).unwrap_or(0.0);
     write_image(output, &image, Display { exposure, ..Display::default() })?;
     let (w, h) = data.size();
     eprintln!(

@@ -92,6 +92,20 @@ fn a_painting_is_precomputed_applied_listed_verified_and_path_traced() {
     succeeds(&["paint", "apply", "p.twillpaint", "-o", "own.exr"], d);
     succeeds(&["paint", "apply", "p.twillpaint", "--painting", "empty.toml", "-o", "empty.exr"], d);
     succeeds(&["paint", "apply", "p.twillpaint", "--painting", "stripes.toml", "-o", "s.exr"], d);
+    // PNGs take the scene's exposure as precomputed unless told otherwise.
+    let dim =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/default.toml"))
+            .unwrap()
+            .replace("exposure = 0.5", "exposure = -1.5");
+    std::fs::write(d.join("dim.toml"), dim).unwrap();
+    succeeds(&["paint", "precompute", "dim.toml", "--size", "4x4", "--spp", "2", "-o", "dim.twillpaint"], d);
+    succeeds(&["paint", "apply", "dim.twillpaint", "-o", "dim.png"], d);
+    succeeds(&["paint", "apply", "dim.twillpaint", "-o", "dim-1.5.png", "--exposure", "-1.5"], d);
+    succeeds(&["paint", "apply", "dim.twillpaint", "-o", "dim0.5.png", "--exposure", "0.5"], d);
+    let bytes = |name: &str| std::fs::read(d.join(name)).unwrap();
+    assert_eq!(bytes("dim.png"), bytes("dim-1.5.png"), "the default is the scene's exposure");
+    assert_ne!(bytes("dim.png"), bytes("dim0.5.png"));
+
     let (w, h, own) = read_exr(&d.join("own.exr"));
     assert_eq!((w, h), (12, 10));
     assert_eq!(own, read_exr(&d.join("empty.exr")).2);

@@ -247,6 +247,7 @@ impl PaintSession {
             .map_err(|e| e.to_string())?;
             // A paint file saved from the viewer says what it was traced in, as the CLI's do.
             data.scene_keys = Some(keys);
+            data.exposure = Some(scene.render.exposure);
             Ok(Ready { scene: Arc::new(built), camera, data: Arc::new(data) })
         })?;
         Ok(Self::new(frozen, size, Stage::Precomputing(job), Vec::new()))

@@ -12,7 +12,7 @@ use crate::atomic_file::write_atomically;
 
 const MAGIC: &[u8; 8] = b"TWILLPNT";
 /// Bumped whenever [`PaintData`] or its meaning changes.
-pub const PAINT_FILE_VERSION: u32 = 2;
+pub const PAINT_FILE_VERSION: u32 = 3;
 const HEADER: usize = 8 + 4 + 8 + 32;
 
 /// Why a paint file could not be written or read.

@@ -123,6 +123,9 @@ pub struct PaintData {
     /// ([`SceneKeys::of`]; `twill paint precompute` records them, `verify` and `commit`
     /// check them).
     pub scene_keys: Option<SceneKeys>,
+    /// The scene's display exposure (stops) when the caller knew it: what `twill paint apply`
+    /// writes PNGs with unless told otherwise.
+    pub exposure: Option<f64>,
 }
 
 /// Why a painting cannot be precomputed.
@@ -265,6 +268,7 @@ pub fn precompute_cancellable(
         weights: Vec::new(),
         seconds: 0.0,
         scene_keys: None,
+        exposure: None,
     };
     data.rows.push(0);
     data.pure_rows.push(0);
