@@ -465,6 +465,11 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         screenshot resumed.png\n\
         paint-verify\n\
         wait-verify\n\
+        paint-show reference\n\
+        screenshot reference.png\n\
+        paint-show difference\n\
+        screenshot difference.png\n\
+        paint-show painting\n\
         paint-commit\n\
         wait-verify\n\
         save committed.toml\n\
@@ -497,10 +502,26 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         / changed.len() as f64;
     assert!(shift > 20.0, "painted red: red - blue rose by {shift:.1} levels where the picture changed");
 
-    // Leaving and painting the same view again resumes the precompute and the painting.
-    // (The top half: messages are drawn over the viewport's bottom.)
-    let (_, _, resumed) = read_png_rgba(&out.join("resumed.viewport.png"));
+    // The verification's path-traced picture shows in the viewport: near the painting in its
+    // mean level, not the same pixels; then the difference. (The top halves:
+    // messages are drawn over the viewport's bottom.)
     let top = painted.len() / 2;
+    let level = |p: &[[u8; 4]]| {
+        p[..p.len() / 2].iter().map(|p| f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2])).sum::<f64>()
+            / (1.5 * p.len() as f64)
+    };
+    let (_, _, reference) = read_png_rgba(&out.join("reference.viewport.png"));
+    let (_, _, difference) = read_png_rgba(&out.join("difference.viewport.png"));
+    let (lp, lr, ld) = (level(&painted), level(&reference), level(&difference));
+    assert!(reference[..top] != painted[..top], "the path-traced picture is shown");
+    // (At 16 spp the references are noisy: |painting − reference| × 4 is as bright as either.)
+    assert!(
+        (lr / lp - 1.0).abs() < 0.25 && difference[..top] != reference[..top] && ld > 0.0,
+        "levels: painting {lp:.1}, reference {lr:.1}, difference {ld:.1}"
+    );
+
+    // Leaving and painting the same view again resumes the precompute and the painting.
+    let (_, _, resumed) = read_png_rgba(&out.join("resumed.viewport.png"));
     assert!(resumed[..top] == painted[..top], "the resumed painting is the one left");
     // The saved painting and precompute are what `twill paint` reads.
     let saved = std::fs::read_to_string(out.join("painting.toml")).expect("the painting is saved");

@@ -48,7 +48,8 @@ use super::history::History;
 use super::lights::{LightEdit, MAX_VIEWER_LIGHTS, lights_panel, new_light, preset};
 use super::mesh::{MeshForm, mesh_panel};
 use super::paint::{
-    KeptPaint, PaintForm, PaintSession, SIDE_CHOICES, SPP_CHOICES, Scope, VERIFY_SPP_CHOICES, Verification,
+    KeptPaint, PaintForm, PaintSession, SIDE_CHOICES, SPP_CHOICES, Scope, Shown, VERIFY_SPP_CHOICES,
+    Verification,
 };
 use super::quality::{
     FabricInfo, INTERACTION_BUDGET_MS, INTERACTION_SCALE_RANGE, QualityAction, QualityView, RenderControls,
@@ -245,6 +246,8 @@ pub struct ViewerApp {
     paint_form: PaintForm,
     /// The last paint session's precompute and painting, for painting the same view again.
     paint_kept: Option<KeptPaint>,
+    /// What paint mode's viewport shows: the painting, or the verification's pictures.
+    paint_shown: Shown,
     /// The last path-traced check of a painting (it runs on after paint mode ends).
     verification: Option<Verification>,
 
@@ -361,6 +364,7 @@ impl ViewerApp {
             paint: None,
             paint_form: PaintForm::default(),
             paint_kept: None,
+            paint_shown: Shown::Painting,
             verification: None,
             messages,
             script: script.map(|lines| ScriptRun {
@@ -1125,6 +1129,7 @@ impl ViewerApp {
     fn verify_paint(&mut self, ctx: &egui::Context) -> Result<(), String> {
         let paint = self.paint.as_ref().ok_or("paint mode is not on")?;
         self.verification = Some(paint.verify(None, self.paint_form.verify_spp, ctx)?);
+        self.paint_shown = Shown::Painting;
         Ok(())
     }
 
@@ -1234,6 +1239,17 @@ impl ViewerApp {
                 self.messages.error(e);
             }
         }
+        let size = self.paint.as_ref().map(PaintSession::size);
+        if let (Some(size), Some(verification)) = (size, self.verification.as_mut())
+            && verification.picture(Shown::Reference, size).is_some()
+        {
+            ui.horizontal(|ui| {
+                ui.label("show");
+                for shown in Shown::ALL {
+                    ui.radio_value(&mut self.paint_shown, shown, shown.label());
+                }
+            });
+        }
         if self.paint.as_ref().is_some_and(PaintSession::is_ready) {
             ui.separator();
             ui.add(egui::TextEdit::singleline(&mut self.paint_form.file).hint_text("painting.toml"));
@@ -1300,7 +1316,14 @@ impl ViewerApp {
         let [w, h] = paint.size().map(|s| s as f32);
         let scale = (rect.width() / w).min(rect.height() / h);
         let image_rect = egui::Rect::from_center_size(rect.center(), egui::vec2(w, h) * scale);
-        if let Some(texture) = paint.texture(&ctx, display, self.controls.filmic) {
+        let verification_picture =
+            self.verification.as_mut().and_then(|v| v.picture(self.paint_shown, paint.size()));
+        let showing = if verification_picture.is_some() { self.paint_shown.label() } else { "painting" };
+        let texture = match verification_picture {
+            Some(picture) => Some(picture.texture(&ctx, display, self.controls.filmic)),
+            None => paint.texture(&ctx, display, self.controls.filmic),
+        };
+        if let Some(texture) = texture {
             let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
             painter.image(texture.id(), image_rect, uv, egui::Color32::WHITE);
         } else {
@@ -1342,7 +1365,7 @@ impl ViewerApp {
             &painter,
             rect.left_top() + egui::vec2(4.0, 4.0),
             egui::Align2::LEFT_TOP,
-            format!("paint mode · {}×{} · view frozen", w as u32, h as u32),
+            format!("paint mode · {}×{} · view frozen · {showing}", w as u32, h as u32),
         );
         overlay_text(
             &painter,
@@ -1919,6 +1942,10 @@ impl ViewerApp {
                     return Err("paint mode is not on".into());
                 }
                 self.leave_paint();
+                Ok(true)
+            }
+            Step::PaintShow(shown) => {
+                self.paint_shown = *shown;
                 Ok(true)
             }
             Step::PaintFile { action, path } => {

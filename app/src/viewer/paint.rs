@@ -193,10 +193,8 @@ pub struct PaintSession {
     /// The brush colour (linear RGB).
     pub colour: [f32; 3],
     pub scope: Scope,
-    image: Option<Image>,
-    texture: Option<egui::TextureHandle>,
-    /// The display settings the texture was tone-mapped with; `None` when it needs redoing.
-    texture_display: Option<(f64, bool)>,
+    /// The painted picture, `J(α)` (`None` until the precompute is done).
+    picture: Option<Picture>,
     /// The last evaluation's time (milliseconds).
     pub edit_ms: f64,
     /// What the last click painted or picked.
@@ -264,9 +262,7 @@ impl PaintSession {
             undo: Vec::new(),
             colour: [0.05, 0.1, 0.45],
             scope: Scope::Thread,
-            image: None,
-            texture: None,
-            texture_display: None,
+            picture: None,
             edit_ms: 0.0,
             last_action: None,
         }
@@ -479,9 +475,12 @@ impl PaintSession {
     fn evaluate(&mut self) {
         let Stage::Ready(ready) = &self.stage else { return };
         let started = Instant::now();
-        self.image = Some(ready.data.evaluate(&self.colours));
+        let image = ready.data.evaluate(&self.colours);
         self.edit_ms = started.elapsed().as_secs_f64() * 1e3;
-        self.texture_display = None;
+        match &mut self.picture {
+            Some(picture) => picture.set(image),
+            None => self.picture = Some(Picture::new("twill.paint.picture", image)),
+        }
     }
 
     /// The painted picture as a texture, tone-mapped with `display` (`filmic` chooses the
@@ -492,31 +491,7 @@ impl PaintSession {
         display: Display,
         filmic: bool,
     ) -> Option<&egui::TextureHandle> {
-        let image = self.image.as_ref()?;
-        let key = (display.exposure, filmic);
-        if self.texture_display != Some(key) || self.texture.is_none() {
-            let pixels: Vec<egui::Color32> = image
-                .pixels
-                .iter()
-                .map(|&p| {
-                    let [r, g, b] = display_srgb8(p, display);
-                    egui::Color32::from_rgb(r, g, b)
-                })
-                .collect();
-            let colour_image = egui::ColorImage::new([image.width, image.height], pixels);
-            match &mut self.texture {
-                Some(texture) => texture.set(colour_image, egui::TextureOptions::LINEAR),
-                None => {
-                    self.texture = Some(ctx.load_texture(
-                        "twill.paint.picture",
-                        colour_image,
-                        egui::TextureOptions::LINEAR,
-                    ));
-                }
-            }
-            self.texture_display = Some(key);
-        }
-        self.texture.as_ref()
+        Some(self.picture.as_mut()?.texture(ctx, display, filmic))
     }
 
     /// The scene with the painting as its colour orders, and a line saying what they are;
@@ -540,7 +515,7 @@ impl PaintSession {
         spp: u32,
         ctx: &egui::Context,
     ) -> Result<Verification, String> {
-        let (Stage::Ready(ready), Some(image)) = (&self.stage, &self.image) else {
+        let (Stage::Ready(ready), Some(Picture { image, .. })) = (&self.stage, &self.picture) else {
             return Err("the precompute is not done".into());
         };
         let what = if committed.is_some() { "the committed colour orders" } else { "the painted cloth" };
@@ -584,6 +559,7 @@ impl PaintSession {
             painted: image.clone(),
             job: Some(job),
             report: None,
+            pictures: None,
         })
     }
 }
@@ -632,6 +608,87 @@ impl KeptPaint {
     }
 }
 
+/// An image shown in the viewport: tone-mapped into a texture when first shown and again
+/// when the image or the display settings change.
+pub struct Picture {
+    image: Image,
+    name: &'static str,
+    texture: Option<egui::TextureHandle>,
+    /// The exposure and curve the texture was made with; `None` when it needs making again.
+    shown_with: Option<(f64, bool)>,
+}
+
+impl Picture {
+    fn new(name: &'static str, image: Image) -> Self {
+        Self { image, name, texture: None, shown_with: None }
+    }
+
+    fn set(&mut self, image: Image) {
+        self.image = image;
+        self.shown_with = None;
+    }
+
+    /// The texture, tone-mapped with `display` (`filmic`: the curve's choice, as the viewer's
+    /// controls hold it).
+    pub fn texture(&mut self, ctx: &egui::Context, display: Display, filmic: bool) -> &egui::TextureHandle {
+        let key = (display.exposure, filmic);
+        if self.shown_with != Some(key) || self.texture.is_none() {
+            let pixels: Vec<egui::Color32> = self
+                .image
+                .pixels
+                .iter()
+                .map(|&p| {
+                    let [r, g, b] = display_srgb8(p, display);
+                    egui::Color32::from_rgb(r, g, b)
+                })
+                .collect();
+            let colour_image = egui::ColorImage::new([self.image.width, self.image.height], pixels);
+            match &mut self.texture {
+                Some(texture) => texture.set(colour_image, egui::TextureOptions::LINEAR),
+                None => {
+                    self.texture =
+                        Some(ctx.load_texture(self.name, colour_image, egui::TextureOptions::LINEAR));
+                }
+            }
+            self.shown_with = Some(key);
+        }
+        self.texture.as_ref().expect("made above")
+    }
+}
+
+/// What paint mode's viewport shows once a verification of the painting is done.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shown {
+    Painting,
+    /// The verification's first path-traced reference.
+    Reference,
+    /// `|painting − reference|`, four times brighter.
+    Difference,
+}
+
+impl Shown {
+    pub const ALL: [Self; 3] = [Self::Painting, Self::Reference, Self::Difference];
+
+    #[must_use]
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Painting => "painting",
+            Self::Reference => "path traced",
+            Self::Difference => "difference ×4",
+        }
+    }
+
+    /// A script's word for it.
+    pub fn parse(word: &str) -> Result<Self, String> {
+        match word {
+            "painting" => Ok(Self::Painting),
+            "reference" => Ok(Self::Reference),
+            "difference" => Ok(Self::Difference),
+            other => Err(format!("paint-show takes painting, reference or difference, not {other:?}")),
+        }
+    }
+}
+
 /// A path-traced check of a painting ([module docs](self)); it runs on after paint mode ends.
 pub struct Verification {
     what: String,
@@ -640,6 +697,8 @@ pub struct Verification {
     painted: Image,
     job: Option<Job<[Image; 2]>>,
     report: Option<Result<String, String>>,
+    /// Once done: the first reference and `|painted − reference| × 4`.
+    pictures: Option<(Picture, Picture)>,
 }
 
 impl Verification {
@@ -648,7 +707,18 @@ impl Verification {
         let outcome = self.job.as_ref()?.poll()?;
         let seconds = self.job.take().map_or(0.0, |j| j.started.elapsed().as_secs_f64());
         let report = outcome
-            .map(|[first, second]| self.compare(&first, &second, seconds))
+            .map(|[first, second]| {
+                let line = self.compare(&first, &second, seconds);
+                let mut difference = first.clone();
+                for (d, p) in difference.pixels.iter_mut().zip(&self.painted.pixels) {
+                    *d = (*p - *d).abs() * 4.0;
+                }
+                self.pictures = Some((
+                    Picture::new("twill.paint.reference", first),
+                    Picture::new("twill.paint.difference", difference),
+                ));
+                line
+            })
             .map_err(|e| format!("the verification of {} failed: {e}", self.what));
         self.report = Some(report.clone());
         Some(report)
@@ -675,6 +745,17 @@ impl Verification {
     #[must_use]
     pub fn progress(&self) -> Option<f32> {
         self.job.as_ref().map(Job::fraction)
+    }
+
+    /// The picture `shown` of a finished verification of a `size` paint image (`None` for the
+    /// painting itself, before it is done, or for another size).
+    pub fn picture(&mut self, shown: Shown, size: [u32; 2]) -> Option<&mut Picture> {
+        let (reference, difference) = self.pictures.as_mut().filter(|_| self.size == size)?;
+        match shown {
+            Shown::Painting => None,
+            Shown::Reference => Some(reference),
+            Shown::Difference => Some(difference),
+        }
     }
 
     /// The finished report (or why it failed).

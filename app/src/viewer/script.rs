@@ -67,6 +67,7 @@
 //! paint-save PATH.toml                  # the painting as strokes (`twill paint` reads them)
 //! paint-open PATH.toml                  # paint a painting file's strokes
 //! paint-save-data PATH.twillpaint       # the precompute, for `twill paint apply|verify|commit`
+//! paint-show painting|reference|difference  # after a verification: what the viewport shows
 //! paint-leave                           # (paint-start on the same view resumes the painting)
 //! quit
 //! ```
@@ -90,7 +91,7 @@ fn yarn_slot(word: Option<&str>) -> Result<YarnSlot, String> {
 }
 use super::app::PaintFileAction;
 use super::lights::LightKind;
-use super::paint::Scope;
+use super::paint::{Scope, Shown};
 
 /// Longest a waiting step may wait.
 pub const STEP_TIMEOUT: Duration = Duration::from_mins(5);
@@ -162,6 +163,7 @@ pub enum Step {
     WaitVerify,
     PaintLeave,
     PaintFile { action: PaintFileAction, path: PathBuf },
+    PaintShow(Shown),
     Quit,
 }
 
@@ -377,6 +379,7 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
         "paint-verify" => Step::PaintVerify,
         "wait-verify" => Step::WaitVerify,
         "paint-leave" => Step::PaintLeave,
+        "paint-show" => Step::PaintShow(Shown::parse(args.next().ok_or("missing what to show")?)?),
         "paint-save" | "paint-open" | "paint-save-data" => {
             let action = match words[0] {
                 "paint-save" => PaintFileAction::SavePainting,
