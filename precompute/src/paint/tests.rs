@@ -336,3 +336,40 @@ fn a_painting_written_from_its_colours_reads_back_exactly() {
     assert!(text.contains("warp = \"4\""), "a whole warp end is written as a thread:\n{text}");
     assert!(text.contains("sections = \"2-4\""), "a part of one with its sections:\n{text}");
 }
+
+#[test]
+fn bad_strokes_are_refused_naming_the_stroke_the_value_and_the_range() {
+    let (scene, _) = scene(SCENE);
+    let cells = cells(&scene);
+    let scene_colours = scene_colours(&scene.path_scene, &cells);
+    let count = cells.count();
+    let refused = |text: &str| {
+        let path = Path::new("bad.toml");
+        match Painting::parse(text, path) {
+            Err(e) => e.to_string(),
+            Ok(p) => p.colours(&cells, &scene_colours, path).unwrap_err().to_string(),
+        }
+    };
+    let outside = format!("outside 0-{}", count - 1);
+    for (text, needles) in [
+        (
+            format!("[[stroke]]\ncolour = [1, 0, 0]\ncells = \"0-3, {count}\"\n"),
+            vec!["bad.toml", "[[stroke]] 1", "cells", outside.as_str()],
+        ),
+        (
+            "[[stroke]]\ncolour = [1, 0, 0]\ncells = \"2\"\nwarp = \"1\"\n".into(),
+            vec!["[[stroke]] 1", "by number"],
+        ),
+        (
+            "[[stroke]]\ncolour = [1, 0, 0]\nall = true\ncells = \"2\"\n".into(),
+            vec!["`all` paints every cell"],
+        ),
+        ("[[stroke]]\ncolour = [1.5, 0, 0]\ncells = \"2\"\n".into(), vec!["colour", "[0, 1]"]),
+        ("[[stroke]]\ncolour = [1, 0, 0]\n".into(), vec!["`cells`"]),
+    ] {
+        let message = refused(&text);
+        for needle in needles {
+            assert!(message.contains(needle), "{needle:?} missing in: {message}");
+        }
+    }
+}
