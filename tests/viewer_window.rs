@@ -551,3 +551,52 @@ fn paint_mode_paints_yarns_refuses_a_painting_that_is_no_colour_order_and_commit
         .any(|c| c.to_array().map(f64::to_bits) == [0.6, 0.05, 0.05].map(f64::to_bits));
     assert!(red, "the painted red is a palette colour, as painted: {:?}", materials.palette);
 }
+
+#[test]
+fn a_colour_edit_shows_live_from_the_bases_before_its_full_bake() {
+    // After the first material edit's full bake the viewer makes its recolouring bases; a later
+    // colour edit is written into the fabric on the GPU from them at once (no rest, no bake
+    // first) and its picture comes first at the reduced size, as any edit's does; the full
+    // bake follows and replaces it. (How long edit to picture takes is measured, not tested:
+    // docs/COLOURWAYS.md.)
+    let test = "a_colour_edit_shows_live_from_the_bases_before_its_full_bake";
+    let Some(xvfb) = xvfb_run_for(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path();
+    let script = "\
+        wait-fabric draft\n\
+        set spp 1\n\
+        fiber warp c_tt 0.2 0.3 0.6\n\
+        wait-idle\n\
+        fiber warp c_tt 0.7 0.2 0.1\n\
+        wait-recolour-picture\n\
+        wait-idle\n\
+        save recoloured.toml\n\
+        quit\n";
+    std::fs::write(out.join("live.script"), script).unwrap();
+    let run = run_viewer(
+        &xvfb,
+        out,
+        &["--quality", "draft", "--window-size", "800x560", "--script", "live.script"],
+    );
+    assert!(run.success && run.stderr.contains("script finished"), "the viewer failed:\n{}", run.stderr);
+    let line = run
+        .stderr
+        .lines()
+        .find(|l| l.starts_with("colour edit to picture:"))
+        .unwrap_or_else(|| panic!("no live picture reported:\n{}", run.stderr));
+    // "colour edit to picture: 209 ms (93x154)": a reduced picture, smaller than the viewport.
+    let size = line.split('(').nth(1).and_then(|s| s.strip_suffix(')')).expect("a size");
+    let (w, h) =
+        size.split_once('x').map(|(w, h)| (w.parse::<u32>().unwrap(), h.parse::<u32>().unwrap())).unwrap();
+    assert!(w < 800 / 2 && h > 0, "the first picture after the edit is reduced: {line}");
+    // The live picture came before the full bake of the new colours.
+    let live_at = run.stderr.find("colour edit to picture:").unwrap();
+    let bakes: Vec<usize> = run.stderr.match_indices("idle: the draft bake").map(|(i, _)| i).collect();
+    assert!(bakes.len() == 2 && bakes[0] < live_at && live_at < bakes[1], "{}", run.stderr);
+    let saved = SceneFile::load(&out.join("recoloured.toml")).expect("the scene saves");
+    let Some(twill_precompute::bcsdf::MaterialDesc::Fiber(warp)) = saved.materials.warp else {
+        panic!("a fiber warp: {:?}", saved.materials.warp)
+    };
+    assert!((warp.c_tt.x - 0.7).abs() < 1e-12, "the edit stays: {:?}", warp.c_tt);
+}

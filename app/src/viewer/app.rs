@@ -202,6 +202,15 @@ pub struct ViewerApp {
     bake_after_recolour: Option<SceneFile>,
     /// The scene whose fabric and materials the last bake was started for.
     baked_scene: Option<SceneFile>,
+    /// The colours last sent to the render worker while an edit is still moving (a colour
+    /// dragged in the picker): one live recolouring in flight at a time, the full bake only
+    /// once the edit rests.
+    live_recoloured: Option<SceneFile>,
+    live_recolour_in_flight: bool,
+    /// When the colours now being written were edited, until their first picture is on screen.
+    recolour_edited_at: Option<Instant>,
+    /// The last colour edit's time from the edit to its first picture, and that picture's size.
+    last_recolour_to_picture: Option<(Duration, [u32; 2])>,
     /// A fabric edit waiting for [`FABRIC_EDIT_SETTLE`], and since when.
     pending_fabric: Option<(SceneFile, Instant)>,
     /// The mesh (and swatch size) last sent to the worker.
@@ -333,6 +342,10 @@ impl ViewerApp {
             recolour: None,
             bake_after_recolour: None,
             baked_scene: baked_scene.clone(),
+            live_recoloured: None,
+            live_recolour_in_flight: false,
+            recolour_edited_at: None,
+            last_recolour_to_picture: None,
             pending_fabric: None,
             mesh_sent: baked_scene.as_ref().map(|f| (f.mesh.clone(), f.swatch.size_cm)),
             shell_id: 0,
@@ -421,9 +434,31 @@ impl ViewerApp {
             Some((pending, _)) if pending == scene => {}
             _ => self.pending_fabric = Some((scene.clone(), Instant::now())),
         }
+        // A colour edit shows at once, while it still moves: the bases' colours are written
+        // live (tens of milliseconds), one write in flight at a time; the full bake waits for
+        // the edit to rest (below).
+        if !geometry_changed
+            && !self.live_recolour_in_flight
+            && self.live_recoloured.as_ref() != Some(scene)
+            && let Some(request) = self.live_recolour_request(scene)
+            && let Some(worker) = &self.worker
+        {
+            worker.recolour(request);
+            self.baker.cancel();
+            self.bake_after_recolour = None;
+            self.live_recolour_in_flight = true;
+            self.live_recoloured = Some(scene.clone());
+            self.recolour_edited_at =
+                Some(self.pending_fabric.as_ref().map_or_else(Instant::now, |(_, at)| *at));
+        }
         let rested = self.pending_fabric.as_ref().map_or(Duration::ZERO, |(_, at)| at.elapsed());
         if rested < FABRIC_EDIT_SETTLE || ctx.input(|i| i.pointer.any_down()) {
             ctx.request_repaint_after(FABRIC_EDIT_SETTLE.saturating_sub(rested));
+            return;
+        }
+        if self.live_recolour_in_flight {
+            // The worker holds one recolouring: the edit's own waits for the live one.
+            ctx.request_repaint_after(Duration::from_millis(20));
             return;
         }
         let scene = scene.clone();
@@ -441,6 +476,14 @@ impl ViewerApp {
             // bake follows without a preview of its own.
             let on_gpu = self.fabric.as_ref().is_some_and(|f| f.quality == self.final_quality);
             match (recolour, &self.worker) {
+                (Some(_), Some(_)) if on_gpu && self.live_recoloured.as_ref() == Some(&scene) => {
+                    // These colours were written live while the edit moved: the full bake
+                    // follows them (once the write in flight, if any, is done).
+                    self.bake_after_recolour = Some(scene.clone());
+                    if !self.live_recolour_in_flight {
+                        self.start_bake_after_recolour();
+                    }
+                }
                 (Some(bases), Some(worker)) if on_gpu => {
                     // The full bake starts once the colours are written: its transfer stage
                     // would hold every core (and rayon's pool, which the recolouring uses) for
@@ -449,6 +492,8 @@ impl ViewerApp {
                     worker.recolour(RecolourRequest { bases, materials });
                     self.baker.cancel();
                     self.bake_after_recolour = Some(scene.clone());
+                    self.recolour_edited_at =
+                        Some(self.pending_fabric.as_ref().map_or_else(Instant::now, |(_, at)| *at));
                 }
                 (recolour, _) => {
                     self.bake_after_recolour = None;
@@ -462,11 +507,22 @@ impl ViewerApp {
             }
         } else {
             self.recolour = None;
+            self.live_recoloured = None;
             self.bake_after_recolour = None;
             self.baker.start(scene.clone(), bake_sequence(self.final_quality));
         }
         self.baked_scene = Some(scene);
         self.pending_fabric = None;
+    }
+
+    /// A live recolouring of the fabric on the GPU to `scene`'s colours, where the bases fit
+    /// its lobes and the fabric on the GPU is at the bases' quality.
+    fn live_recolour_request(&self, scene: &SceneFile) -> Option<RecolourRequest> {
+        let materials = scene.material_descs().ok()?;
+        let (quality, bases) = self.recolour.as_ref()?;
+        let on_gpu = self.fabric.as_ref().is_some_and(|f| f.quality == *quality);
+        (*quality == self.final_quality && on_gpu && bases.iter().all(|b| b.fits(&materials)))
+            .then(|| RecolourRequest { bases: Arc::clone(bases), materials })
     }
 
     /// Stops the bake in flight and the one a live recolouring would start.
@@ -579,6 +635,7 @@ impl ViewerApp {
         self.scene_file = Some(file.clone());
         self.shown_bake = None;
         self.recolour = None;
+        self.live_recoloured = None;
         self.bake_after_recolour = None;
         self.fabric = None;
         self.baker.start(file.clone(), bake_sequence(self.final_quality));
@@ -647,6 +704,12 @@ impl ViewerApp {
                         None => (0.0, Vec::new()),
                     };
                     self.uploading.retain(|u| u.fabric_id > fabric_id);
+                    // A new fabric replaces whatever colours were written live (and drops a
+                    // recolouring the worker had not started).
+                    self.live_recoloured = None;
+                    if std::mem::take(&mut self.live_recolour_in_flight) {
+                        self.recolour_edited_at = None;
+                    }
                     self.fabric = Some(FabricInfo {
                         id: fabric_id,
                         quality,
@@ -666,11 +729,17 @@ impl ViewerApp {
                     if let Some(f) = &mut self.fabric {
                         f.preview = true;
                     }
+                    self.live_recolour_in_flight = false;
                     self.restart_picture = true;
+                    // Shown as an edit is: first at the reduced size, then refined.
+                    self.last_edit = Instant::now();
+                    self.edit_generation = self.generation;
                     log::info!("colours written from the recolouring bases in {:.0} ms", seconds * 1e3);
                     self.start_bake_after_recolour();
                 }
                 WorkerEvent::RecolourFailed { message } => {
+                    self.live_recolour_in_flight = false;
+                    self.recolour_edited_at = None;
                     // The full bake that follows shows the new colours.
                     log::warn!("no live recolouring: {message}");
                     self.start_bake_after_recolour();
@@ -695,6 +764,21 @@ impl ViewerApp {
                         Added::Dropped => {}
                         added => {
                             self.texture_dirty = true;
+                            if added == Added::Restarted
+                                && self.restart_picture
+                                && !self.live_recolour_in_flight
+                                && let Some(edited) = self.recolour_edited_at.take()
+                            {
+                                let size = [result.request.settings.width, result.request.settings.height];
+                                let took = edited.elapsed();
+                                log::info!(
+                                    "colour edit to picture: {:.0} ms ({}x{})",
+                                    took.as_secs_f64() * 1e3,
+                                    size[0],
+                                    size[1]
+                                );
+                                self.last_recolour_to_picture = Some((took, size));
+                            }
                             self.restart_picture &= added != Added::Restarted;
                         }
                     }
@@ -1881,6 +1965,12 @@ impl ViewerApp {
                 eprint!("{text}");
                 self.ui_timing.clear();
                 Ok(true)
+            }
+            Step::WaitRecolourPicture => {
+                Ok(self.last_recolour_to_picture.take().is_some_and(|(took, [w, h])| {
+                    eprintln!("colour edit to picture: {:.0} ms ({w}x{h})", took.as_secs_f64() * 1e3);
+                    true
+                }))
             }
             Step::PaintStart { side, spp, verify_spp } => {
                 self.paint_form.side = *side;

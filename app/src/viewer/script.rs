@@ -51,6 +51,8 @@
 //! frame-times PATH                      # the UI frame times so far, as text; then forget them
 //! lose-device                           # destroy the render device (a simulated loss) and wait
 //!                                       # until the viewer renders on a new one
+//! wait-recolour-picture                 # until a colour edit's first picture is on screen; prints
+//!                                       # the time from the edit to it
 //! paint-start SIDE SPP [VERIFY_SPP]     # paint mode: freeze the view, precompute a paint image
 //!                                       # SIDE pixels along its longer side at SPP paths (and
 //!                                       # verify later at VERIFY_SPP samples per pixel)
@@ -151,6 +153,7 @@ pub enum Step {
     Spin(f64),
     FrameTimes(PathBuf),
     LoseDevice,
+    WaitRecolourPicture,
     PaintStart { side: u32, spp: u32, verify_spp: Option<u32> },
     WaitPaint,
     PaintColour([f32; 3]),
@@ -345,6 +348,7 @@ fn parse_step(words: &[&str]) -> Result<Step, String> {
         }
         "frame-times" => Step::FrameTimes(PathBuf::from(args.next().ok_or("missing output file")?)),
         "lose-device" => Step::LoseDevice,
+        "wait-recolour-picture" => Step::WaitRecolourPicture,
         "paint-start" => {
             let side: u32 = number(args.next(), "paint image side")?;
             let spp: u32 = number(args.next(), "paths per pixel")?;
