@@ -197,9 +197,6 @@ pub struct ViewerApp {
     /// The recolouring bases of the fabric's geometry and the quality they were made at
     /// (`bake::recolour`): colour edits evaluate them for their preview.
     recolour: Option<(Quality, super::bake::RecolourBases)>,
-    /// A colour edit sent to the render worker to write live: its full bake starts when the
-    /// worker has done it ([`WorkerEvent::Recoloured`] or [`WorkerEvent::RecolourFailed`]).
-    bake_after_recolour: Option<SceneFile>,
     /// The scene whose fabric and materials the last bake was started for.
     baked_scene: Option<SceneFile>,
     /// The colours last sent to the render worker while an edit is still moving (a colour
@@ -340,7 +337,6 @@ impl ViewerApp {
             fabric: None,
             shown_bake: None,
             recolour: None,
-            bake_after_recolour: None,
             baked_scene: baked_scene.clone(),
             live_recoloured: None,
             live_recolour_in_flight: false,
@@ -399,7 +395,6 @@ impl ViewerApp {
     fn start_bake(&mut self, quality: Quality) {
         if let Some(file) = &self.scene_file {
             let sequence = if self.fabric.is_none() { bake_sequence(quality) } else { vec![quality] };
-            self.bake_after_recolour = None;
             self.baker.start(file.clone(), sequence);
             self.final_quality = quality;
             self.baked_scene = Some(file.clone());
@@ -445,7 +440,6 @@ impl ViewerApp {
         {
             worker.recolour(request);
             self.baker.cancel();
-            self.bake_after_recolour = None;
             self.live_recolour_in_flight = true;
             self.live_recoloured = Some(scene.clone());
             self.recolour_edited_at =
@@ -457,58 +451,31 @@ impl ViewerApp {
             return;
         }
         if self.live_recolour_in_flight {
-            // The worker holds one recolouring: the edit's own waits for the live one.
+            // The full bake waits for the colours being written: started at once, its transfer
+            // stage would hold every core (and rayon's pool, which the recolouring uses) for
+            // seconds.
             ctx.request_repaint_after(Duration::from_millis(20));
             return;
         }
         let scene = scene.clone();
-        if let (Some(previous), false) = (&self.shown_bake, geometry_changed) {
-            // The bases hold for any colours of the lobes they were made for: a lobe edit
-            // previews without them, and its full bake makes new ones.
+        if self.live_recoloured.as_ref() == Some(&scene) {
+            // These colours are on the GPU, written from the bases while the edit moved (the
+            // write's failure, if it failed, was logged): the full bake follows without a
+            // preview of its own.
+            self.baker.start(scene.clone(), vec![self.final_quality]);
+        } else if let (Some(previous), false) = (&self.shown_bake, geometry_changed) {
+            // A material edit the bases cannot write live (a lobe edit: its full bake makes new
+            // bases; or a fabric on the GPU not yet at the bases' quality) previews first.
             let materials = scene.material_descs().unwrap_or_default();
             let recolour = (self.recolour.as_ref())
                 .filter(|(quality, bases)| {
                     *quality == self.final_quality && bases.iter().all(|b| b.fits(&materials))
                 })
                 .map(|(_, bases)| Arc::clone(bases));
-            // The fabric on the GPU is this geometry at the bases' quality: the render worker
-            // writes the new colours into it from the bases (tens of milliseconds), and the full
-            // bake follows without a preview of its own.
-            let on_gpu = self.fabric.as_ref().is_some_and(|f| f.quality == self.final_quality);
-            match (recolour, &self.worker) {
-                (Some(_), Some(_)) if on_gpu && self.live_recoloured.as_ref() == Some(&scene) => {
-                    // These colours were written live while the edit moved: the full bake
-                    // follows them (once the write in flight, if any, is done).
-                    self.bake_after_recolour = Some(scene.clone());
-                    if !self.live_recolour_in_flight {
-                        self.start_bake_after_recolour();
-                    }
-                }
-                (Some(bases), Some(worker)) if on_gpu => {
-                    // The full bake starts once the colours are written: its transfer stage
-                    // would hold every core (and rayon's pool, which the recolouring uses) for
-                    // seconds. The bake in flight is stopped now, so that no older bake's fabric
-                    // replaces the recolouring before it is done.
-                    worker.recolour(RecolourRequest { bases, materials });
-                    self.baker.cancel();
-                    self.bake_after_recolour = Some(scene.clone());
-                    self.recolour_edited_at =
-                        Some(self.pending_fabric.as_ref().map_or_else(Instant::now, |(_, at)| *at));
-                }
-                (recolour, _) => {
-                    self.bake_after_recolour = None;
-                    self.baker.start_material_edit(
-                        scene.clone(),
-                        self.final_quality,
-                        Arc::clone(previous),
-                        recolour,
-                    );
-                }
-            }
+            self.baker.start_material_edit(scene.clone(), self.final_quality, Arc::clone(previous), recolour);
         } else {
             self.recolour = None;
             self.live_recoloured = None;
-            self.bake_after_recolour = None;
             self.baker.start(scene.clone(), bake_sequence(self.final_quality));
         }
         self.baked_scene = Some(scene);
@@ -525,17 +492,9 @@ impl ViewerApp {
             .then(|| RecolourRequest { bases: Arc::clone(bases), materials })
     }
 
-    /// Stops the bake in flight and the one a live recolouring would start.
+    /// Stops the bake in flight.
     fn cancel_bakes(&mut self) {
-        self.bake_after_recolour = None;
         self.baker.cancel();
-    }
-
-    /// The full bake of a colour edit written live, once the render worker has written it.
-    fn start_bake_after_recolour(&mut self) {
-        if let Some(scene) = self.bake_after_recolour.take() {
-            self.baker.start(scene, vec![self.final_quality]);
-        }
     }
 
     /// No bake running or waiting, the latest bake of the scene as edited on screen (not a
@@ -547,7 +506,6 @@ impl ViewerApp {
             .is_some_and(|s| bake_changes(self.baked_scene.as_ref(), s) == (false, false));
         baked_current
             && self.pending_fabric.is_none()
-            && self.bake_after_recolour.is_none()
             && !self.baker.busy()
             && self.uploading.is_empty()
             && self.fabric.as_ref().is_some_and(|f| !f.preview)
@@ -636,7 +594,6 @@ impl ViewerApp {
         self.shown_bake = None;
         self.recolour = None;
         self.live_recoloured = None;
-        self.bake_after_recolour = None;
         self.fabric = None;
         self.baker.start(file.clone(), bake_sequence(self.final_quality));
         self.baked_scene = Some(file);
@@ -735,14 +692,12 @@ impl ViewerApp {
                     self.last_edit = Instant::now();
                     self.edit_generation = self.generation;
                     log::info!("colours written from the recolouring bases in {:.0} ms", seconds * 1e3);
-                    self.start_bake_after_recolour();
                 }
                 WorkerEvent::RecolourFailed { message } => {
                     self.live_recolour_in_flight = false;
                     self.recolour_edited_at = None;
-                    // The full bake that follows shows the new colours.
+                    // The full bake that follows the edit's rest shows the new colours.
                     log::warn!("no live recolouring: {message}");
-                    self.start_bake_after_recolour();
                 }
                 WorkerEvent::MeshReady { bounds, seconds } => {
                     self.shell_id += 1;
