@@ -1284,9 +1284,7 @@ mod tests {
         let (exemplar, grid, materials) = tiny_fabric(&s);
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
-        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
-        let (_, yarns) = yarn_materials(&inputs).unwrap();
-        let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
         let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
         let pair = [colour(0.3), colour(0.9)];
         let exact = same_paths_iirtf(&exemplar, &materials, &grid, &s, &pair, &Cancel::new()).unwrap();
@@ -1323,9 +1321,7 @@ mod tests {
         let (exemplar, grid, materials) = tiny_fabric(&s);
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
-        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
-        let (_, yarns) = yarn_materials(&inputs).unwrap();
-        let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
         let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
         let (mut worst_diagonal, mut worst_off) = (0.0_f64, 0.0_f64);
         for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
@@ -1371,9 +1367,7 @@ mod tests {
     #[ignore = "diagnostic"]
     fn default_fabric_same_path_error() {
         let (exemplar, materials, s, grid, basis) = default_fabric_interactive();
-        let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings: s };
-        let (_, yarns) = yarn_materials(&inputs).unwrap();
-        let sampler = TransferSampler::new(&exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
         let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
         let y00 = 1.0 / (4.0 * PI);
         for pair in [
