@@ -814,7 +814,7 @@ pub fn bench_recolor(
             let exact = scene
                 .bake_inputs(settings0)
                 .iter()
-                .zip(&previews)
+                .zip(previews)
                 .map(|(inputs, preview)| same_paths_bake(inputs, preview))
                 .collect::<Result<Vec<_>>>()?;
             let refs: Vec<&Baked> = exact.iter().collect();
@@ -934,7 +934,7 @@ pub fn bench_recolor(
 /// basis's own paths evaluated exactly at `inputs`' colours.
 fn same_paths_bake(
     inputs: &twill_precompute::bake::pipeline::BakeInputs<'_>,
-    preview: &Baked,
+    mut preview: Baked,
 ) -> Result<Baked> {
     use twill_precompute::bake::recolour::{SlotColour, same_paths_iirtf};
     use twill_precompute::bcsdf::Material;
@@ -943,8 +943,7 @@ fn same_paths_bake(
         .iter()
         .map(|d| Material::from_desc(d).map(|m| SlotColour::of(&m)))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut baked = preview.clone();
-    baked.transfer.iirtf = same_paths_iirtf(
+    preview.transfer.iirtf = same_paths_iirtf(
         inputs.exemplar,
         inputs.materials,
         &preview.transfer.cells,
@@ -953,7 +952,7 @@ fn same_paths_bake(
         &Cancel::new(),
     )
     .map_err(|e| anyhow::anyhow!("the basis's paths at the new colours: {e}"))?;
-    Ok(baked)
+    Ok(preview)
 }
 
 /// How many colourways `twill bench recolor` tries, their seed, and the IIRTF paths per cell
