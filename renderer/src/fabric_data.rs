@@ -10,10 +10,14 @@
 //! The IIRTF dominates the memory (`cells × 3 × (L+1)⁴` values) and is stored as f16 pairs:
 //! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
 //! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
-//! binding. Every buffer is checked against the adapter's `max_storage_buffer_binding_size`
+//! binding. Forward lobes (`BakeSettings::forward_lobe`) are small beside it, `n + 1` vec4s
+//! of f32 per cell (n = (L+1)²: 16 (n + 1) bytes against the f16 IIRTF's 6 n², 11% of it at SH
+//! order 4, 6% at order 6), so they stay f32; a bake without them binds one zeroed vec4.
+//! Every buffer is checked against the adapter's `max_storage_buffer_binding_size`
 //! before upload; one that does not fit is an error naming the buffer, its size and the limit.
 
 use glam::Vec3;
+use twill_precompute::bake::iirtf::CellTransfer;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 
@@ -138,6 +142,13 @@ pub struct FabricArrays {
     pub iirtf: Vec<u32>,
     /// Per global cell: 1 if it holds segments (and so a transfer matrix), 0 if empty.
     pub cell_flags: Vec<u32>,
+    /// Forward-scattered light outside the SH transfer (`CellTransfer::forward`), twin of
+    /// `forward_lobes` in `shaders/shared/fabric_data.wgsl`: per global cell `n + 1` vec4s
+    /// (n = `header.sh_count`), `[cell * (n + 1) + j]` = `forward[j]` (rgb, w = 0) for
+    /// `j < n` and `[cell * (n + 1) + n]` = `forward_cosine` (rgb, w = 0); zeros for a cell
+    /// without a lobe. Empty when no cell of the set has one (the buffer is then one zeroed
+    /// vec4, never read: the plan leaves `ENABLE_FORWARD_LOBE` off).
+    pub forward_lobes: Vec<[f32; 4]>,
     pub cs_table: Vec<f32>,
     pub cg_table: Vec<f32>,
     pub gn_table: Vec<f32>,
@@ -214,6 +225,7 @@ impl FabricArrays {
             sos_weights: Vec::new(),
             iirtf: Vec::new(),
             cell_flags: Vec::new(),
+            forward_lobes: Vec::new(),
             cs_table: Vec::new(),
             cg_table: first.cg.values().to_vec(),
             gn_table: Vec::new(),
@@ -227,6 +239,7 @@ impl FabricArrays {
             )));
         }
         let mut iirtf_values: Vec<f32> = Vec::new();
+        let mut any_forward_lobe = false;
         let mut z_range = [f32::INFINITY, f32::NEG_INFINITY];
         let mut block_size = [0.0_f32; 2];
         for (e, baked) in exemplars.iter().enumerate() {
@@ -273,6 +286,23 @@ impl FabricArrays {
                 cell_blocks_y: cells.blocks()[1],
             });
             out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
+            for cell in &baked.transfer.iirtf.cells {
+                let lobe = cell.has_forward_lobe();
+                if lobe && cell.forward.len() != sh_count {
+                    return Err(FabricDataError::Inconsistent(format!(
+                        "exemplar {e}: a forward lobe of {} coefficients, expected {sh_count}",
+                        cell.forward.len()
+                    )));
+                }
+                let rgb = |c: [f32; 3]| [c[0], c[1], c[2], 0.0];
+                if lobe {
+                    out.forward_lobes.extend(cell.forward.iter().map(|f| rgb(*f)));
+                    out.forward_lobes.push(rgb(cell.forward_cosine));
+                } else {
+                    out.forward_lobes.extend(std::iter::repeat_n([0.0; 4], sh_count + 1));
+                }
+            }
+            any_forward_lobe |= baked.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
                 out.segments.push(SegmentGpu {
@@ -332,6 +362,9 @@ impl FabricArrays {
             out.gn_table.extend_from_slice(baked.gn.data());
         }
         out.iirtf = pack_f16_pairs(&iirtf_values);
+        if !any_forward_lobe {
+            out.forward_lobes = Vec::new();
+        }
         out.header = FabricHeaderGpu {
             exemplar_count: to_u32(exemplars.len(), "exemplars")?,
             sh_order: to_u32(sh_order, "SH order")?,
@@ -351,9 +384,16 @@ impl FabricArrays {
         Ok(out)
     }
 
-    /// Every buffer with its label and contents, in binding order (1 ..= 13).
+    /// Whether any cell of the set carries a forward lobe (then the frame plan compiles the
+    /// shading pass with `ENABLE_FORWARD_LOBE`).
     #[must_use]
-    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 13] {
+    pub fn has_forward_lobes(&self) -> bool {
+        !self.forward_lobes.is_empty()
+    }
+
+    /// Every buffer with its label and contents, in binding order (1 ..= 14).
+    #[must_use]
+    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 14] {
         [
             ("exemplars", bytemuck::cast_slice(&self.exemplars)),
             ("pattern", bytemuck::cast_slice(&self.pattern)),
@@ -368,6 +408,7 @@ impl FabricArrays {
             ("cg_table", bytemuck::cast_slice(&self.cg_table)),
             ("gn_table", bytemuck::cast_slice(&self.gn_table)),
             ("cell_flags", bytemuck::cast_slice(&self.cell_flags)),
+            ("forward_lobes", bytemuck::cast_slice(&self.forward_lobes)),
         ]
     }
 
@@ -470,13 +511,13 @@ pub struct FabricData {
     buffers: Vec<wgpu::Buffer>,
 }
 
-/// The layout of bind group 1 (a uniform and thirteen read-only storage buffers, visible to
+/// The layout of bind group 1 (a uniform and fourteen read-only storage buffers, visible to
 /// fragment and compute stages).
 #[must_use]
 pub fn fabric_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
     let mut entries = vec![uniform_entry(0, visibility)];
-    entries.extend((1..=13).map(|binding| storage_entry(binding, visibility, true)));
+    entries.extend((1..=14).map(|binding| storage_entry(binding, visibility, true)));
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("twill.fabric.bind_group_layout"),
         entries: &entries,
@@ -592,7 +633,8 @@ pub struct Recolouring<'a> {
 impl FabricData {
     /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows and
     /// IIRTF cells (as f16, written straight into the packed array by `write_cell`), nothing
-    /// else. Returns the buffers written.
+    /// else (forward lobes, `forward_lobes`, are not in the recolouring basis: they keep the
+    /// colours they were baked with until the rebake). Returns the buffers written.
     ///
     /// # Errors
     /// When the recolouring does not fit the exemplar's slots in the buffers.

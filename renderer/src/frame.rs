@@ -263,7 +263,7 @@ pub struct Renderer {
 }
 
 /// The renderer needs this many storage buffers in one shader stage (shading pass).
-const STORAGE_BUFFERS_NEEDED: u32 = 17;
+const STORAGE_BUFFERS_NEEDED: u32 = 18;
 
 impl Renderer {
     /// Uploads the shell and builds the pipelines. `fabric` must come from the same device.
@@ -328,7 +328,13 @@ impl Renderer {
     /// Plans a frame for these lights and settings.
     #[must_use]
     pub fn plan(&self, lights: &[Light], settings: &FrameSettings) -> FramePlan {
-        plan_frame(lights, settings, self.shell.flat_normal, self.shell.uniform_frame.is_some())
+        plan_frame(
+            lights,
+            settings,
+            self.shell.flat_normal,
+            self.shell.uniform_frame.is_some(),
+            self.fabric.arrays.has_forward_lobes(),
+        )
     }
 
     /// `settings` within the adapter's texture limit: an image larger than
@@ -867,13 +873,15 @@ fn read_display(device: &wgpu::Device, targets: &FrameTargets) -> Result<Vec<[u8
 }
 
 /// Plans a frame (also usable without a device, e.g. for `--print-plan`). `uniform_frame`:
-/// every tetrahedron of the shell has the same world → flat-fabric frame.
+/// every tetrahedron of the shell has the same world → flat-fabric frame; `forward_lobe`: the
+/// bake carries forward lobes (`FabricArrays::has_forward_lobes`).
 #[must_use]
 pub fn plan_frame(
     lights: &[Light],
     settings: &FrameSettings,
     flat_normal: Option<glam::Vec3>,
     uniform_frame: bool,
+    forward_lobe: bool,
 ) -> FramePlan {
     let plan_lights: Vec<PlanLight> = lights
         .iter()
@@ -890,6 +898,7 @@ pub fn plan_frame(
             sigma_glo_cm: settings.gpu.sigma_glo_cm,
             spp: settings.spp,
             uniform_frame: uniform_frame && settings.frame_transfer,
+            forward_lobe,
         },
     )
 }

@@ -16,7 +16,8 @@
 //!   only with shadow maps), and the Gaussian blur of V (only with multiple scattering, shadow
 //!   maps and σ_glo > 0);
 //! - which shading terms are compiled into the shading pipeline (single, multiple, each
-//!   visibility path), as WGSL override constants, so a skipped path costs nothing.
+//!   visibility path, the forward lobes of a bake that has them), as WGSL override constants,
+//!   so a skipped path costs nothing.
 //!
 //! The thresholds are the shading twins' (`twill_precompute::shading::sg_path_weights`).
 //! The plan prints as a list of passes (`twill render --print-plan`), and the tests assert it.
@@ -88,6 +89,9 @@ pub struct PlanInputs {
     /// Every tetrahedron of the shell has the same world → flat-fabric frame (the flat swatch):
     /// then the lights' SH is the same at every pixel unless shadow maps vary it.
     pub uniform_frame: bool,
+    /// The loaded bake carries forward lobes (`BakeSettings::forward_lobe`: some cell with
+    /// `CellTransfer::has_forward_lobe`, `FabricArrays::has_forward_lobes`).
+    pub forward_lobe: bool,
 }
 
 /// One pass of a frame, with everything that decides how it runs (the frame executes these:
@@ -112,14 +116,15 @@ pub enum Pass {
     CellTransfer,
     GBuffer,
     /// Deferred shading, compiled with exactly these terms: single scattering by the listed
-    /// local-visibility paths, multiple scattering, the shadow maps' visibility, and the cells'
-    /// once-per-frame transfer in place of the per-pixel one.
+    /// local-visibility paths, multiple scattering, the shadow maps' visibility, the cells'
+    /// once-per-frame transfer in place of the per-pixel one, and the bake's forward lobes.
     Shade {
         single: bool,
         multiple: bool,
         paths: Vec<LocalVisibility>,
         global_visibility: bool,
         cell_transfer: bool,
+        forward_lobe: bool,
     },
     ToneMap,
 }
@@ -172,6 +177,8 @@ pub struct FramePlan {
     pub blur: bool,
     /// Multiple scattering reads each cell's A c_in from a once-per-frame pass.
     pub cell_transfer: bool,
+    /// Multiple scattering adds each light's forward lobe (the bake has them).
+    pub forward_lobe: bool,
     pub sigma_glo_cm: f64,
     pub spp: u32,
 }
@@ -230,6 +237,7 @@ impl FramePlan {
             shadow_maps,
             blur: shadow_maps && multiple && inputs.sigma_glo_cm > 0.0,
             cell_transfer: multiple && !shadow_maps && inputs.uniform_frame,
+            forward_lobe: multiple && inputs.forward_lobe,
             sigma_glo_cm: inputs.sigma_glo_cm,
             spp: inputs.spp,
         }
@@ -296,6 +304,7 @@ impl FramePlan {
             paths,
             global_visibility: self.shadow_maps,
             cell_transfer: self.cell_transfer,
+            forward_lobe: self.forward_lobe,
         });
         passes.push(Pass::ToneMap);
         passes
@@ -317,7 +326,7 @@ impl fmt::Display for FramePlan {
                 Pass::CellTransfer => {
                     writeln!(f, "  {} (once per frame: one fabric frame, no shadows)", pass.name())?;
                 }
-                Pass::Shade { single, multiple, paths, global_visibility, cell_transfer } => {
+                Pass::Shade { single, multiple, paths, global_visibility, cell_transfer, forward_lobe } => {
                     let mut terms = Vec::new();
                     if *single {
                         terms.push(format!(
@@ -327,7 +336,8 @@ impl fmt::Display for FramePlan {
                     }
                     if *multiple {
                         let cells = if *cell_transfer { "cells' A c_in" } else { "per pixel" };
-                        terms.push(format!("multiple scattering [IIRTF, {cells}]"));
+                        let forward = if *forward_lobe { " + forward lobes" } else { "" };
+                        terms.push(format!("multiple scattering [IIRTF, {cells}{forward}]"));
                     }
                     let shadows = if *global_visibility { " x shadow-map visibility" } else { "" };
                     writeln!(f, "  {}: {}{shadows}; per sample", pass.name(), terms.join(" + "))?;
@@ -356,6 +366,7 @@ mod tests {
             sigma_glo_cm: 0.05,
             spp: 4,
             uniform_frame: flat,
+            forward_lobe: false,
         }
     }
 
@@ -400,6 +411,31 @@ mod tests {
         let single = PlanInputs { components: Components::SingleOnly, ..inputs(true) };
         let plan = FramePlan::new(&[SUN, sky], &single);
         assert!(!plan.cell_transfer && !plan.passes().contains(&Pass::CellTransfer));
+    }
+
+    #[test]
+    fn forward_lobes_are_shaded_only_for_a_bake_that_has_them() {
+        let sky = PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 8.0 };
+        let shade = |plan: &FramePlan| {
+            plan.passes().into_iter().find_map(|p| match p {
+                Pass::Shade { forward_lobe, .. } => Some(forward_lobe),
+                _ => None,
+            })
+        };
+        for flat in [true, false] {
+            // A bake without forward lobes: the shading pass is compiled without them.
+            let plan = FramePlan::new(&[SUN, sky], &inputs(flat));
+            assert!(!plan.forward_lobe && shade(&plan) == Some(false), "{plan}");
+            assert!(!plan.to_string().contains("forward"), "{plan}");
+            // With them: on, in either transfer path.
+            let with = PlanInputs { forward_lobe: true, ..inputs(flat) };
+            let plan = FramePlan::new(&[SUN, sky], &with);
+            assert!(plan.forward_lobe && shade(&plan) == Some(true), "{plan}");
+            assert!(plan.to_string().contains("forward lobes"), "{plan}");
+            // ... but not without multiple scattering.
+            let single = PlanInputs { components: Components::SingleOnly, ..with };
+            assert_eq!(shade(&FramePlan::new(&[SUN, sky], &single)), Some(false));
+        }
     }
 
     #[test]

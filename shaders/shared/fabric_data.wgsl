@@ -17,6 +17,12 @@
 //   gn_table        [(((global material * 2 + lobe) * (gn_intervals + 1) + node) * 2 + {0: Gn, 1: dGn/dmu}]
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
 //   cell_flags      [global cell] = 1 if the cell holds segments (has a transfer matrix), else 0
+//   forward_lobes   [global cell * (sh_count + 1) + j] = the cell's forward lobe F_j (rgb, w unused)
+//                   for j < sh_count, and [global cell * (sh_count + 1) + sh_count] its forward
+//                   cosine (rgb); zeros for a cell without a lobe (FabricArrays::forward_lobes).
+//                   A bake without forward lobes binds one zeroed vec4, read only when
+//                   ENABLE_FORWARD_LOBE is set (shade.wgsl), which the plan sets only for a bake
+//                   that has them.
 
 const EMPTY_VOXEL: u32 = 0xffffffffu;
 const MATERIAL_FIBER: u32 = 0u;
@@ -95,6 +101,7 @@ struct MaterialGpu {
 @group(1) @binding(11) var<storage, read> cg_table: array<f32>;
 @group(1) @binding(12) var<storage, read> gn_table: array<f32>;
 @group(1) @binding(13) var<storage, read> cell_flags: array<u32>;
+@group(1) @binding(14) var<storage, read> forward_lobes: array<vec4<f32>>;
 
 // Euclidean remainder (WGSL's % keeps the sign of the dividend).
 fn wrap_f32(x: f32, period: f32) -> f32 {

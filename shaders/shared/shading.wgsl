@@ -1,7 +1,8 @@
 // Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
 // precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma; visibility.rs:
 // ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs: light_sh,
-// multiple_scattering_in_cell), compared on the GPU by renderer/tests/gpu_shading_parity.rs.
+// multiple_scattering_in_cell, forward_sharpness, forward_scattering), compared on the GPU by
+// renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
 // global segment id.
 #import shared/special.wgsl
@@ -418,4 +419,94 @@ fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<f
     }
     transferred_at(e, segment, p, c_in, &coeffs);
     return multiple_from_transferred(segment, wo, &coeffs);
+}
+
+// The largest mean cosine a forward lobe is given (multiple.rs MAX_FORWARD_MEAN_COSINE).
+const MAX_FORWARD_MEAN_COSINE: f32 = 0.999;
+
+// The sharpness of the SG a cell's forward-scattered light is shaded as (multiple.rs
+// forward_sharpness), from its F_0 and forward cosine (each summed over channels): the mean
+// cosine mu = sum(cosine) / (sqrt(4 pi) sum(F_0)), clamped to [0, MAX_FORWARD_MEAN_COSINE],
+// to the vMF concentration mu (3 - mu^2) / (1 - mu^2) (Banerjee et al.). No forward light: 0.
+fn forward_sharpness(forward0: vec3<f32>, forward_cosine: vec3<f32>) -> f32 {
+    let strength = (forward0.x + forward0.y + forward0.z) * sqrt(4.0 * PI);
+    if (!(strength > 0.0)) {
+        return 0.0;
+    }
+    let mu = clamp((forward_cosine.x + forward_cosine.y + forward_cosine.z) / strength, 0.0, MAX_FORWARD_MEAN_COSINE);
+    return mu * (3.0 - mu * mu) / (1.0 - mu * mu);
+}
+
+// The forward lobe at the shaded point p (exemplar cm): F_j interpolated over the same cells
+// and weights as the transfer (transfer_cells: trilinear between the cells around p, or the
+// segment's own cell where all eight are empty), written to `forward` (its first sh_count
+// entries); returns the sharpness lambda_C of the interpolated lobe (forward_sharpness of the
+// interpolated F_0 and cosine). Read from `forward_lobes` (shared/fabric_data.wgsl); the
+// first half of multiple.rs forward_scattering.
+fn forward_lobe_at(e: u32, segment: u32, p: vec3<f32>, forward: ptr<function, array<vec3<f32>, 49>>) -> f32 {
+    let n = fabric.sh_count;
+    for (var j = 0u; j < n; j++) {
+        (*forward)[j] = vec3<f32>(0.0);
+    }
+    var cosine = vec3<f32>(0.0);
+    let around = transfer_cells(e, segment, p);
+    for (var k = 0u; k < 8u; k++) {
+        let w = around.weights[k];
+        if (w > 0.0) {
+            let base = around.cells[k] * (n + 1u);
+            for (var j = 0u; j < n; j++) {
+                (*forward)[j] += w * forward_lobes[base + j].xyz;
+            }
+            cosine += w * forward_lobes[base + n].xyz;
+        }
+    }
+    return forward_sharpness((*forward)[0], cosine);
+}
+
+// Forward-scattered radiance of one light of unit colour toward wo (multiple.rs
+// forward_scattering, its per-light term, without V_glo and the light's colour, which the
+// caller multiplies in): the strength s = sum_j F_j c_j (c the light's SH, light_sh_accumulate
+// with unit weight: Y_j(dir) for a directional light, sqrt(4 pi / (2l + 1)) z_l(lambda_l)
+// Y_j(dir) for an SG light of sharpness lambda_l >= 0; `sharpness` < 0 marks directional),
+// clamped at zero per channel, arrives as a normalized SG about `dir` of sharpness lambda_C
+// (directional) or lambda_C lambda_l / (lambda_C + lambda_l) (SG), scattered in closed form:
+// s Gamma(dir, lambda, wo) / M(lambda). `forward` and `lambda_cell` from forward_lobe_at.
+fn forward_scattered(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, forward: ptr<function, array<vec3<f32>, 49>>, lambda_cell: f32) -> vec3<f32> {
+    let order = fabric.sh_order;
+    var y: array<f32, 49>;
+    sh_eval_f32(order, dir, &y);
+    var strength = vec3<f32>(0.0);
+    for (var l = 0u; l <= order; l++) {
+        var scale = 1.0;
+        if (sharpness >= 0.0) {
+            scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+        }
+        var band = vec3<f32>(0.0);
+        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+            band += (*forward)[j] * y[j];
+        }
+        strength += scale * band;
+    }
+    strength = max(strength, vec3<f32>(0.0));
+    if (all(strength == vec3<f32>(0.0))) {
+        return vec3<f32>(0.0);
+    }
+    var lambda = lambda_cell;
+    if (sharpness >= 0.0) {
+        lambda = lambda_cell * sharpness / max(lambda_cell + sharpness, 1e-30);
+    }
+    let s = segments[segment];
+    let space = omega_o_space(normalize(s.direction), wo);
+    return strength * sg_bcsdf_gamma(fiber_constants(s.material), space, dir, lambda) / sg_mass_f32(lambda);
+}
+
+// Forward-scattered radiance of `light` (from direction `dir`, flat-fabric frame) at the shaded
+// point p of `segment` toward wo, with its colour and without V_glo (multiple.rs
+// forward_scattering for one light of V_glo = 1): forward_lobe_at and forward_scattered in
+// one. The shading pass calls the two halves itself, to interpolate the lobe once per pixel.
+fn shade_forward(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, light: LightGpu, dir: vec3<f32>) -> vec3<f32> {
+    var forward: array<vec3<f32>, 49>;
+    let lambda_cell = forward_lobe_at(e, segment, p, &forward);
+    let sharpness = select(-1.0, light.sharpness, light.kind == LIGHT_SG);
+    return light.color * forward_scattered(segment, wo, dir, sharpness, &forward, lambda_cell);
 }

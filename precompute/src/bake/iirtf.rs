@@ -91,13 +91,28 @@ pub struct CellTransfer {
     /// Standard error of each entry (same layout), estimated as if the paths were independent:
     /// their starts are stratified ([`path_strata`]), so this is an upper bound.
     pub std_error: Vec<[f32; 3]>,
+    /// Forward-scattered light (`BakeSettings::forward_lobe`; empty without it, and then the
+    /// matrix holds all of the transfer): the SH coefficients over light directions ω0 of
+    /// `F(ω0) = ∫ T_fwd(ω0, ω1, C) dω1`, the forward chains' radiance arriving in the cell
+    /// from a unit-irradiance light, integrated over its arrival directions; n entries, RGB.
+    pub forward: Vec<[f32; 3]>,
+    /// `∫∫ T_fwd(ω0, ω1, C) (ω0·ω1) dω0 dω1`: over `√(4π) forward[0]`, the mean cosine between
+    /// the light's direction and the one its forward-scattered light arrives from, which sets
+    /// the width of the lobe it is shaded as ([`forward_sharpness`]). Zero without a lobe.
+    pub forward_cosine: [f32; 3],
 }
 
 impl CellTransfer {
     /// The transfer of a cell with no segments: no entries, no paths.
     #[must_use]
     pub fn empty() -> Self {
-        Self { paths: 0, matrix: Vec::new(), std_error: Vec::new() }
+        Self { paths: 0, matrix: Vec::new(), std_error: Vec::new(), forward: Vec::new(), forward_cosine: [0.0; 3] }
+    }
+
+    /// Whether the cell carries forward-scattered light outside its matrix.
+    #[must_use]
+    pub fn has_forward_lobe(&self) -> bool {
+        !self.forward.is_empty()
     }
 
     /// Whether the cell holds no matrix (it has no segments and transfers nothing).
@@ -185,6 +200,13 @@ impl TryFrom<StoredIirtf> for Iirtf {
                     c.std_error.len()
                 ));
             }
+            if !c.forward.is_empty() && (c.paths == 0 || c.forward.len() != n) {
+                return Err(format!(
+                    "IIRTF cell {i} ({} paths) has {} forward-lobe coefficients, expected 0 or {n}",
+                    c.paths,
+                    c.forward.len()
+                ));
+            }
         }
         Ok(Self { sh_order: stored.sh_order, light_domain: stored.light_domain, cells: stored.cells })
     }
@@ -215,6 +237,14 @@ pub enum TransferPart {
     FirstReflection,
     /// The connections of every later event: light scattered two or more times.
     Later,
+    /// Forward chains: light transmitted by every fiber on its way, the TT lobe's share of
+    /// each event's scattering (the path's continuations and its light connection alike), so
+    /// that it and [`Self::AfterReflection`] split every connection's weight exactly. Light
+    /// that stays peaked around the light's direction however many fibers it crosses.
+    ForwardChains,
+    /// What [`Self::ForwardChains`] leaves: light reflected at least once on its way (a
+    /// Lambertian surface's scattering counts here).
+    AfterReflection,
 }
 
 impl TransferPart {
@@ -226,6 +256,17 @@ impl TransferPart {
             Self::FirstTransmission => event == 1 && lobe == Some(Lobe::Tt),
             Self::FirstReflection => event == 1 && lobe != Some(Lobe::Tt),
             Self::Later => event > 1,
+            Self::ForwardChains | Self::AfterReflection => true,
+        }
+    }
+
+    /// The share of a connection's weight this part keeps, given the whole weight `all` and
+    /// its forward-chain share `forward` (only the two chain parts split a weight).
+    pub(crate) fn share(self, all: Rgb, forward: Rgb) -> Rgb {
+        match self {
+            Self::ForwardChains => forward,
+            Self::AfterReflection => all - forward,
+            _ => all,
         }
     }
 }
@@ -240,6 +281,10 @@ pub struct TransferSample {
     /// light sample ω0 lies in the light domain and reaches the fiber; the path's estimate of
     /// `∫ T(ω0, ω1) f(ω0) dω0 / p(ω1)` for any f is `Σ weight · f(ω0)`.
     pub lights: Vec<(DVec3, Rgb)>,
+    /// Per entry of `lights`, the forward chains' share of its weight (the TT lobe's share of
+    /// every event's scattering on the way, [`TransferPart::ForwardChains`]) before the
+    /// sampler's part is taken.
+    pub forward: Vec<Rgb>,
     pub segment: u32,
 }
 
@@ -344,9 +389,12 @@ impl TransferSampler {
         let (k, view, mut hit) = self.first_hit(cell_segments, &strata);
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let mut lights = Vec::new();
+        let mut forward_shares = Vec::new();
         let fibers = &self.scene;
         let mut dir = view;
         let mut throughput = Rgb::ONE;
+        // The TT lobe's share of `throughput` (TransferPart::ForwardChains).
+        let mut forward = Rgb::ONE;
         for event in 1..=MAX_DEPTH {
             let Some(h) = hit else { break };
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
@@ -368,7 +416,10 @@ impl TransferSampler {
                 if f != Rgb::ZERO
                     && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber))
                 {
-                    lights.push((to_light, throughput * f * (inv_p1 / pdf)));
+                    let scale = inv_p1 / pdf;
+                    let share = forward * material.eval_cos_tt(t, to_light, wo) * scale;
+                    lights.push((to_light, self.part.share(throughput * f * scale, share)));
+                    forward_shares.push(share);
                 }
             }
             let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
@@ -380,13 +431,17 @@ impl TransferSampler {
                 break;
             }
             throughput *= f / pdf;
+            forward *= material.eval_cos_tt(t, wi, wo) / pdf;
             dir = wi;
             hit = fibers.closest_hit(position.as_vec3(), wi.as_vec3(), f32::INFINITY, Some(h.fiber));
+            let before = throughput.max_element();
             if !russian_roulette(event, &mut throughput, &mut rng) {
                 break;
             }
+            // Roulette divides the whole throughput by its survival; the share goes with it.
+            forward *= throughput.max_element() / before;
         }
-        TransferSample { view, lights, segment: k }
+        TransferSample { view, lights, forward: forward_shares, segment: k }
     }
 }
 
@@ -603,8 +658,9 @@ pub fn bake_iirtf_cells(
         TransferSampler::new(exemplar, yarn_materials, options.light_domain)?.with_part(options.part);
     let order = settings.sh_order;
     let paths = settings.iirtf_paths_per_cell;
+    let forward_lobe = settings.forward_lobe && options.part == TransferPart::All;
     Ok(for_each_cell(grid, cells, paths, settings.seed, cancel, progress, &|segments, stream, tick| {
-        bake_cell(&sampler, segments, order, paths, stream, tick)
+        bake_cell(&sampler, segments, order, paths, forward_lobe, stream, tick)
     })?)
 }
 
@@ -673,11 +729,15 @@ pub(crate) fn for_each_cell<T: Send>(
 
 /// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop
 /// (then `None`).
+/// One cell's transfer from `paths` paths. With `forward_lobe`, each light connection's
+/// forward-chain share goes to the forward-lobe sums (its SH over ω0, and its cosine to the
+/// arrival direction ω1) and only the rest to the matrix.
 fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
     order: usize,
     paths: usize,
+    forward_lobe: bool,
     stream: u64,
     tick: &dyn Fn(usize) -> bool,
 ) -> Option<CellTransfer> {
@@ -687,6 +747,8 @@ fn bake_cell(
     }
     let mut sum = vec![Rgb::ZERO; n * n];
     let mut sum2 = vec![Rgb::ZERO; n * n];
+    let mut forward = vec![Rgb::ZERO; if forward_lobe { n } else { 0 }];
+    let mut forward_cosine = Rgb::ZERO;
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut light = vec![Rgb::ZERO; n];
     for p in 0..paths {
@@ -699,10 +761,19 @@ fn bake_cell(
         }
         // The path's light-side SH vector: Σ over its events of weight · Y(ω0).
         light.fill(Rgb::ZERO);
-        for (to_light, weight) in &s.lights {
+        for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
             sh_eval(order, *to_light, &mut y0);
+            let weight = if forward_lobe {
+                for (f, y) in forward.iter_mut().zip(&y0) {
+                    *f += *share * *y;
+                }
+                forward_cosine += *share * to_light.dot(s.view);
+                *weight - *share
+            } else {
+                *weight
+            };
             for (l, y) in light.iter_mut().zip(&y0) {
-                *l += *weight * *y;
+                *l += weight * *y;
             }
         }
         sh_eval(order, s.view, &mut y1);
@@ -730,7 +801,9 @@ fn bake_cell(
             })
         })
         .collect();
-    Some(CellTransfer { paths, matrix, std_error })
+    let forward = forward.iter().map(|f| to_f32(*f / count)).collect();
+    let forward_cosine = to_f32(forward_cosine / count);
+    Some(CellTransfer { paths, matrix, std_error, forward, forward_cosine })
 }
 
 #[cfg(test)]
@@ -807,26 +880,33 @@ mod tests {
                 .unwrap()
         };
         let all = bake_part(TransferPart::All);
-        let parts = [TransferPart::FirstTransmission, TransferPart::FirstReflection, TransferPart::Later]
-            .map(bake_part);
         let total = |iirtf: &Iirtf| -> f64 {
             iirtf.cells.iter().flat_map(|c| &c.matrix).map(|e| f64::from(e[0]).abs()).sum()
         };
-        // Every part carries light (little is the first neighbour's reflection: the R cone
-        // about a fiber seldom reaches the sky past its neighbours).
-        for part in &parts {
-            assert!(total(part) > 0.0, "a part without light: {} of {}", total(part), total(&all));
-        }
-        for (c, a) in all.cells.iter().enumerate() {
-            let scale = a.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs())).max(1e-30);
-            for (i, x) in a.matrix.iter().enumerate() {
-                for ch in 0..3 {
-                    let sum: f32 = parts.iter().map(|p| p.cells[c].matrix[i][ch]).sum();
-                    assert!((x[ch] - sum).abs() <= 1e-5 * scale, "cell {c}, entry {i}: {x:?} against {sum}");
-                }
+        // Two splits: by the first event's lobe and depth, and into forward chains and the rest.
+        let by_first_event =
+            [TransferPart::FirstTransmission, TransferPart::FirstReflection, TransferPart::Later].map(bake_part);
+        let by_chain = [TransferPart::ForwardChains, TransferPart::AfterReflection].map(bake_part);
+        for parts in [&by_first_event[..], &by_chain[..]] {
+            // Every part carries light (little is the first neighbour's reflection: the R cone
+            // about a fiber seldom reaches the sky past its neighbours).
+            for part in parts {
+                assert!(total(part) > 0.0, "a part without light: {} of {}", total(part), total(&all));
             }
-            assert!(parts.iter().all(|p| p.cells[c].paths == a.paths));
+            for (c, a) in all.cells.iter().enumerate() {
+                let scale = a.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs())).max(1e-30);
+                for (i, x) in a.matrix.iter().enumerate() {
+                    for ch in 0..3 {
+                        let sum: f32 = parts.iter().map(|p| p.cells[c].matrix[i][ch]).sum();
+                        assert!((x[ch] - sum).abs() <= 1e-5 * scale, "cell {c}, entry {i}: {x:?} against {sum}");
+                    }
+                }
+                assert!(parts.iter().all(|p| p.cells[c].paths == a.paths));
+            }
         }
+        // Light reflected at least once is never negative (the forward share of a weight is at
+        // most the weight, channel by channel): its constant term is a mean of such weights.
+        assert!(by_chain[1].cells.iter().flat_map(|c| c.matrix.first()).all(|e| e.iter().all(|&v| v >= 0.0)));
     }
 
     #[test]
@@ -880,6 +960,8 @@ mod tests {
             paths,
             matrix: vec![[0.5, 0.25, -1.0]; 16],
             std_error: vec![[0.1; 3]; 16],
+            forward: vec![[0.25; 3]; 4],
+            forward_cosine: [0.2; 3],
         };
         let iirtf = Iirtf {
             sh_order: 1,
@@ -1005,7 +1087,7 @@ mod tests {
             ShPrediction { mean, std_error: ((s2 / count - mean * mean) / (count - 1.0)).powf(0.5) }
         };
         // The matrix route gives the same number as the per-path sums (to f32 rounding).
-        let transfer = bake_cell(&sampler, in_cell, 4, iirtf_paths, stream, &|_| true).unwrap();
+        let transfer = bake_cell(&sampler, in_cell, 4, iirtf_paths, false, stream, &|_| true).unwrap();
         let p4 = predict(4);
         {
             let n = sh_count(4);

@@ -90,10 +90,10 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 3, 1, 1, 1, 2];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 4, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key).
-pub const BAKE_LAYOUT_VERSION: u32 = 2;
+pub const BAKE_LAYOUT_VERSION: u32 = 3;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -1022,7 +1022,8 @@ impl StageKeys {
             .f64(s.cell_depth_mfp)
             .usize(s.iirtf_paths_per_cell)
             .usize(s.sh_order)
-            .u64(s.seed);
+            .u64(s.seed)
+            .u32(u32::from(s.forward_lobe));
         h.finish()
     }
 }
@@ -1075,6 +1076,7 @@ pub(crate) mod tests {
             voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 3,
+            forward_lobe: false,
         }
     }
 

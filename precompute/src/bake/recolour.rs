@@ -405,7 +405,7 @@ impl RecolourBasis {
                 (v, [s; 3])
             })
             .unzip();
-        Ok(super::iirtf::CellTransfer { paths: basis.paths, matrix, std_error })
+        Ok(super::iirtf::CellTransfer { paths: basis.paths, matrix, std_error, ..super::iirtf::CellTransfer::empty() })
     }
 
     /// The whole IIRTF at `colours` (cells in parallel).
@@ -683,7 +683,7 @@ fn same_paths_cell(
             (mean.map(|v| v as f32), error)
         })
         .unzip();
-    Some(super::iirtf::CellTransfer { paths, matrix, std_error })
+    Some(super::iirtf::CellTransfer { paths, matrix, std_error, ..super::iirtf::CellTransfer::empty() })
 }
 
 /// The walk of the basis's paths over `grid` (which must be `exemplar`'s), and its light

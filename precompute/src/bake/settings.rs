@@ -51,6 +51,12 @@ pub struct BakeSettings {
     /// Rays cast to measure the mean free path.
     pub mfp_samples: usize,
     pub seed: u64,
+    /// Carry forward-scattered light (light transmitted by every fiber on its way, peaked
+    /// around the light's direction) outside the SH transfer, as a lobe about each light shaded
+    /// in closed form (`bake::iirtf`, `shading::multiple`). Off: the paper's SH transfer holds
+    /// all of it.
+    #[serde(default)]
+    pub forward_lobe: bool,
 }
 
 impl Quality {
@@ -81,6 +87,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 1.75,
                 mfp_samples: 4_000,
                 seed: 1,
+                forward_lobe: false,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
@@ -95,6 +102,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 2.0,
                 mfp_samples: 20_000,
                 seed: 1,
+                forward_lobe: false,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
@@ -109,6 +117,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 2.5,
                 mfp_samples: 100_000,
                 seed: 1,
+                forward_lobe: false,
             },
         }
     }

@@ -290,10 +290,13 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
     );
     for (e, x) in part.exemplars.iter().enumerate() {
         let range = |r: &Range<usize>| u32s(vec![r.start as u32, r.end as u32]);
-        let (mut matrix, mut error) = (Vec::new(), Vec::new());
+        let (mut matrix, mut error, mut forward) = (Vec::new(), Vec::new(), Vec::new());
         for cell in x.transfer.iter().filter(|c| c.paths > 0) {
             matrix.extend(cell.matrix.iter().flatten());
             error.extend(cell.std_error.iter().flatten());
+            if cell.has_forward_lobe() {
+                forward.extend(cell.forward.iter().flatten().chain(&cell.forward_cosine));
+            }
         }
         let entries = x.transfer.iter().find(|c| !c.is_empty()).map_or(0, |c| c.matrix.len()) as u32;
         let words: Vec<u8> = x.images.words().iter().flat_map(|w| w.to_le_bytes()).collect();
@@ -306,7 +309,8 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
             .section(&format!("e{e}.paths"), key, u32s(x.transfer.iter().map(|c| c.paths as u32).collect()))
             .section(&format!("e{e}.entries"), key, u32s(vec![entries]))
             .section(&format!("e{e}.matrix"), key, Array::vector(ArrayData::F32(matrix)))
-            .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F32(error)));
+            .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F32(error)))
+            .section(&format!("e{e}.forward"), key, Array::vector(ArrayData::F32(forward)));
     }
     writer.write(path)?;
     Ok(())
@@ -382,6 +386,17 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
             )));
         }
         let rgb = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        // Forward lobes: per nonempty cell, n = √entries coefficients and the cosine, or none.
+        let forward = f32s(&format!("e{e}.forward"))?;
+        let n = entries.isqrt();
+        let per_cell = 3 * (n + 1);
+        if !forward.is_empty() && (n * n != entries || forward.len() != per_cell * nonempty) {
+            return Err(bad(format!(
+                "e{e}.forward: {} values for {nonempty} cells of {entries} entries, expected 0 or {}",
+                forward.len(),
+                per_cell * nonempty
+            )));
+        }
         let mut at = 0;
         let transfer = paths
             .iter()
@@ -391,10 +406,18 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
                 }
                 let range = 3 * entries * at..3 * entries * (at + 1);
                 at += 1;
+                let (forward, forward_cosine) = if forward.is_empty() {
+                    (Vec::new(), [0.0; 3])
+                } else {
+                    let lobe = &forward[per_cell * (at - 1)..per_cell * at];
+                    (rgb(&lobe[..3 * n]), [lobe[3 * n], lobe[3 * n + 1], lobe[3 * n + 2]])
+                };
                 CellTransfer {
                     matrix: rgb(&matrix[range.clone()]),
                     std_error: rgb(&error[range]),
                     paths: p as usize,
+                    forward,
+                    forward_cosine,
                 }
             })
             .collect();
@@ -430,6 +453,7 @@ mod tests {
             voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 5,
+            forward_lobe: false,
         }
     }
 

@@ -141,6 +141,16 @@ impl Material {
         }
     }
 
+    /// The TT lobe's part of [`Self::eval_cos`] (`C_TT` times the fiber's transmitted part;
+    /// zero for a Lambertian surface, which transmits nothing).
+    #[must_use]
+    pub fn eval_cos_tt(&self, t: DVec3, wi: DVec3, wo: DVec3) -> Rgb {
+        match self {
+            Self::Fiber(f) => f.c_tt() * f.eval_cos_parts(t, wi, wo).1,
+            Self::Lambert(_) => Rgb::ZERO,
+        }
+    }
+
     /// Solid-angle density of [`Self::sample_colour_free`] (for multiple importance sampling
     /// in a walk that must not read the colours).
     #[must_use]

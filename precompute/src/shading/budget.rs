@@ -59,7 +59,7 @@ use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
 use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
 use crate::image::{Estimate, Film, Image, compare};
-use crate::pathtrace::integrator::{below_ground, radiance_from};
+use crate::pathtrace::integrator::{below_ground, occluded, radiance_from, russian_roulette, trace};
 use crate::pathtrace::{Component, Light, RenderSettings, render};
 use crate::raycast::Hit;
 use crate::scene::{Scene, camera_from};
@@ -265,6 +265,18 @@ pub fn error_budget(
         })?;
         push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
     }
+    if settings.split_transfer {
+        for (part, name) in [
+            (TransferPart::ForwardChains, "2a rung 2's forward chains alone (light transmitted by every fiber)"),
+            (TransferPart::AfterReflection, "2b rung 2's light reflected at least once (2a + 2b = 2)"),
+        ] {
+            let t = Instant::now();
+            let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+                Ok(indirect_light_part(scene, hit, midpoint(hit), wo, part, rng))
+            })?;
+            push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
+        }
+    }
     let grid = &baked.transfer.cells;
     let cell = grid.cell_size_cm();
     let cells = format!(
@@ -290,6 +302,8 @@ pub fn error_budget(
             (TransferPart::FirstTransmission, "4a rung 4′ with the first neighbour's transmission alone"),
             (TransferPart::FirstReflection, "4b rung 4′ with the first neighbour's reflection alone"),
             (TransferPart::Later, "4c rung 4′ with light scattered twice or more (4a + 4b + 4c = 4′)"),
+            (TransferPart::ForwardChains, "4d rung 4′ with the forward chains alone (against 2a)"),
+            (TransferPart::AfterReflection, "4e rung 4′ with light reflected at least once (against 2b)"),
         ] {
             let t = Instant::now();
             let part_baked = with_transfer_part(scene, baked, part)?;
@@ -402,6 +416,66 @@ fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin
     };
     !below_ground(&scene.path_scene, start, dir)
         && !fibers.any_hit_f64(start, dir, f64::INFINITY, Some(hit.fiber))
+}
+
+/// One sample of `part` (`TransferPart::ForwardChains` or `AfterReflection`) of the indirect
+/// light at `origin` scattered toward `wo` by `hit`'s fiber: a direction from the fiber's
+/// scattering function, then a walk that lights every fiber event it reaches from the scene's
+/// lights (next-event estimation alone, no light hit by a continuation counted: unbiased for
+/// every light, exact for directional ones) and carries, beside its throughput, the TT
+/// lobe's share of it from the first fiber it meets on (the IIRTF's definition of the parts;
+/// the shaded fiber's own scattering is not part of the transfer).
+fn indirect_light_part(
+    scene: &Scene,
+    hit: &Hit,
+    origin: DVec3,
+    wo: DVec3,
+    part: TransferPart,
+    rng: &mut Pcg64Mcg,
+) -> Rgb {
+    let path_scene = &scene.path_scene;
+    let material = path_scene.material(hit);
+    let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
+    let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+        return Rgb::ZERO;
+    };
+    let mut throughput = material.eval_cos(t, n, wi, wo) / pdf;
+    let mut forward = throughput;
+    let mut dir = wi;
+    let mut next = trace(path_scene, origin, wi, Some(hit.fiber));
+    let mut total = Rgb::ZERO;
+    for event in 1..=scene.render.max_depth {
+        let Some(h) = next else { break };
+        let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
+        let material = path_scene.material(&h);
+        let wo = -dir;
+        for light in &path_scene.lights {
+            let sample = light.sample([rng.random(), rng.random()]);
+            let to_light = sample.to_light;
+            let f = material.eval_cos(t, n, to_light, wo);
+            if f != Rgb::ZERO && !occluded(path_scene, position, to_light, h.fiber) {
+                let f_tt = material.eval_cos_tt(t, to_light, wo);
+                total += part.share(throughput * f, forward * f_tt) * sample.weight;
+            }
+        }
+        let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) else {
+            break;
+        };
+        let f = material.eval_cos(t, n, wi, wo);
+        if f == Rgb::ZERO {
+            break;
+        }
+        throughput *= f / pdf;
+        forward *= material.eval_cos_tt(t, wi, wo) / pdf;
+        let before = throughput.max_element();
+        if !russian_roulette(event, &mut throughput, rng) {
+            break;
+        }
+        forward *= throughput.max_element() / before;
+        dir = wi;
+        next = trace(path_scene, position, wi, Some(h.fiber));
+    }
+    total
 }
 
 /// One sample of the indirect light at `origin` scattered toward `wo` by `hit`'s fiber: a

@@ -29,6 +29,7 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
+use super::gamma::gamma;
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
@@ -36,6 +37,7 @@ use crate::bake::iirtf::CellTransfer;
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
+use crate::sg::sg_mass;
 use crate::sh::{ShEulerRotation, sh_count, sh_eval};
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
@@ -166,4 +168,85 @@ pub fn multiple_scattering(
         }
     }
     Ok(scatter_transferred(cs, &transferred, seg.tangent, wo))
+}
+
+/// The largest mean cosine a forward lobe is given (λ about 500): beyond it the paths' estimate
+/// says "a delta", which a few hundred paths cannot tell from "very narrow".
+pub const MAX_FORWARD_MEAN_COSINE: f64 = 0.999;
+
+/// The sharpness of the SG a cell's forward-scattered light is shaded as, from its
+/// `forward[0]` and `forward_cosine` (summed over channels): the mean cosine
+/// `μ = Σ cosine / (√(4π) Σ forward[0])`, clamped to [0, [`MAX_FORWARD_MEAN_COSINE`]], to the
+/// von Mises–Fisher concentration by Banerjee et al.'s estimate `μ(3 − μ²)/(1 − μ²)` (an SG
+/// `exp(λ(ω·ξ − 1))` is a vMF lobe of concentration λ). No forward light gives 0.
+#[must_use]
+pub fn forward_sharpness(forward0: Rgb, forward_cosine: Rgb) -> f64 {
+    let strength = forward0.element_sum() * (4.0 * PI).sqrt();
+    if !(strength > 0.0) {
+        return 0.0;
+    }
+    let mu = (forward_cosine.element_sum() / strength).clamp(0.0, MAX_FORWARD_MEAN_COSINE);
+    mu * (3.0 - mu * mu) / (1.0 - mu * mu)
+}
+
+/// Forward-scattered light (`BakeSettings::forward_lobe`) of `segment` of `baked` at `position`
+/// (as [`multiple_scattering`]: `None` the segment's own cell, else interpolated between cells)
+/// seen from unit `wo`, under `lights` given as `(light, V̄_glo)`. Per light: the strength
+/// `s = Σ_j F_j c_j` (per channel, clamped at zero; `c` the light's SH, [`light_sh`], so a
+/// directional light of irradiance E gives `E F(ω_d)`) arrives as a normalized SG about the
+/// light's axis, of the cell's sharpness λ_C ([`forward_sharpness`]; an SG light of sharpness
+/// λ_l widens it to `λ_C λ_l / (λ_C + λ_l)`, the product of two vMF convolutions' usual
+/// approximation), and is scattered toward ωo in closed form: `s · V̄_glo · Γ(axis, λ, ωo) /
+/// M(λ)` ([`super::gamma`]). Zero when the bake has no forward lobes.
+pub fn forward_scattering(
+    baked: &Baked,
+    segment: u32,
+    position: Option<DVec3>,
+    wo: DVec3,
+    lights: &[(Light, f64)],
+) -> Result<Rgb, ShadingError> {
+    let order = baked.transfer.iirtf.sh_order;
+    let n = sh_count(order);
+    let cells = &baked.transfer.iirtf.cells;
+    if !cells.iter().any(CellTransfer::has_forward_lobe) {
+        return Ok(Rgb::ZERO);
+    }
+    let Some(seg) = SegmentShading::of(baked, segment)? else {
+        return Ok(Rgb::ZERO);
+    };
+    let grid = &baked.transfer.cells;
+    let own = (grid.cell_of_segment(segment), 1.0);
+    let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
+    let mut forward = vec![Rgb::ZERO; n];
+    let mut cosine = Rgb::ZERO;
+    for (cell, weight) in around.map_or_else(|| vec![own], |a| a.to_vec()) {
+        let cell = &cells[cell as usize];
+        if weight > 0.0 && cell.has_forward_lobe() {
+            for (sum, f) in forward.iter_mut().zip(&cell.forward) {
+                *sum += glam::Vec3::from(*f).as_dvec3() * weight;
+            }
+            cosine += glam::Vec3::from(cell.forward_cosine).as_dvec3() * weight;
+        }
+    }
+    let lambda_cell = forward_sharpness(forward[0], cosine);
+    let mut out = Rgb::ZERO;
+    for (light, v_blurred) in lights {
+        if *v_blurred == 0.0 {
+            continue;
+        }
+        let c = light_sh(light, order, &baked.cg);
+        let strength: Rgb = forward.iter().zip(&c).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO);
+        if strength == Rgb::ZERO {
+            continue;
+        }
+        let (axis, lambda) = match *light {
+            Light::Directional { to_light, .. } => (to_light, lambda_cell),
+            Light::Sg { axis, sharpness, .. } => {
+                (axis, lambda_cell * sharpness / (lambda_cell + sharpness).max(f64::MIN_POSITIVE))
+            }
+        };
+        let scattered = gamma(&seg.fiber, &baked.gn, seg.tangent, axis, lambda, wo) / sg_mass(lambda);
+        out += strength * scattered * *v_blurred;
+    }
+    Ok(out)
 }

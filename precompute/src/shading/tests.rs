@@ -739,6 +739,7 @@ fn tiny_baked() -> &'static Baked {
             voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 3,
+            forward_lobe: false,
         };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
         bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked
