@@ -106,7 +106,13 @@ impl CellTransfer {
     /// The transfer of a cell with no segments: no entries, no paths.
     #[must_use]
     pub fn empty() -> Self {
-        Self { paths: 0, matrix: Vec::new(), std_error: Vec::new(), forward: Vec::new(), forward_cosine: [0.0; 3] }
+        Self {
+            paths: 0,
+            matrix: Vec::new(),
+            std_error: Vec::new(),
+            forward: Vec::new(),
+            forward_cosine: [0.0; 3],
+        }
     }
 
     /// Whether the cell carries forward-scattered light outside its matrix.
@@ -252,11 +258,11 @@ impl TransferPart {
     /// `lobe` (`None`: not a fiber), belongs to this part.
     fn holds(self, event: u32, lobe: Option<Lobe>) -> bool {
         match self {
-            Self::All => true,
+            // The chain parts split every connection's weight instead ([`Self::share`]).
+            Self::All | Self::ForwardChains | Self::AfterReflection => true,
             Self::FirstTransmission => event == 1 && lobe == Some(Lobe::Tt),
             Self::FirstReflection => event == 1 && lobe != Some(Lobe::Tt),
             Self::Later => event > 1,
-            Self::ForwardChains | Self::AfterReflection => true,
         }
     }
 
@@ -460,6 +466,14 @@ pub struct ColourFreeSample {
     /// Per light connection, per material slot: `Σ (1 − m) / (C_R + (1 − C_R) m)` over its R
     /// events in that slot at C_R = [`COLOUR_FREE_C_R`], the derivative of the log weight in C_R.
     pub r_log_derivative: Vec<f64>,
+    /// Per light connection, whether it is a forward chain ([`TransferPart::ForwardChains`]):
+    /// the connection and every continuation before it sampled the TT lobe of a transmissive
+    /// material (a fiber; a Lambertian surface reports [`Lobe::Tt`] but never counts). The walk
+    /// chooses lobes as a one-sample estimator (a chosen lobe's weight is over its choice
+    /// probability), so the expected weight of the connections flagged here is the forward
+    /// share [`TransferSampler::sample`] splits off exactly, at any colours: a forward chain's
+    /// colour factors are its τ's alone.
+    pub forward: Vec<bool>,
     /// Material slots (the width of the two arrays above).
     pub slots: usize,
 }
@@ -469,8 +483,9 @@ impl TransferSampler {
     /// chosen and sampled by [`Material::sample_colour_free`] (lobe widths and geometry only),
     /// Russian roulette follows the colour-free weight at TT factor
     /// [`COLOUR_FREE_ROULETTE_ALBEDO`], and each light connection records its colour-free
-    /// weight and its event counts, from which the transfer at any colours follows by
-    /// multiplying in the colour factors. The walk does not depend on the materials' colours
+    /// weight, its event counts and whether it is a forward chain, from which the transfer at
+    /// any colours, split as [`BakeSettings::forward_lobe`] splits it, follows by multiplying
+    /// in the colour factors. The walk does not depend on the materials' colours
     /// (tested), so differentiating it in the colours is unbiased. `slots` is the number of
     /// material slots (every yarn's slot is below it, slots no yarn uses included), the width
     /// of the per-slot counts in `out`.
@@ -486,6 +501,7 @@ impl TransferSampler {
         out.lights.clear();
         out.tt_events.clear();
         out.r_log_derivative.clear();
+        out.forward.clear();
         out.slots = slots;
         let strata = path_strata(stream, path);
         let mut rng = pixel_rng(stream, path);
@@ -498,6 +514,8 @@ impl TransferSampler {
         let mut tt_total = 0_u32;
         let mut tt_events = vec![0_u32; slots];
         let mut r_log = vec![0.0_f64; slots];
+        // Whether every continuation so far was a fiber's TT lobe (ColourFreeSample::forward).
+        let mut chain = true;
         let r0 = COLOUR_FREE_C_R;
         for event in 1..=MAX_DEPTH {
             let Some(h) = hit else { break };
@@ -525,11 +543,13 @@ impl TransferSampler {
                     }
                 };
                 out.lights.push((e.dir, light_weight, tt_total + u32::from(e.lobe == Lobe::Tt)));
+                out.forward.push(chain && e.lobe == Lobe::Tt && material.is_transmissive());
             }
             let Some(e) = material.sample_colour_free(t, n, wo, [rng.random(), rng.random(), rng.random()])
             else {
                 break;
             };
+            chain &= e.lobe == Lobe::Tt && material.is_transmissive();
             match e.lobe {
                 Lobe::Tt => {
                     weight *= e.weight;
@@ -885,7 +905,8 @@ mod tests {
         };
         // Two splits: by the first event's lobe and depth, and into forward chains and the rest.
         let by_first_event =
-            [TransferPart::FirstTransmission, TransferPart::FirstReflection, TransferPart::Later].map(bake_part);
+            [TransferPart::FirstTransmission, TransferPart::FirstReflection, TransferPart::Later]
+                .map(bake_part);
         let by_chain = [TransferPart::ForwardChains, TransferPart::AfterReflection].map(bake_part);
         for parts in [&by_first_event[..], &by_chain[..]] {
             // Every part carries light (little is the first neighbour's reflection: the R cone
@@ -898,7 +919,10 @@ mod tests {
                 for (i, x) in a.matrix.iter().enumerate() {
                     for ch in 0..3 {
                         let sum: f32 = parts.iter().map(|p| p.cells[c].matrix[i][ch]).sum();
-                        assert!((x[ch] - sum).abs() <= 1e-5 * scale, "cell {c}, entry {i}: {x:?} against {sum}");
+                        assert!(
+                            (x[ch] - sum).abs() <= 1e-5 * scale,
+                            "cell {c}, entry {i}: {x:?} against {sum}"
+                        );
                     }
                 }
                 assert!(parts.iter().all(|p| p.cells[c].paths == a.paths));
@@ -906,7 +930,9 @@ mod tests {
         }
         // Light reflected at least once is never negative (the forward share of a weight is at
         // most the weight, channel by channel): its constant term is a mean of such weights.
-        assert!(by_chain[1].cells.iter().flat_map(|c| c.matrix.first()).all(|e| e.iter().all(|&v| v >= 0.0)));
+        assert!(
+            by_chain[1].cells.iter().filter_map(|c| c.matrix.first()).all(|e| e.iter().all(|&v| v >= 0.0))
+        );
     }
 
     #[test]

@@ -367,7 +367,8 @@ pub fn recolour_basis(
         .usize(s.iirtf_paths_per_cell)
         .usize(s.sh_order)
         .usize(s.cs_theta_count)
-        .u64(s.seed);
+        .u64(s.seed)
+        .bool(s.forward_lobe);
     let key = h.finish();
     let name = "recolour_basis";
     if let Some(file) = cache.and_then(|c| c.load(key)) {
@@ -393,8 +394,9 @@ pub fn recolour_basis(
     Ok(basis)
 }
 
-/// Version of the recolouring basis's code and layout: part of its cache key.
-const RECOLOUR_VERSION: u32 = 7;
+/// Version of the recolouring basis's code and layout: part of its cache key (8: the forward
+/// lobes, `RecolourBasis::forward_lobe`).
+const RECOLOUR_VERSION: u32 = 8;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {

@@ -50,6 +50,20 @@
 //! Storage per nonempty cell: the slots its paths met, each mixed class's W, C_R weights and β,
 //! each class's pole, and the basis curves; per IIRTF entry (scalar: one set of paths serves
 //! every channel) the coefficients on them and the standard error at a0 of the whole transfer.
+//!
+//! **Forward lobes** ([`BakeSettings::forward_lobe`]): the bake moves every connection's
+//! forward-chain share (the TT lobe's share of each event on the way) out of the matrix into
+//! `CellTransfer::forward` (`Σ share · Y_j(ω0)`) and `forward_cosine` (`Σ share · (ω0·ω1)`).
+//! The colour-free walk chooses one lobe per event, so it splits whole connections instead:
+//! those whose every event was a fiber's TT lobe ([`ColourFreeSample::forward`]) are forward,
+//! and their weights' expectation is the bake's forward share. A basis with forward lobes holds
+//! `E = n² + n + 1` entries per cell ([`RecolourBasis::entries`]): the matrix of the other
+//! connections (entries `0..n²`, as without), the forward chains' `Σ w · Y_j(ω0)` (entries
+//! `n²..n² + n`, no ω1 factor) and their `Σ w · (ω0·ω1)` (entry `n² + n`), every one through the
+//! same classes, curves and compression. What describes a class as a whole is taken from the
+//! whole of its transfer, split or not: the mixed classes' W and β from every connection's
+//! weight, and each class's pole from its matrix (0, 0) curve plus `Y_0` times its forward
+//! (0) curve, so that both are those of a basis without forward lobes.
 
 use super::cells::CellGrid;
 use super::cs_table::{CsTable, CsTableError};
@@ -118,8 +132,9 @@ pub struct CellBasis {
     /// The basis curves, in set order: each the values at [`CURVE_ALBEDOS`] and then the
     /// slopes there.
     pub curves: Vec<f32>,
-    /// Per IIRTF entry (`j1 * n + j0`), [`CellBasis::stride`] values: the coefficient of every
-    /// basis curve (set order), then the standard error at a0.
+    /// Per entry ([`RecolourBasis::entries`]: the IIRTF matrix's `j1 * n + j0`, then with
+    /// forward lobes the forward coefficients and cosine), [`CellBasis::stride`] values: the
+    /// coefficient of every basis curve (set order), then the standard error at a0.
     pub data: Vec<f32>,
 }
 
@@ -335,6 +350,9 @@ pub struct RecolourBasis {
     pub materials: Vec<MaterialDesc>,
     pub sh_order: usize,
     pub light_domain: LightDomain,
+    /// Whether the forward chains are held apart from the matrix ([`BakeSettings::forward_lobe`];
+    /// module docs): each nonempty cell then holds [`Self::entries`] = n² + n + 1 entries.
+    pub forward_lobe: bool,
     /// Material slots of the bake (the length colours must have).
     pub slot_count: usize,
     pub cells: Vec<CellBasis>,
@@ -405,7 +423,20 @@ impl RecolourBasis {
                 (v, [s; 3])
             })
             .unzip();
-        Ok(super::iirtf::CellTransfer { paths: basis.paths, matrix, std_error, ..super::iirtf::CellTransfer::empty() })
+        let (forward, forward_cosine) = if self.forward_lobe {
+            let forward = (n * n..n * n + n).map(|e| basis.entry(e, &prepared).0).collect();
+            (forward, basis.entry(n * n + n, &prepared).0)
+        } else {
+            (Vec::new(), [0.0; 3])
+        };
+        Ok(super::iirtf::CellTransfer { paths: basis.paths, matrix, std_error, forward, forward_cosine })
+    }
+
+    /// Entries per nonempty cell: the n² of the matrix, and with forward lobes the n forward
+    /// coefficients and the forward cosine after them (module docs).
+    #[must_use]
+    pub fn entries(&self) -> usize {
+        cell_entries(sh_count(self.sh_order), self.forward_lobe)
     }
 
     /// The whole IIRTF at `colours` (cells in parallel).
@@ -423,7 +454,8 @@ impl RecolourBasis {
     }
 
     /// Writes `cell`'s matrix at `colours` channel-planar (`out[ch * n² + e]`, what the GPU
-    /// holds); zeros for an empty cell. `out` must hold `3 n²` values.
+    /// holds); zeros for an empty cell. `out` must hold `3 n²` values. With forward lobes this is
+    /// the matrix without the forward chains: [`Self::write_forward`] writes those.
     pub fn write_planar(&self, cell: usize, colours: &[SlotColour], out: &mut [f32]) {
         let n2 = sh_count(self.sh_order).pow(2);
         let basis = &self.cells[cell];
@@ -437,6 +469,26 @@ impl RecolourBasis {
             for (ch, value) in v.into_iter().enumerate() {
                 out[ch * n2 + e] = value;
             }
+        }
+    }
+
+    /// Writes `cell`'s forward lobe at `colours` as the GPU's forward-lobe buffer holds a cell:
+    /// n = (L+1)² vec4s `(r, g, b, 0)`, coefficient j's `CellTransfer::forward[j]`, then one for
+    /// `CellTransfer::forward_cosine`, so `out` must hold `4 (n + 1)` values (it is written from
+    /// its start). Zeros for an empty cell and for a basis without forward lobes (whose matrix
+    /// holds all of the transfer).
+    pub fn write_forward(&self, cell: usize, colours: &[SlotColour], out: &mut [f32]) {
+        let n = sh_count(self.sh_order);
+        let out = &mut out[..4 * (n + 1)];
+        let basis = &self.cells[cell];
+        if basis.paths == 0 || !self.forward_lobe {
+            out.fill(0.0);
+            return;
+        }
+        let prepared = basis.prepare(colours);
+        for (j, texel) in out.chunks_exact_mut(4).enumerate() {
+            let (v, _) = basis.entry(n * n + j, &prepared);
+            texel.copy_from_slice(&[v[0], v[1], v[2], 0.0]);
         }
     }
 
@@ -476,7 +528,7 @@ impl RecolourBasis {
     /// # Errors
     /// What is inconsistent, naming the cell.
     pub fn check_sizes(&self) -> Result<(), String> {
-        let entries = sh_count(self.sh_order).pow(2);
+        let entries = self.entries();
         for (i, c) in self.cells.iter().enumerate() {
             if c.paths == 0 {
                 if !c.data.is_empty() || !c.ranks.is_empty() {
@@ -552,6 +604,7 @@ pub fn bake_recolour_basis(
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let slots = materials.len();
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
+    let shape = CellShape { order, paths, slots, forward_lobe: settings.forward_lobe };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -559,7 +612,7 @@ pub fn bake_recolour_basis(
         settings.seed,
         cancel,
         progress,
-        &|segments, stream, tick| bake_cell_basis(&sampler, segments, order, paths, slots, stream, tick),
+        &|segments, stream, tick| bake_cell_basis(&sampler, segments, shape, stream, tick),
     )
     .map_err(IirtfError::from)?;
     let cs_parts = materials
@@ -573,6 +626,7 @@ pub fn bake_recolour_basis(
         materials: materials.iter().map(colour_free).collect(),
         sh_order: order,
         light_domain,
+        forward_lobe: settings.forward_lobe,
         slot_count: slots,
         cells,
         cs_parts,
@@ -584,7 +638,9 @@ pub fn bake_recolour_basis(
 /// evaluated at the colours, exactly in the TT factors τ and to first order in C_R (as the basis
 /// holds C_R). Against [`RecolourBasis::iirtf`] at the same colours this is the basis's own
 /// approximation alone (its curves, Theorem 1 on the mixed classes, the low-rank compression):
-/// no path noise lies between the two. `twill bench recolor` reports both.
+/// no path noise lies between the two. `twill bench recolor` reports both. With
+/// [`BakeSettings::forward_lobe`] the forward chains ([`ColourFreeSample::forward`]) go to
+/// `forward` and `forward_cosine` and the rest to the matrix, as in the basis.
 ///
 /// # Errors
 /// As [`bake_recolour_basis`], and colours that do not match the slots.
@@ -601,6 +657,7 @@ pub fn same_paths_iirtf(
     }
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
+    let shape = CellShape { order, paths, slots: colours.len(), forward_lobe: settings.forward_lobe };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -608,29 +665,32 @@ pub fn same_paths_iirtf(
         settings.seed,
         cancel,
         &|_| {},
-        &|segments, stream, tick| same_paths_cell(&sampler, segments, order, paths, colours, stream, tick),
+        &|segments, stream, tick| same_paths_cell(&sampler, segments, shape, colours, stream, tick),
     )
     .map_err(IirtfError::from)?;
     Ok(super::iirtf::Iirtf { sh_order: order, light_domain, cells })
 }
 
-/// One cell of [`same_paths_iirtf`]; `None` when `tick` asks to stop.
+/// One cell of [`same_paths_iirtf`] (`shape.slots` = the colours' count); `None` when `tick`
+/// asks to stop.
 fn same_paths_cell(
     sampler: &TransferSampler,
     segments: &[u32],
-    order: usize,
-    paths: usize,
+    shape: CellShape,
     colours: &[SlotColour],
     stream: u64,
     tick: &dyn Fn(usize) -> bool,
 ) -> Option<super::iirtf::CellTransfer> {
+    let CellShape { order, paths, slots, forward_lobe } = shape;
     if segments.is_empty() || paths == 0 {
         return Some(super::iirtf::CellTransfer::empty());
     }
-    let (n, slots) = (sh_count(order), colours.len());
+    let n = sh_count(order);
     let mut sum = vec![[0.0_f64; 3]; n * n];
     let mut sum2 = vec![[0.0_f64; 3]; n * n];
     let mut light = vec![[0.0_f64; 3]; n];
+    // The forward chains' Σ factor · Y_j(ω0), then Σ factor · (ω0·ω1), over all paths.
+    let mut forward = vec![[0.0_f64; 3]; if forward_lobe { n + 1 } else { 0 }];
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut sample = ColourFreeSample::default();
     for p in 0..paths {
@@ -651,9 +711,19 @@ fn same_paths_cell(
                 }
             }
             sh_eval(order, to_light, &mut y0);
-            for (x, y) in light.iter_mut().zip(&y0) {
+            let (target, cosine) = if forward_lobe && sample.forward[l] {
+                (&mut forward, Some(to_light.dot(sample.view)))
+            } else {
+                (&mut light, None)
+            };
+            for (x, y) in target.iter_mut().zip(&y0) {
                 for ch in 0..3 {
                     x[ch] += factor[ch] * y;
+                }
+            }
+            if let Some(cosine) = cosine {
+                for ch in 0..3 {
+                    forward[n][ch] += factor[ch] * cosine;
                 }
             }
         }
@@ -683,7 +753,25 @@ fn same_paths_cell(
             (mean.map(|v| v as f32), error)
         })
         .unzip();
-    Some(super::iirtf::CellTransfer { paths, matrix, std_error, ..super::iirtf::CellTransfer::empty() })
+    let mut forward: Vec<[f32; 3]> = forward.iter().map(|f| f.map(|v| (v / count) as f32)).collect();
+    let forward_cosine = forward.pop().unwrap_or([0.0; 3]);
+    Some(super::iirtf::CellTransfer { paths, matrix, std_error, forward, forward_cosine })
+}
+
+/// What shapes a cell's accumulation: SH order, paths, material slots and whether the forward
+/// chains are held apart ([`BakeSettings::forward_lobe`]).
+#[derive(Debug, Clone, Copy)]
+struct CellShape {
+    order: usize,
+    paths: usize,
+    slots: usize,
+    forward_lobe: bool,
+}
+
+/// Entries per nonempty cell for `n` SH coefficients: n² matrix entries, and with forward
+/// lobes n forward coefficients and the forward cosine (module docs).
+fn cell_entries(n: usize, forward_lobe: bool) -> usize {
+    if forward_lobe { n * n + n + 1 } else { n * n }
 }
 
 /// The walk of the basis's paths over `grid` (which must be `exemplar`'s), and its light
@@ -711,28 +799,42 @@ fn colour_free_sampler(
 }
 
 /// One cell's basis (see the module docs); `None` when `tick` asks to stop.
+///
+/// Per path, every accumulator row (a class's curve node, or a mixed class's gradient) gathers
+/// its connections' light-side sums: `Σ c · Y_j0(ω0)` for the matrix, multiplied by `Y_j1(ω1)`
+/// into its n² entries at the path's end, and with forward lobes the forward chains'
+/// `Σ c · Y_j(ω0)` and `Σ c · (ω0·ω1)` straight into its last n + 1 entries. The gradient rows
+/// take every connection into the matrix (only their (0, 0) entry is read: the cell's whole
+/// transfer, forward chains included).
 fn bake_cell_basis(
     sampler: &TransferSampler,
     segments: &[u32],
-    order: usize,
-    paths: usize,
-    slots: usize,
+    shape: CellShape,
     stream: u64,
     tick: &dyn Fn(usize) -> bool,
 ) -> Option<CellBasis> {
+    let CellShape { order, paths, slots, forward_lobe } = shape;
     if segments.is_empty() || paths == 0 {
         return Some(CellBasis::empty());
     }
     let n = sh_count(order);
+    let entries = cell_entries(n, forward_lobe);
     let rows = Rows { slots };
-    let mut sum = vec![0.0_f64; rows.count() * n * n];
-    let mut sum2_a0 = vec![0.0_f64; n * n];
+    let mut sum = vec![0.0_f64; rows.count() * entries];
+    let mut sum2_a0 = vec![0.0_f64; entries];
     // Per mixed class, sums of colour-free weights (the (0, 0) entry up to a constant): the
     // TT gradient per slot, I'(a0), I''(a0) and the cross second derivatives (module docs).
     let mut mixed = vec![MixedMoments::new(); slots];
+    // Per row, the path's matrix light-side sums (n) and forward sums (n + 1, with forward
+    // lobes), and whether the path touched them.
+    let forward_width = if forward_lobe { n + 1 } else { 0 };
     let mut light = vec![0.0_f64; rows.count() * n];
+    let mut forward_light = vec![0.0_f64; rows.count() * forward_width];
     let mut touched = vec![false; rows.count()];
+    let mut forward_touched = vec![false; rows.count()];
+    // The path's whole transfer at a0, matrix and forward parts, for the standard errors.
     let mut total_a0 = vec![0.0_f64; n];
+    let mut forward_a0 = vec![0.0_f64; forward_width];
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut sample = ColourFreeSample::default();
     let a0 = EXPANSION_ALBEDO;
@@ -745,15 +847,31 @@ fn bake_cell_basis(
             continue;
         }
         light.fill(0.0);
+        forward_light.fill(0.0);
         touched.fill(false);
+        forward_touched.fill(false);
         total_a0.fill(0.0);
+        forward_a0.fill(0.0);
         for (l, &(to_light, w, k)) in sample.lights.iter().enumerate() {
             let k_i32 = k.min(i32::MAX as u32) as i32;
             let counts = &sample.tt_events[l * slots..(l + 1) * slots];
             let r_log = &sample.r_log_derivative[l * slots..(l + 1) * slots];
+            let is_forward = forward_lobe && sample.forward[l];
+            let cosine = to_light.dot(sample.view);
             sh_eval(order, to_light, &mut y0);
-            let mut add = |row: usize, c: f64| {
-                if c != 0.0 {
+            // `c` into `row`: the forward sums for a forward chain's curves, else the matrix's.
+            let mut add = |row: usize, c: f64, forward: bool| {
+                if c == 0.0 {
+                    return;
+                }
+                if forward {
+                    forward_touched[row] = true;
+                    let out = &mut forward_light[row * (n + 1)..(row + 1) * (n + 1)];
+                    for (x, y) in out.iter_mut().zip(&y0) {
+                        *x += c * y;
+                    }
+                    out[n] += c * cosine;
+                } else {
                     touched[row] = true;
                     for (x, y) in light[row * n..(row + 1) * n].iter_mut().zip(&y0) {
                         *x += c * y;
@@ -773,10 +891,10 @@ fn bake_cell_basis(
             for (i, &a) in CURVE_ALBEDOS.iter().enumerate() {
                 let at_a = w * a.powi(k_i32);
                 let slope = if k > 0 { w * f64::from(k) * a.powi(k_i32 - 1) } else { 0.0 };
-                add(Rows::value(value_set, i), at_a);
-                add(Rows::slope(value_set, i), slope);
-                add(Rows::value(r_set, i), at_a * r_total);
-                add(Rows::slope(r_set, i), slope * r_total);
+                add(Rows::value(value_set, i), at_a, is_forward);
+                add(Rows::slope(value_set, i), slope, is_forward);
+                add(Rows::value(r_set, i), at_a * r_total, is_forward);
+                add(Rows::slope(r_set, i), slope * r_total, is_forward);
             }
             let at_a0 = w * a0.powi(k_i32);
             if class >= slots {
@@ -786,32 +904,56 @@ fn bake_cell_basis(
                         add(
                             rows.mixed_gradient(class - slots, s),
                             w * f64::from(counts[s]) * a0.powi(k_i32 - 1),
+                            false,
                         );
                     }
-                    add(rows.mixed_r_gradient(class - slots, s), at_a0 * r_log[s]);
+                    add(rows.mixed_r_gradient(class - slots, s), at_a0 * r_log[s], false);
                 }
             }
-            for (t, y) in total_a0.iter_mut().zip(&y0) {
-                *t += at_a0 * y;
+            if is_forward {
+                for (t, y) in forward_a0.iter_mut().zip(&y0) {
+                    *t += at_a0 * y;
+                }
+                forward_a0[n] += at_a0 * cosine;
+            } else {
+                for (t, y) in total_a0.iter_mut().zip(&y0) {
+                    *t += at_a0 * y;
+                }
             }
         }
         sh_eval(order, sample.view, &mut y1);
-        for q in (0..rows.count()).filter(|&q| touched[q]) {
-            let row = &light[q * n..(q + 1) * n];
-            for (j1, out) in sum[q * n * n..(q + 1) * n * n].chunks_exact_mut(n).enumerate() {
-                for (a, l) in out.iter_mut().zip(row) {
-                    *a += l * y1[j1];
+        for q in 0..rows.count() {
+            let out = &mut sum[q * entries..(q + 1) * entries];
+            if touched[q] {
+                let row = &light[q * n..(q + 1) * n];
+                for (j1, out) in out[..n * n].chunks_exact_mut(n).enumerate() {
+                    for (a, l) in out.iter_mut().zip(row) {
+                        *a += l * y1[j1];
+                    }
+                }
+            }
+            if forward_touched[q] {
+                let row = &forward_light[q * (n + 1)..(q + 1) * (n + 1)];
+                for (a, l) in out[n * n..].iter_mut().zip(row) {
+                    *a += l;
                 }
             }
         }
-        for (j1, out) in sum2_a0.chunks_exact_mut(n).enumerate() {
+        for (j1, out) in sum2_a0[..n * n].chunks_exact_mut(n).enumerate() {
             for (a, t) in out.iter_mut().zip(&total_a0) {
                 *a += (t * y1[j1]).powi(2);
             }
         }
+        for (a, t) in sum2_a0[n * n..].iter_mut().zip(&forward_a0) {
+            *a += t * t;
+        }
     }
     tick(paths % CHECK_EVERY);
-    Some(finish_cell(&sum, &sum2_a0, paths, n * n, rows, &mixed))
+    // A class's whole constant term: its matrix (0, 0) entry, plus Y_0(ω1) times its forward
+    // (0) entry when the forward chains are apart (what its pole is fitted to).
+    let y00 = 0.5 / std::f64::consts::PI.sqrt();
+    let whole_dc: &[(usize, f64)] = if forward_lobe { &[(0, 1.0), (n * n, y00)] } else { &[(0, 1.0)] };
+    Some(finish_cell(&sum, &sum2_a0, paths, entries, rows, &mixed, whole_dc))
 }
 
 /// Sums over a mixed class's connections of their colour-free weights w (the (0, 0) entry up
@@ -948,7 +1090,8 @@ fn argmax(values: impl Iterator<Item = f64>) -> usize {
 }
 
 /// Means, the standard error at a0, the mixed classes' weights and the slots met, packed per
-/// entry.
+/// entry (`entries` per row of `sum`). `whole_dc` weighs the entries whose sum is a class's
+/// whole constant term, to which its pole is fitted.
 fn finish_cell(
     sum: &[f64],
     sum2_a0: &[f64],
@@ -956,6 +1099,7 @@ fn finish_cell(
     entries: usize,
     rows: Rows,
     moments: &[MixedMoments],
+    whole_dc: &[(usize, f64)],
 ) -> CellBasis {
     let count = paths as f64;
     let mean = |q: usize, e: usize| sum[q * entries + e] / count;
@@ -1006,8 +1150,11 @@ fn finish_cell(
                 })
             };
             if set == 2 * class {
-                let dc = curve(0);
-                poles.push(pole(dc[POINTS - 1], dc[2 * POINTS - 1]) as f32);
+                let dc = whole_dc.iter().fold([0.0; 2], |acc, &(e, weight)| {
+                    let c = curve(e);
+                    [acc[0] + weight * c[POINTS - 1], acc[1] + weight * c[2 * POINTS - 1]]
+                });
+                poles.push(pole(dc[0], dc[1]) as f32);
             }
             let all: Vec<[f64; 2 * POINTS]> = (0..entries).map(curve).collect();
             let (basis, coefficient) = low_rank(&all);
@@ -1568,6 +1715,316 @@ mod tests {
         let mut bad = basis;
         bad.cs_parts.pop();
         assert!(bad.check_sizes().unwrap_err().contains("C_S parts"));
+    }
+
+    /// `Y_0`, the constant SH basis function.
+    const Y00: f64 = 0.282_094_791_773_878_14;
+
+    /// `settings` with the forward chains held apart.
+    fn forward_settings(paths: usize, order: usize) -> BakeSettings {
+        BakeSettings { forward_lobe: true, ..settings(paths, order) }
+    }
+
+    /// Each channel's forward strength `forward[0]` and forward cosine summed over cells.
+    fn forward_totals(cells: &[super::super::iirtf::CellTransfer]) -> (Rgb, Rgb) {
+        let rgb = |v: &[f32; 3]| glam::Vec3::from(*v).as_dvec3();
+        (cells.iter().filter(|c| !c.is_empty()))
+            .fold((Rgb::ZERO, Rgb::ZERO), |(f, k), c| (f + rgb(&c.forward[0]), k + rgb(&c.forward_cosine)))
+    }
+
+    /// The basis's standard errors at a0 of the summed forward strength and cosine (its
+    /// entries n² and n² + n).
+    fn basis_forward_errors(basis: &RecolourBasis, colours: &[SlotColour]) -> (f64, f64) {
+        let n = sh_count(basis.sh_order);
+        let (mut strength, mut cosine) = (0.0, 0.0);
+        for cell in basis.cells.iter().filter(|c| c.paths > 0) {
+            let prepared = cell.prepare(colours);
+            strength += f64::from(cell.entry(n * n, &prepared).1).powi(2);
+            cosine += f64::from(cell.entry(n * n + n, &prepared).1).powi(2);
+        }
+        (strength.sqrt(), cosine.sqrt())
+    }
+
+    /// The direct bake's forward strength and cosine summed over cells, with their standard
+    /// errors, from its own estimator ([`TransferSampler::sample`]'s forward shares, the same
+    /// cells, streams and paths as [`bake_iirtf`], which keeps no error for them).
+    fn direct_forward_noise(
+        exemplar: &crate::fabric::Exemplar,
+        grid: &CellGrid,
+        materials: &[MaterialDesc],
+        s: &BakeSettings,
+    ) -> ([Rgb; 2], [Rgb; 2]) {
+        let inputs = BakeInputs { exemplar, materials, settings: *s };
+        let (_, yarns) = yarn_materials(&inputs).unwrap();
+        let sampler = TransferSampler::new(exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let (mut mean, mut var) = ([Rgb::ZERO; 2], [Rgb::ZERO; 2]);
+        let count = s.iirtf_paths_per_cell as f64;
+        for c in 0..grid.cell_count() {
+            let segments = grid.segments_in_cell(c as u32);
+            if segments.is_empty() {
+                continue;
+            }
+            let stream = super::super::iirtf::cell_stream(s.seed, c as u32);
+            let (mut sum, mut sum2) = ([Rgb::ZERO; 2], [Rgb::ZERO; 2]);
+            for p in 0..s.iirtf_paths_per_cell {
+                let sample = sampler.sample(segments, stream, p as u64);
+                let mut x = [Rgb::ZERO; 2];
+                for ((to_light, _), share) in sample.lights.iter().zip(&sample.forward) {
+                    x[0] += *share * Y00;
+                    x[1] += *share * to_light.dot(sample.view);
+                }
+                for i in 0..2 {
+                    sum[i] += x[i];
+                    sum2[i] += x[i] * x[i];
+                }
+            }
+            for i in 0..2 {
+                let m = sum[i] / count;
+                mean[i] += m;
+                var[i] += (sum2[i] / count - m * m).max(Rgb::ZERO) / (count - 1.0);
+            }
+        }
+        (mean, var.map(|v| v.powf(0.5)))
+    }
+
+    #[test]
+    fn forward_lobes_at_the_bakes_colours_agree_with_a_direct_bake_within_noise() {
+        // With forward lobes the basis holds the forward chains apart, as the bake does: its
+        // matrix's (0, 0) entry, forward strength and forward cosine, each summed over cells,
+        // must agree with an IIRTF baked at the same colours within the two bakes' noise
+        // (4.5 standard errors of the difference; the basis's errors are at a0).
+        let s = forward_settings(20_000, 0);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        assert!(basis.forward_lobe);
+        for tau in [0.5, 0.9] {
+            let c_tt = Rgb::splat(tau / (1.0 - COLOUR_FREE_C_R));
+            let m = with_colours(&materials, &[(Rgb::splat(COLOUR_FREE_C_R), c_tt); 2]);
+            let colours = slot_colours(&m);
+            let recoloured = basis.iirtf(&colours).unwrap();
+            let direct = direct_bake(&exemplar, &grid, &m, &s);
+            let (ours_forward, ours_cosine) = forward_totals(&recoloured.cells);
+            let (their_forward, their_cosine) = forward_totals(&direct.cells);
+            let (mean, error) = direct_forward_noise(&exemplar, &grid, &m, &s);
+            // The helper is the bake's own estimator (to the bake's f32 rounding).
+            assert!((mean[0] - their_forward).abs().max_element() <= 1e-5 * their_forward.max_element());
+            assert!((mean[1] - their_cosine).abs().max_element() <= 1e-5 * their_cosine.max_element());
+            let (ours_forward_error, ours_cosine_error) = basis_forward_errors(&basis, &colours);
+            let ((a, sa), (b, sb)) =
+                (total_dc(recoloured.cells.into_iter()), total_dc(direct.cells.into_iter()));
+            for (what, ours, ours_error, theirs, their_error) in [
+                ("matrix (0, 0)", a.x, sa.x, b.x, sb.x),
+                ("forward strength", ours_forward.x, ours_forward_error, their_forward.x, error[0].x),
+                ("forward cosine", ours_cosine.x, ours_cosine_error, their_cosine.x, error[1].x),
+            ] {
+                let z = (ours - theirs) / ours_error.hypot(their_error);
+                eprintln!(
+                    "τ {tau}, {what}: basis {ours:.5} ± {ours_error:.5}, baked {theirs:.5} ± {their_error:.5}, z {z:+.2}"
+                );
+                assert!(
+                    z.abs() < 4.5,
+                    "τ {tau}, {what}: basis {ours} ± {ours_error}, baked {theirs} ± {their_error}"
+                );
+                assert!(ours > 0.0 && theirs > 0.0, "τ {tau}, {what}: no light");
+            }
+            // The split is substantial (Y_0 forward[0] against the matrix's (0, 0); measured
+            // 0.86 and 0.89), so dropping it would move the totals far outside the noise.
+            let share = Y00 * their_forward.x / (Y00 * their_forward.x + b.x);
+            eprintln!("τ {tau}: forward share of the constant term {share:.3}");
+            assert!(share > 0.5, "τ {tau}: forward share {share}");
+        }
+    }
+
+    #[test]
+    fn the_same_paths_iirtf_splits_the_forward_chains_as_the_basis_does() {
+        // On the diagonal the basis is exact up to its curves: the same paths reweighed must give
+        // its matrix and forward lobe; off it, the matrix and the forward lobe together must be
+        // the test's own reweighing of every connection (the split drops nothing).
+        let s = forward_settings(400, 1);
+        let n = sh_count(1);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
+        let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
+        let diagonal = [colour(0.6), colour(0.6)];
+        let same = same_paths_iirtf(&exemplar, &materials, &grid, &s, &diagonal, &Cancel::new()).unwrap();
+        let from_basis = basis.iirtf(&diagonal).unwrap();
+        let pair = [colour(0.3), colour(0.9)];
+        let exact = same_paths_iirtf(&exemplar, &materials, &grid, &s, &pair, &Cancel::new()).unwrap();
+        let (mut checked, mut worst, mut forward_share) = (0, 0.0_f64, (0.0, 0.0));
+        for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+            let (a, b) = (&same.cells[c], &from_basis.cells[c]);
+            assert_eq!((a.forward.len(), b.forward.len()), (n, n), "cell {c}: no forward lobe");
+            let scale = f64::from(a.forward[0][0]).abs();
+            let pairs = (a.forward.iter().zip(&b.forward))
+                .chain([(&a.forward_cosine, &b.forward_cosine)])
+                .chain([(&a.matrix[1], &b.matrix[1])]);
+            for (x, y) in pairs {
+                let gap = (f64::from(x[0]) - f64::from(y[0])).abs() / scale.max(1e-12);
+                worst = worst.max(gap);
+                assert!(gap <= 2e-3, "cell {c}: same paths {x:?} against the basis's {y:?}");
+            }
+            let reweighed = reweighed_dc(&sampler, &grid, c, &s, &[0.3, 0.9]);
+            let split = f64::from(exact.cells[c].matrix[0][0]);
+            let forward = Y00 * f64::from(exact.cells[c].forward[0][0]);
+            assert!(
+                (split + forward - reweighed).abs() <= 1e-5 * reweighed.abs() + 1e-12,
+                "cell {c}: matrix {split} + forward {forward} against {reweighed}"
+            );
+            forward_share = (forward_share.0 + forward, forward_share.1 + reweighed);
+            checked += 1;
+        }
+        let share = forward_share.0 / forward_share.1;
+        eprintln!(
+            "{checked} cells: worst gap on the diagonal {worst:.2e} of forward[0]; forward share {share:.3}"
+        );
+        assert!(checked > 0);
+        assert!(share > 0.5, "the forward chains carry {share} of the light (measured 0.88)");
+    }
+
+    #[test]
+    fn the_forward_split_loses_nothing() {
+        // The same paths with and without forward lobes: the matrix's (0, 0) entry plus
+        // Y_0 forward[0], and the matrix's band-1 trace plus (3 / 4π) times the forward cosine
+        // (Σ_m Y_1m(a) Y_1m(b) = 3 a·b / 4π), must be the plain basis's, at the bake's own
+        // colours and at a recolouring. Only the low-rank compression of different entry sets
+        // lies between the two: the bound is a tenth of the totals' standard error.
+        let (plain_settings, split_settings) = (settings(2000, 1), forward_settings(2000, 1));
+        let (exemplar, grid, materials) = tiny_fabric(&split_settings);
+        let bake = |s: &BakeSettings| {
+            bake_recolour_basis(&exemplar, &materials, &grid, s, &Cancel::new(), &no_progress).unwrap()
+        };
+        let (plain, split) = (bake(&plain_settings), bake(&split_settings));
+        assert!(!plain.forward_lobe && split.forward_lobe);
+        let n = sh_count(1);
+        let trace = |c: &super::super::iirtf::CellTransfer| -> f64 {
+            (1..n).map(|j| f64::from(c.matrix[j * n + j][0])).sum()
+        };
+        let recoloured = with_colours(
+            &materials,
+            &[(Rgb::splat(0.03), Rgb::new(0.1, 0.2, 0.6)), (Rgb::splat(0.08), Rgb::new(0.9, 0.85, 0.7))],
+        );
+        for (label, m) in [("own colours", materials.clone()), ("recoloured", recoloured)] {
+            let colours = slot_colours(&m);
+            let (p, q) = (plain.iirtf(&colours).unwrap(), split.iirtf(&colours).unwrap());
+            let (mut whole, mut parts, mut forward, mut error) = ([0.0; 2], [0.0; 2], 0.0, 0.0);
+            for (a, b) in p.cells.iter().zip(&q.cells).filter(|(a, _)| !a.is_empty()) {
+                let f0 = Y00 * f64::from(b.forward[0][0]);
+                whole[0] += f64::from(a.matrix[0][0]);
+                parts[0] += f64::from(b.matrix[0][0]) + f0;
+                whole[1] += trace(a);
+                parts[1] += trace(b) + 3.0 / (4.0 * PI) * f64::from(b.forward_cosine[0]);
+                forward += f0;
+                error += f64::from(a.std_error[0][0]).powi(2);
+            }
+            let error = error.sqrt();
+            for (what, x, y) in [("(0, 0)", whole[0], parts[0]), ("band-1 trace", whole[1], parts[1])] {
+                eprintln!(
+                    "{label}, {what}: plain {x:.6}, matrix + forward {y:.6} (gap {:.2e} of the (0, 0) total's error {error:.2e})",
+                    (x - y).abs() / error
+                );
+                assert!((x - y).abs() <= 0.1 * error, "{label}, {what}: plain {x} against the split's {y}");
+            }
+            // The forward lobe carries most of the light (measured 0.93 and 0.86), far outside
+            // the noise: without the split, the matrices would be the plain basis's and the
+            // forward lobe empty.
+            let share = forward / whole[0];
+            eprintln!("{label}: forward share {share:.3}, {:.0} standard errors", forward / error);
+            assert!(share > 0.5 && forward > 4.5 * error, "{label}: share {share}, error {error}");
+        }
+    }
+
+    #[test]
+    fn a_forward_basis_with_the_wrong_entry_count_is_refused() {
+        let s = forward_settings(32, 1);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let n = sh_count(1);
+        assert_eq!(basis.entries(), n * n + n + 1);
+        assert_eq!(basis.check_sizes(), Ok(()));
+        let c = basis.cells.iter().position(|c| c.paths > 0).unwrap();
+        // A cell holding the matrix alone (as a basis without forward lobes does).
+        let mut bad = basis.clone();
+        let stride = bad.cells[c].stride();
+        let len = bad.cells[c].data.len();
+        bad.cells[c].data.truncate(len - (n + 1) * stride);
+        assert!(bad.check_sizes().unwrap_err().contains(&format!("cell {c}")));
+        // The flag without the entries, and the entries without the flag.
+        let mut bad = basis.clone();
+        bad.forward_lobe = false;
+        assert!(bad.check_sizes().unwrap_err().contains("cell"));
+        let mut plain =
+            bake_recolour_basis(&exemplar, &materials, &grid, &settings(32, 1), &Cancel::new(), &no_progress)
+                .unwrap();
+        assert_eq!(plain.check_sizes(), Ok(()));
+        plain.forward_lobe = true;
+        assert!(plain.check_sizes().is_err());
+    }
+
+    #[test]
+    fn write_forward_lays_out_each_cells_forward_lobe_for_the_gpu() {
+        let s = forward_settings(64, 1);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let basis =
+            bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
+        let colours = slot_colours(&materials);
+        let n = sh_count(1);
+        let mut out = vec![f32::NAN; 4 * (n + 1)];
+        let mut nonzero = 0;
+        for c in 0..basis.cells.len() {
+            basis.write_forward(c, &colours, &mut out);
+            let cell = basis.cell_transfer(c, &colours).unwrap();
+            if cell.is_empty() {
+                assert!(out.iter().all(|&v| v == 0.0), "an empty cell writes zeros");
+                continue;
+            }
+            for (j, texel) in out.chunks_exact(4).enumerate() {
+                let rgb = if j < n { cell.forward[j] } else { cell.forward_cosine };
+                assert_eq!(texel, [rgb[0], rgb[1], rgb[2], 0.0], "cell {c}, vec4 {j}");
+            }
+            nonzero += usize::from(out[0] > 0.0);
+        }
+        assert!(nonzero > 0, "no cell has a forward lobe");
+        // A basis without forward lobes writes zeros (its matrix holds everything).
+        let plain = RecolourBasis { forward_lobe: false, ..basis.clone() };
+        let c = basis.cells.iter().position(|c| c.paths > 0).unwrap();
+        out.fill(f32::NAN);
+        plain.write_forward(c, &colours, &mut out);
+        assert!(out.iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn lambertian_events_never_make_a_forward_chain() {
+        // A forward chain is every event a fiber's TT lobe: no R event (no C_R derivative) and
+        // no event on the Lambertian slot, whose scattering the walk reports as TT.
+        let s = forward_settings(64, 0);
+        let (exemplar, grid, materials) = tiny_fabric(&s);
+        let materials = [materials[0], MaterialDesc::Lambert { albedo: Rgb::splat(0.5) }];
+        let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
+        let mut sample = ColourFreeSample::default();
+        let (mut forward, mut lambert_tt_only) = (0, 0);
+        for c in (0..grid.cell_count()).filter(|&c| !grid.segments_in_cell(c as u32).is_empty()) {
+            let stream = super::super::iirtf::cell_stream(s.seed, c as u32);
+            for p in 0..s.iirtf_paths_per_cell {
+                sampler.sample_colour_free(grid.segments_in_cell(c as u32), stream, p as u64, 2, &mut sample);
+                assert_eq!(sample.forward.len(), sample.lights.len());
+                for (l, &is_forward) in sample.forward.iter().enumerate() {
+                    let no_r = sample.r_log_derivative[l * 2..l * 2 + 2].iter().all(|&r| r == 0.0);
+                    let lambert = sample.tt_events[l * 2 + 1] > 0;
+                    assert_eq!(is_forward, no_r && !lambert, "cell {c}, path {p}, connection {l}");
+                    forward += usize::from(is_forward);
+                    lambert_tt_only += usize::from(no_r && lambert);
+                }
+            }
+        }
+        // Both kinds occur, so a walk that counted the Lambertian TT would fail.
+        assert!(
+            forward > 0 && lambert_tt_only > 0,
+            "{forward} forward, {lambert_tt_only} Lambertian TT-only"
+        );
     }
 
     #[test]

@@ -267,7 +267,10 @@ pub fn error_budget(
     }
     if settings.split_transfer {
         for (part, name) in [
-            (TransferPart::ForwardChains, "2a rung 2's forward chains alone (light transmitted by every fiber)"),
+            (
+                TransferPart::ForwardChains,
+                "2a rung 2's forward chains alone (light transmitted by every fiber)",
+            ),
             (TransferPart::AfterReflection, "2b rung 2's light reflected at least once (2a + 2b = 2)"),
         ] {
             let t = Instant::now();

@@ -146,3 +146,60 @@ pub fn gamma_in_omega_o_space(
     fiber.fresnel(cos_r) * (r.weight * b_r)
         + (Rgb::ONE - fiber.fresnel(cos_tt)) * fiber.c_tt * (tt.weight * b_tt)
 }
+
+/// Positive nodes x_k of the 8-point Gauss–Hermite rule (weight `e^{−x²}`), and its weights
+/// times `e^{x_k²}`, so that `∫ f dx ≈ Σ_k w_k e^{x_k²} f(±x_k)` for an integrand `f` that
+/// is a Gaussian times a slowly varying factor.
+const HERMITE_NODES: [f64; 4] =
+    [0.381_186_990_207_322, 1.157_193_712_446_78, 1.981_656_756_695_843, 2.930_637_420_257_244];
+const HERMITE_SCALED_WEIGHTS: [f64; 4] =
+    [0.764_544_128_651_728_8, 0.792_890_048_386_401_2, 0.866_752_606_563_357_3, 1.071_930_144_246_006_3];
+
+/// Γ(ξ, λ, ωo) by quadrature, accurate for broad SGs too (the forward lobe's λ is 0.5–30,
+/// where the closed form [`gamma`] is off by up to 70%; `docs/MATH.md`). The φi integral is
+/// the same exact one; the θi integral, per lobe X, is an 8-point Gauss–Hermite rule centred
+/// on the product of the lobe's Gaussian and the SG's quadratic approximation (the closed
+/// form's `θ_X`, `λ'_X`), with the exact integrand at each node: the SG's `1 − cos(θi − θ')`
+/// itself and the slowly varying rest (`cos²θi`, Gn, the azimuthal factors, Fresnel) where
+/// the closed form reads them at `θ_X` alone. Nodes beyond ±π/2 count zero (the integrand
+/// ends there). Every exponential has a non-positive argument, so the result is finite and
+/// non-negative for any λ ≥ 0.
+#[must_use]
+pub fn gamma_quadrature(
+    fiber: &FiberConstants,
+    gn: &GnTable,
+    t: DVec3,
+    xi: DVec3,
+    lambda: f64,
+    wo: DVec3,
+) -> Rgb {
+    let axis = AxisInOmegaOSpace::new(t, wo, xi);
+    let half = 0.5 * lambda;
+    let mut out = Rgb::ZERO;
+    for (lobe, lambda_lobe) in [(LOBE_R, fiber.lambda_r), (LOBE_TT, fiber.lambda_tt)] {
+        let sharpness = lambda_lobe + half;
+        let centre = (-lambda_lobe * axis.theta_o + half * axis.theta) / sharpness;
+        let step = 1.0 / sharpness.sqrt();
+        let norm = (lambda_lobe / PI).sqrt();
+        for (x, w) in HERMITE_NODES.iter().zip(HERMITE_SCALED_WEIGHTS) {
+            for theta in [centre - x * step, centre + x * step] {
+                if theta.abs() >= FRAC_PI_2 {
+                    continue;
+                }
+                let cos = theta.cos();
+                let sum = theta + axis.theta_o;
+                let s = (0.5 * (theta - axis.theta)).sin();
+                let gaussians = (-lambda_lobe * sum * sum - 2.0 * lambda * s * s).exp();
+                let common =
+                    cos * cos * norm * gaussians / gn.eval(fiber.material, lobe, -theta) * (w * step);
+                let f = fiber.fresnel(cos);
+                out += if lobe == LOBE_R {
+                    f * (common * i0e(lambda * cos * axis.cos_theta))
+                } else {
+                    (Rgb::ONE - f) * fiber.c_tt * (common * tt_azimuthal(fiber, lambda, cos, &axis))
+                };
+            }
+        }
+    }
+    out
+}
