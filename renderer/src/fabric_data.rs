@@ -302,7 +302,10 @@ impl FabricArrays {
                     out.forward_lobes.extend(std::iter::repeat_n([0.0; 4], sh_count + 1));
                 }
             }
-            any_forward_lobe |= baked.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe);
+            // A bake made with forward lobes keeps its buffer even when every cell folded its
+            // forward light back into SH: a recolouring can give a cell a lobe again.
+            any_forward_lobe |= baked.settings.forward_lobe
+                || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
                 out.segments.push(SegmentGpu {
@@ -384,8 +387,8 @@ impl FabricArrays {
         Ok(out)
     }
 
-    /// Whether any cell of the set carries a forward lobe (then the frame plan compiles the
-    /// shading pass with `ENABLE_FORWARD_LOBE`).
+    /// Whether the set was baked with forward lobes or any cell carries one (then the frame
+    /// plan compiles the shading pass with `ENABLE_FORWARD_LOBE`).
     #[must_use]
     pub fn has_forward_lobes(&self) -> bool {
         !self.forward_lobes.is_empty()
@@ -625,16 +628,19 @@ pub struct Recolouring<'a> {
     /// The exemplar's C_S tables at the new colours (`None` for Lambertian slots).
     pub cs_tables: &'a [Option<twill_precompute::bake::cs_table::CsTable>],
     /// Writes cell `c`'s IIRTF as f16 bits, channel-planar (`3 n²` values: what
-    /// `RecolourBasis::write_planar` writes, converted), into the slice it is given. Called for
-    /// every cell of the exemplar, in parallel.
-    pub write_cell: &'a (dyn Fn(usize, &mut [u16]) + Sync),
+    /// `RecolourBasis::write_planar` writes, converted), into the first slice it is given, and
+    /// its forward lobe (`n + 1` vec4s, `forward_lobes`' layout: what
+    /// `RecolourBasis::write_forward` writes) into the second, which is empty when the fabric
+    /// holds no forward lobes; both from one evaluation of the cell (`write_cell` of the basis:
+    /// one decision whether its forward light folds into the matrix). Called for every cell of
+    /// the exemplar, in parallel.
+    pub write_cell: &'a (dyn Fn(usize, &mut [u16], &mut [f32]) + Sync),
 }
 
 impl FabricData {
-    /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows and
-    /// IIRTF cells (as f16, written straight into the packed array by `write_cell`), nothing
-    /// else (forward lobes, `forward_lobes`, are not in the recolouring basis: they keep the
-    /// colours they were baked with until the rebake). Returns the buffers written.
+    /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows,
+    /// IIRTF cells (as f16, written straight into the packed array by `write_cell`) and, when
+    /// the fabric holds them, forward lobes; nothing else. Returns the buffers written.
     ///
     /// # Errors
     /// When the recolouring does not fit the exemplar's slots in the buffers.
@@ -644,8 +650,12 @@ impl FabricData {
         r: &Recolouring<'_>,
     ) -> Result<Vec<&'static str>, FabricDataError> {
         use rayon::prelude::*;
-        let (materials_buffer, cs_buffer, iirtf_buffer) =
-            (self.buffer("materials").clone(), self.buffer("cs_table").clone(), self.buffer("iirtf").clone());
+        let (materials_buffer, cs_buffer, iirtf_buffer, forward_buffer) = (
+            self.buffer("materials").clone(),
+            self.buffer("cs_table").clone(),
+            self.buffer("iirtf").clone(),
+            self.buffer("forward_lobes").clone(),
+        );
         let a = &mut self.arrays;
         let exemplars = a.exemplars.len();
         let slots = a.materials.len() / exemplars.max(1);
@@ -702,7 +712,29 @@ impl FabricData {
                 "the exemplar's IIRTF cells lie outside the buffer".into(),
             ));
         };
-        exemplar_halves.par_chunks_mut(cell_values).enumerate().for_each(|(c, out)| (r.write_cell)(c, out));
+        let per_cell = sh_count + 1;
+        let lobe_range = first_cell * per_cell..(first_cell + cells) * per_cell;
+        let with_lobes = !a.forward_lobes.is_empty();
+        let lobe_values: &mut [f32] = if with_lobes {
+            let Some(lobes) = a.forward_lobes.get_mut(lobe_range.clone()) else {
+                return Err(FabricDataError::Inconsistent(
+                    "the exemplar's forward lobes lie outside the buffer".into(),
+                ));
+            };
+            bytemuck::cast_slice_mut(lobes)
+        } else {
+            &mut []
+        };
+        if with_lobes {
+            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(4 * per_cell)))
+                .enumerate()
+                .for_each(|(c, (out, lobe))| (r.write_cell)(c, out, lobe));
+        } else {
+            exemplar_halves
+                .par_chunks_mut(cell_values)
+                .enumerate()
+                .for_each(|(c, out)| (r.write_cell)(c, out, &mut []));
+        }
         let (word_start, word_end) = (start / 2, (start + cells * cell_values).div_ceil(2));
         queue.write_buffer(
             &iirtf_buffer,
@@ -710,6 +742,11 @@ impl FabricData {
             bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
         );
         written.push("iirtf");
+        if with_lobes {
+            let lobes = &a.forward_lobes[lobe_range.clone()];
+            queue.write_buffer(&forward_buffer, (lobe_range.start * 16) as u64, bytemuck::cast_slice(lobes));
+            written.push("forward_lobes");
+        }
         Ok(written)
     }
 

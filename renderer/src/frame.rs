@@ -435,13 +435,14 @@ impl Renderer {
                 basis.cells.len()
             )));
         }
-        let write_cell = |c: usize, out: &mut [u16]| {
+        let write_cell = |c: usize, out: &mut [u16], lobe: &mut [f32]| {
             if basis.cells[c].paths == 0 {
                 out.fill(0);
+                lobe.fill(0.0);
                 return;
             }
             let mut values = vec![0.0_f32; out.len()];
-            basis.write_planar(c, &colours, &mut values);
+            basis.write_cell(c, &colours, &mut values, lobe);
             for (h, v) in out.iter_mut().zip(&values) {
                 *h = crate::fabric_data::f32_to_f16_bits(*v);
             }

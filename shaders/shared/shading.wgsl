@@ -1,8 +1,8 @@
 // Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
-// precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma; visibility.rs:
-// ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs: light_sh,
-// multiple_scattering_in_cell, forward_sharpness, forward_scattering), compared on the GPU by
-// renderer/tests/gpu_shading_parity.rs.
+// precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma, gamma_quadrature;
+// visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs:
+// light_sh, multiple_scattering_in_cell, forward_sharpness, forward_scattering), compared on the
+// GPU by renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
 // global segment id.
 #import shared/special.wgsl
@@ -161,37 +161,98 @@ fn lobe_gaussian(lambda_lobe: f32, lambda: f32, theta_o: f32, theta_axis: f32) -
     return vec2<f32>(centre, exp(log_a) * e);
 }
 
-// Gamma(xi, lambda, wo): the convolution of an unnormalized SG with S cos(theta_i) (gamma.rs).
-fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: f32) -> vec3<f32> {
+// The SG axis xi seen from omega_o-space (gamma.rs AxisInOmegaOSpace): theta' and h = cos theta',
+// and h +- xi_b without cancellation.
+struct SgAxis {
+    theta: f32,
+    h: f32,
+    h_plus_b: f32,
+    h_minus_b: f32,
+}
+
+fn sg_axis_in_omega_o_space(space: OmegaOSpace, xi: vec3<f32>) -> SgAxis {
     let local = vec3<f32>(dot(space.t, xi), dot(space.b, xi), dot(space.c, xi));
     let b = local.y;
     let c = local.z;
-    let h = sqrt(b * b + c * c);
-    var h_plus_b = 0.0;
-    var h_minus_b = 0.0;
+    var axis: SgAxis;
+    axis.h = sqrt(b * b + c * c);
+    // (h + b)(h - b) = c^2: the larger factor directly, the smaller from it.
     if (b >= 0.0) {
-        h_plus_b = h + b;
-        h_minus_b = select(0.0, c * c / h_plus_b, h_plus_b > 0.0);
+        axis.h_plus_b = axis.h + b;
+        axis.h_minus_b = select(0.0, c * c / axis.h_plus_b, axis.h_plus_b > 0.0);
     } else {
-        h_minus_b = h - b;
-        h_plus_b = c * c / h_minus_b;
+        axis.h_minus_b = axis.h - b;
+        axis.h_plus_b = c * c / axis.h_minus_b;
     }
-    let theta_axis = atan2(local.x, h);
+    axis.theta = atan2(local.x, axis.h);
+    return axis;
+}
 
-    let r = lobe_gaussian(f.lambda_r, lambda, space.theta_o, theta_axis);
+// The TT azimuthal factor i0e(lambda_m) e^(lambda_m - a - kappa) / i0e(kappa) at cos(theta_i)
+// (gamma.rs tt_azimuthal).
+fn tt_azimuthal(f: FiberConstants, lambda: f32, cos_theta_i: f32, axis: SgAxis) -> f32 {
+    let a = lambda * cos_theta_i * axis.h;
+    let scale = 2.0 * f.kappa * lambda * cos_theta_i;
+    let lambda_m = sqrt((a - f.kappa) * (a - f.kappa) + scale * axis.h_minus_b);
+    let deficit = -scale * axis.h_plus_b / (lambda_m + a + f.kappa);
+    return i0e_f32(lambda_m) * exp(deficit) / f.i0e_kappa;
+}
+
+// Gamma(xi, lambda, wo): the convolution of an unnormalized SG with S cos(theta_i) (gamma.rs).
+fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let axis = sg_axis_in_omega_o_space(space, xi);
+
+    let r = lobe_gaussian(f.lambda_r, lambda, space.theta_o, axis.theta);
     let cos_r = max(cos(r.x), 0.0);
-    let b_r = cos_r * cos_r * sqrt(f.lambda_r / PI) / gn_eval(f.material, LOBE_R, -r.x) * i0e_f32(lambda * cos_r * h);
+    let b_r = cos_r * cos_r * sqrt(f.lambda_r / PI) / gn_eval(f.material, LOBE_R, -r.x) * i0e_f32(lambda * cos_r * axis.h);
 
-    let tt = lobe_gaussian(f.lambda_tt, lambda, space.theta_o, theta_axis);
+    let tt = lobe_gaussian(f.lambda_tt, lambda, space.theta_o, axis.theta);
     let cos_tt = max(cos(tt.x), 0.0);
-    let a = lambda * cos_tt * h;
-    let scale = 2.0 * f.kappa * lambda * cos_tt;
-    let lambda_m = sqrt((a - f.kappa) * (a - f.kappa) + scale * h_minus_b);
-    let deficit = -scale * h_plus_b / (lambda_m + a + f.kappa);
-    let azimuthal = i0e_f32(lambda_m) * exp(deficit) / f.i0e_kappa;
-    let b_tt = cos_tt * cos_tt * sqrt(f.lambda_tt / PI) / gn_eval(f.material, LOBE_TT, -tt.x) * azimuthal;
+    let b_tt = cos_tt * cos_tt * sqrt(f.lambda_tt / PI) / gn_eval(f.material, LOBE_TT, -tt.x) * tt_azimuthal(f, lambda, cos_tt, axis);
 
     return fresnel(f, cos_r) * (r.y * b_r) + (vec3<f32>(1.0) - fresnel(f, cos_tt)) * f.c_tt * (tt.y * b_tt);
+}
+
+// Gamma(xi, lambda, wo) by quadrature (gamma.rs gamma_quadrature), accurate for the broad SGs
+// of the forward lobes (lambda about 0.5-30, where the closed form is off by up to 70%): the
+// same exact phi_i integral; the theta_i integral per lobe by the 8-point Gauss-Hermite rule
+// centred on the closed form's theta_X (unclamped) with step 1/sqrt(lambda'_X), the exact
+// integrand at each node (1 - cos(theta_i - theta') itself, cos^2, Gn, Fresnel and the
+// azimuthal factors there); nodes at or beyond +-pi/2 count zero.
+fn sg_bcsdf_gamma_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: f32) -> vec3<f32> {
+    // Positive nodes of the rule (weight e^(-x^2)) and its weights times e^(x^2) (gamma.rs
+    // HERMITE_NODES, HERMITE_SCALED_WEIGHTS).
+    var nodes = array<f32, 4>(0.381186990207322, 1.15719371244678, 1.981656756695843, 2.930637420257244);
+    var weights = array<f32, 4>(0.7645441286517288, 0.7928900483864012, 0.8667526065633573, 1.0719301442460063);
+    let axis = sg_axis_in_omega_o_space(space, xi);
+    let half = 0.5 * lambda;
+    var out = vec3<f32>(0.0);
+    for (var lobe = LOBE_R; lobe <= LOBE_TT; lobe++) {
+        let lambda_lobe = select(f.lambda_r, f.lambda_tt, lobe == LOBE_TT);
+        let sharpness = lambda_lobe + half;
+        let centre = (-lambda_lobe * space.theta_o + half * axis.theta) / sharpness;
+        let step = 1.0 / sqrt(sharpness);
+        let norm = sqrt(lambda_lobe / PI);
+        for (var k = 0u; k < 8u; k++) {
+            // Node k / 2, below the centre for even k and above it for odd k.
+            let theta = centre + select(-1.0, 1.0, (k & 1u) == 1u) * nodes[k / 2u] * step;
+            if (abs(theta) >= HALF_PI) {
+                continue;
+            }
+            let c = cos(theta);
+            let sum = theta + space.theta_o;
+            let s = sin(0.5 * (theta - axis.theta));
+            let gaussians = exp(-lambda_lobe * sum * sum - 2.0 * lambda * s * s);
+            let part = c * c * norm * gaussians / gn_eval(f.material, lobe, -theta) * (weights[k / 2u] * step);
+            let fr = fresnel(f, c);
+            if (lobe == LOBE_R) {
+                out += fr * (part * i0e_f32(lambda * c * axis.h));
+            } else {
+                out += (vec3<f32>(1.0) - fr) * f.c_tt * (part * tt_azimuthal(f, lambda, c, axis));
+            }
+        }
+    }
+    return out;
 }
 
 // One pixel of a segment's PCA-reconstructed SSDF.
@@ -469,8 +530,9 @@ fn forward_lobe_at(e: u32, segment: u32, p: vec3<f32>, forward: ptr<function, ar
 // with unit weight: Y_j(dir) for a directional light, sqrt(4 pi / (2l + 1)) z_l(lambda_l)
 // Y_j(dir) for an SG light of sharpness lambda_l >= 0; `sharpness` < 0 marks directional),
 // clamped at zero per channel, arrives as a normalized SG about `dir` of sharpness lambda_C
-// (directional) or lambda_C lambda_l / (lambda_C + lambda_l) (SG), scattered in closed form:
-// s Gamma(dir, lambda, wo) / M(lambda). `forward` and `lambda_cell` from forward_lobe_at.
+// (directional) or lambda_C lambda_l / (lambda_C + lambda_l) (SG), scattered as
+// s Gamma(dir, lambda, wo) / M(lambda), Gamma by quadrature (the lobes are broad:
+// sg_bcsdf_gamma_quadrature). `forward` and `lambda_cell` from forward_lobe_at.
 fn forward_scattered(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, forward: ptr<function, array<vec3<f32>, 49>>, lambda_cell: f32) -> vec3<f32> {
     let order = fabric.sh_order;
     var y: array<f32, 49>;
@@ -497,7 +559,7 @@ fn forward_scattered(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
     }
     let s = segments[segment];
     let space = omega_o_space(normalize(s.direction), wo);
-    return strength * sg_bcsdf_gamma(fiber_constants(s.material), space, dir, lambda) / sg_mass_f32(lambda);
+    return strength * sg_bcsdf_gamma_quadrature(fiber_constants(s.material), space, dir, lambda) / sg_mass_f32(lambda);
 }
 
 // Forward-scattered radiance of `light` (from direction `dir`, flat-fabric frame) at the shaded

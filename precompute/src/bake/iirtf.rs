@@ -749,9 +749,27 @@ pub(crate) fn for_each_cell<T: Send>(
 
 /// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop
 /// (then `None`).
+/// The sharpness below which a cell's forward-scattered light stays in its SH matrix at SH
+/// order `order`: `(L+1)(L+2)/FORWARD_LOBE_BAND_DIVISOR`. A normalized SG's band-l zonal
+/// coefficient falls as about `exp(−l(l+1)/(2λ))`, so below this λ the bands above L hold
+/// little of it and the SH transfer carries it as well as a lobe does (better: the lobe's
+/// single isotropic SG about the light's direction is a coarse shape for broad forward light,
+/// measured 30% dark on the default cotton, λ 0.6–3.3), and above it the SH rings (the silk
+/// satin's forward chains, λ 5–11, come out up to 12 times too bright at order 4).
+#[must_use]
+pub fn forward_lobe_min_sharpness(order: usize) -> f64 {
+    let l = order as f64;
+    (l + 1.0) * (l + 2.0) / FORWARD_LOBE_BAND_DIVISOR
+}
+
+/// See [`forward_lobe_min_sharpness`]: 6 puts the first band left out at about `e^{−3}` of
+/// the lobe's constant term.
+pub const FORWARD_LOBE_BAND_DIVISOR: f64 = 6.0;
+
 /// One cell's transfer from `paths` paths. With `forward_lobe`, each light connection's
 /// forward-chain share goes to the forward-lobe sums (its SH over ω0, and its cosine to the
-/// arrival direction ω1) and only the rest to the matrix.
+/// arrival direction ω1) and the rest to the matrix; a cell whose forward light turns out
+/// broad ([`forward_lobe_min_sharpness`]) takes it back into its matrix and holds no lobe.
 fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
@@ -771,6 +789,11 @@ fn bake_cell(
     let mut forward_cosine = Rgb::ZERO;
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut light = vec![Rgb::ZERO; n];
+    // The forward chains' own matrix (and its light vector per path), for a cell that keeps
+    // them in SH; its squares go with the whole matrix's (the error is of the sum then).
+    let mut forward_light = vec![Rgb::ZERO; if forward_lobe { n } else { 0 }];
+    let mut forward_sum = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
+    let mut forward_sum2 = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
     for p in 0..paths {
         if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
             return None;
@@ -781,11 +804,13 @@ fn bake_cell(
         }
         // The path's light-side SH vector: Σ over its events of weight · Y(ω0).
         light.fill(Rgb::ZERO);
+        forward_light.fill(Rgb::ZERO);
         for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
             sh_eval(order, *to_light, &mut y0);
             let weight = if forward_lobe {
-                for (f, y) in forward.iter_mut().zip(&y0) {
+                for ((f, l), y) in forward.iter_mut().zip(forward_light.iter_mut()).zip(&y0) {
                     *f += *share * *y;
+                    *l += *share * *y;
                 }
                 forward_cosine += *share * to_light.dot(s.view);
                 *weight - *share
@@ -804,9 +829,33 @@ fn bake_cell(
                 *a2 += v * v;
             }
         }
+        if forward_lobe {
+            let rows = forward_sum.chunks_exact_mut(n).zip(forward_sum2.chunks_exact_mut(n));
+            for (j1, (row, row2)) in rows.enumerate() {
+                for (((a, a2), f), l) in row.iter_mut().zip(row2.iter_mut()).zip(&forward_light).zip(&light) {
+                    let v = *f * y1[j1];
+                    *a += v;
+                    // The square of the whole entry less that of the rest: Σ (r + f)² − Σ r².
+                    *a2 += v * (v + 2.0 * *l * y1[j1]);
+                }
+            }
+        }
     }
     tick(paths % CHECK_EVERY);
     let count = paths as f64;
+    if forward_lobe {
+        let lambda = crate::shading::multiple::forward_sharpness(forward[0] / count, forward_cosine / count);
+        if lambda < forward_lobe_min_sharpness(order) {
+            for ((a, a2), (f, f2)) in
+                sum.iter_mut().zip(sum2.iter_mut()).zip(forward_sum.iter().zip(&forward_sum2))
+            {
+                *a += *f;
+                *a2 += *f2;
+            }
+            forward.clear();
+            forward_cosine = Rgb::ZERO;
+        }
+    }
     let to_f32 = |v: Rgb| v.as_vec3().to_array();
     let matrix = sum.iter().map(|s| to_f32(*s / count)).collect();
     let std_error = sum
@@ -933,6 +982,75 @@ mod tests {
         assert!(
             by_chain[1].cells.iter().filter_map(|c| c.matrix.first()).all(|e| e.iter().all(|&v| v >= 0.0))
         );
+    }
+
+    #[test]
+    fn forward_lobes_split_the_same_paths_and_broad_ones_fold_back_into_the_matrix() {
+        let (exemplar, materials) = default_fabric();
+        let grid = CellGrid::new(&exemplar, 0.01, 2.0, 2.0).unwrap();
+        let order = 2;
+        let n = sh_count(order);
+        let settings = small_settings(600, order);
+        let bake = |forward_lobe| {
+            let settings = BakeSettings { forward_lobe, ..settings };
+            bake_iirtf(
+                &exemplar,
+                &materials,
+                &grid,
+                &settings,
+                &IirtfOptions::default(),
+                &Cancel::new(),
+                &no_progress,
+            )
+            .unwrap()
+        };
+        let (all, split) = (bake(false), bake(true));
+        let cut = forward_lobe_min_sharpness(order);
+        assert!((cut - 2.0).abs() < 1e-12, "order 2: (3 · 4) / 6");
+        let (mut lobes, mut folded) = (0, 0);
+        let y0 = 1.0 / (4.0 * std::f64::consts::PI).sqrt();
+        for (c, (a, b)) in all.cells.iter().zip(&split.cells).enumerate() {
+            if a.is_empty() {
+                assert!(b.is_empty() && !b.has_forward_lobe());
+                continue;
+            }
+            let scale = a.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs())).max(1e-30);
+            let close = |x: f64, y: f64, what: &str| {
+                assert!((x - y).abs() <= 2e-5 * f64::from(scale), "cell {c}, {what}: {x} against {y}");
+            };
+            if b.has_forward_lobe() {
+                lobes += 1;
+                let f0 = glam::Vec3::from(b.forward[0]).as_dvec3();
+                let cosine = glam::Vec3::from(b.forward_cosine).as_dvec3();
+                let lambda = crate::shading::multiple::forward_sharpness(f0, cosine);
+                assert!(lambda >= cut, "cell {c} kept a lobe of λ {lambda} below {cut}");
+                for ch in 0..3 {
+                    // Row j1 = 0 of the whole matrix is the rest's plus F_j0 · Y_0(ω1).
+                    for j0 in 0..n {
+                        let forward = f64::from(b.forward[j0][ch]) * y0;
+                        close(f64::from(a.matrix[j0][ch]), f64::from(b.matrix[j0][ch]) + forward, "row 0");
+                    }
+                    // ω0·ω1 = (4π/3) Σ_m Y_1m(ω0) Y_1m(ω1): the cosine is band 1's trace.
+                    let trace = |m: &CellTransfer| -> f64 {
+                        (1..4).map(|j| f64::from(m.matrix[j * n + j][ch])).sum()
+                    };
+                    let cosine = f64::from(b.forward_cosine[ch]) * 3.0 / (4.0 * std::f64::consts::PI);
+                    close(trace(a), trace(b) + cosine, "band 1's trace");
+                }
+                // The forward chains really left the matrix.
+                assert!(b.forward[0].iter().all(|&f| f > 0.0), "cell {c}: {:?}", b.forward[0]);
+            } else {
+                folded += 1;
+                for (x, y) in a.matrix.iter().zip(&b.matrix) {
+                    for ch in 0..3 {
+                        close(f64::from(x[ch]), f64::from(y[ch]), "folded matrix");
+                    }
+                }
+            }
+        }
+        // The default cotton's forward light is broad in most cells and sharp enough in some.
+        eprintln!("{lobes} cells with a lobe, {folded} folded back");
+        assert!(lobes > 0 && folded > 0, "{lobes} cells with a lobe, {folded} folded back");
     }
 
     #[test]

@@ -395,8 +395,8 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key (8: the forward
-/// lobes, `RecolourBasis::forward_lobe`).
-const RECOLOUR_VERSION: u32 = 8;
+/// lobes, `RecolourBasis::forward_lobe`; 9: their per-cell fold, the forward chains' own matrix).
+const RECOLOUR_VERSION: u32 = 9;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {

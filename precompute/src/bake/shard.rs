@@ -290,10 +290,12 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
     );
     for (e, x) in part.exemplars.iter().enumerate() {
         let range = |r: &Range<usize>| u32s(vec![r.start as u32, r.end as u32]);
-        let (mut matrix, mut error, mut forward) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut matrix, mut error, mut forward, mut lobes) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for cell in x.transfer.iter().filter(|c| c.paths > 0) {
             matrix.extend(cell.matrix.iter().flatten());
             error.extend(cell.std_error.iter().flatten());
+            lobes.push(u32::from(cell.has_forward_lobe()));
             if cell.has_forward_lobe() {
                 forward.extend(cell.forward.iter().flatten().chain(&cell.forward_cosine));
             }
@@ -310,6 +312,7 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
             .section(&format!("e{e}.entries"), key, u32s(vec![entries]))
             .section(&format!("e{e}.matrix"), key, Array::vector(ArrayData::F32(matrix)))
             .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F32(error)))
+            .section(&format!("e{e}.lobes"), key, u32s(lobes))
             .section(&format!("e{e}.forward"), key, Array::vector(ArrayData::F32(forward)));
     }
     writer.write(path)?;
@@ -386,17 +389,25 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
             )));
         }
         let rgb = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        // Forward lobes: per nonempty cell, n = √entries coefficients and the cosine, or none.
-        let forward = f32s(&format!("e{e}.forward"))?;
+        // Forward lobes: which nonempty cells hold one (1) or none (0), and for each that does
+        // n = √entries coefficients and the cosine.
+        let (lobes, forward) = (u32s(&format!("e{e}.lobes"))?, f32s(&format!("e{e}.forward"))?);
         let n = entries.isqrt();
         let per_cell = 3 * (n + 1);
-        if !forward.is_empty() && (n * n != entries || forward.len() != per_cell * nonempty) {
+        let with_lobe = lobes.iter().filter(|&&l| l == 1).count();
+        if lobes.len() != nonempty
+            || lobes.iter().any(|&l| l > 1)
+            || (with_lobe > 0 && n * n != entries)
+            || forward.len() != per_cell * with_lobe
+        {
             return Err(bad(format!(
-                "e{e}.forward: {} values for {nonempty} cells of {entries} entries, expected 0 or {}",
-                forward.len(),
-                per_cell * nonempty
+                "e{e}: {} lobe flags ({with_lobe} set) and {} forward-lobe values for {nonempty} cells of {entries} entries",
+                lobes.len(),
+                forward.len()
             )));
         }
+        let mut lobe_flags = lobes.iter();
+        let mut lobe_at = 0;
         let mut at = 0;
         let transfer = paths
             .iter()
@@ -406,11 +417,12 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
                 }
                 let range = 3 * entries * at..3 * entries * (at + 1);
                 at += 1;
-                let (forward, forward_cosine) = if forward.is_empty() {
-                    (Vec::new(), [0.0; 3])
-                } else {
-                    let lobe = &forward[per_cell * (at - 1)..per_cell * at];
+                let (forward, forward_cosine) = if lobe_flags.next() == Some(&1) {
+                    let lobe = &forward[per_cell * lobe_at..per_cell * (lobe_at + 1)];
+                    lobe_at += 1;
                     (rgb(&lobe[..3 * n]), [lobe[3 * n], lobe[3 * n + 1], lobe[3 * n + 2]])
+                } else {
+                    (Vec::new(), [0.0; 3])
                 };
                 CellTransfer {
                     matrix: rgb(&matrix[range.clone()]),
@@ -519,10 +531,20 @@ mod tests {
 
     #[test]
     fn merged_parts_are_the_single_process_bake_byte_for_byte_whatever_the_split() {
+        for forward_lobe in [false, true] {
+            merged_parts_are_the_single_process_bake(forward_lobe);
+        }
+    }
+
+    fn merged_parts_are_the_single_process_bake(forward_lobe: bool) {
         let (exemplar, materials) = tiny();
-        let inputs = [BakeInputs { exemplar: &exemplar, materials: &materials, settings: settings() }];
+        let settings = BakeSettings { forward_lobe, ..settings() };
+        let inputs = [BakeInputs { exemplar: &exemplar, materials: &materials, settings }];
         let dir = tempfile::tempdir().unwrap();
         let whole = bake_set(&inputs, PatternMap::uniform(0), None, &Cancel::new(), &|_, _| {}).unwrap();
+        let lobes =
+            whole.exemplars[0].baked.transfer.iirtf.cells.iter().filter(|c| c.has_forward_lobe()).count();
+        assert_eq!(lobes > 0, forward_lobe, "{lobes} cells with a forward lobe");
         let whole_path = dir.path().join("whole.twillbake");
         write_bake(&whole_path, &whole).unwrap();
         let whole_bytes = std::fs::read(&whole_path).unwrap();
@@ -542,7 +564,10 @@ mod tests {
             let merged = merge(&inputs, read).unwrap();
             let path = dir.path().join(format!("merged{count}.twillbake"));
             write_bake(&path, &merged).unwrap();
-            assert!(std::fs::read(&path).unwrap() == whole_bytes, "{count} shards: the merged bake differs");
+            assert!(
+                std::fs::read(&path).unwrap() == whole_bytes,
+                "{count} shards (forward lobes {forward_lobe}): the merged bake differs"
+            );
         }
     }
 
