@@ -146,9 +146,14 @@ pub struct FabricArrays {
     /// `forward_lobes` in `shaders/shared/fabric_data.wgsl`: per global cell `n + 1` vec4s
     /// (n = `header.sh_count`), `[cell * (n + 1) + j]` = `forward[j]` (rgb, w = 0) for
     /// `j < n` and `[cell * (n + 1) + n]` = `forward_cosine` (rgb, w = 0); zeros for a cell
-    /// without a lobe. Empty when no cell of the set has one (the buffer is then one zeroed
-    /// vec4, never read: the plan leaves `ENABLE_FORWARD_LOBE` off).
+    /// without a lobe. Empty for a set baked without forward lobes in which no cell has one
+    /// (the buffer is then one zeroed vec4, never read).
     pub forward_lobes: Vec<[f32; 4]>,
+    /// Cells whose lobe is not all zeros: the plan compiles `ENABLE_FORWARD_LOBE` only when
+    /// there are any (a bake made with the option whose cells all folded their forward light
+    /// into SH shades without it). Counted when packed and after every recolouring, which can
+    /// give a cell a lobe or take it away.
+    pub forward_lobe_cells: usize,
     pub cs_table: Vec<f32>,
     pub cg_table: Vec<f32>,
     pub gn_table: Vec<f32>,
@@ -226,6 +231,7 @@ impl FabricArrays {
             iirtf: Vec::new(),
             cell_flags: Vec::new(),
             forward_lobes: Vec::new(),
+            forward_lobe_cells: 0,
             cs_table: Vec::new(),
             cg_table: first.cg.values().to_vec(),
             gn_table: Vec::new(),
@@ -384,14 +390,28 @@ impl FabricArrays {
             block_size,
             z_range,
         };
+        out.forward_lobe_cells = out.count_forward_lobe_cells();
         Ok(out)
     }
 
-    /// Whether the set was baked with forward lobes or any cell carries one (then the frame
-    /// plan compiles the shading pass with `ENABLE_FORWARD_LOBE`).
+    /// Whether any cell carries a forward lobe now (then the frame plan compiles the shading
+    /// pass with `ENABLE_FORWARD_LOBE`).
     #[must_use]
     pub fn has_forward_lobes(&self) -> bool {
+        self.forward_lobe_cells > 0
+    }
+
+    /// Whether the buffer holds a lobe slot for every cell (the set was baked with forward
+    /// lobes, or some cell has one), so that a recolouring can write lobes.
+    #[must_use]
+    pub fn holds_forward_lobes(&self) -> bool {
         !self.forward_lobes.is_empty()
+    }
+
+    /// Cells whose lobe slot is not all zeros.
+    fn count_forward_lobe_cells(&self) -> usize {
+        let per_cell = self.header.sh_count as usize + 1;
+        self.forward_lobes.chunks_exact(per_cell).filter(|c| c.iter().any(|v| *v != [0.0; 4])).count()
     }
 
     /// Every buffer with its label and contents, in binding order (1 ..= 14).
@@ -714,7 +734,7 @@ impl FabricData {
         };
         let per_cell = sh_count + 1;
         let lobe_range = first_cell * per_cell..(first_cell + cells) * per_cell;
-        let with_lobes = !a.forward_lobes.is_empty();
+        let with_lobes = !a.forward_lobes.is_empty(); // holds_forward_lobes(), while a.iirtf is borrowed
         let lobe_values: &mut [f32] = if with_lobes {
             let Some(lobes) = a.forward_lobes.get_mut(lobe_range.clone()) else {
                 return Err(FabricDataError::Inconsistent(
@@ -746,6 +766,7 @@ impl FabricData {
             let lobes = &a.forward_lobes[lobe_range.clone()];
             queue.write_buffer(&forward_buffer, (lobe_range.start * 16) as u64, bytemuck::cast_slice(lobes));
             written.push("forward_lobes");
+            a.forward_lobe_cells = a.count_forward_lobe_cells();
         }
         Ok(written)
     }

@@ -774,6 +774,7 @@ fn the_plan_enables_forward_lobes_only_for_a_bake_that_has_them() {
         // Without lobes the buffer is empty (bound as one zeroed vec4); with them n + 1 per cell.
         let n = arrays.header.sh_count as usize;
         let expected_len = if expected { arrays.cell_flags.len() * (n + 1) } else { 0 };
+        assert_eq!(arrays.holds_forward_lobes(), expected, "{label}");
         assert_eq!(arrays.forward_lobes.len(), expected_len, "{label}");
         for (flat, uniform) in [(Some(glam::Vec3::Z), true), (None, false)] {
             let plan =
