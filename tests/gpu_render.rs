@@ -876,6 +876,61 @@ fn a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would() {
     assert_eq!(unchanged, after);
 }
 
+/// A bake with forward lobes (`forward_lobe`), recoloured in place from its basis: the live
+/// write puts each cell's matrix and forward lobe on the GPU from one evaluation (the basis
+/// decides per cell whether its forward light folds into the matrix at the new colours), and
+/// the picture is exactly the one the whole-bake path gives for the same recolouring.
+#[test]
+fn live_recolouring_writes_forward_lobes_in_place() {
+    use twill_precompute::Rgb;
+    use twill_precompute::bake::iirtf::CellTransfer;
+    use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
+    use twill_precompute::bake::settings::BakeSettings;
+    use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
+    let Some(gpu) = Gpu::for_test("live_recolouring_writes_forward_lobes_in_place") else {
+        return;
+    };
+    let scene0 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
+    let settings0 = BakeSettings { forward_lobe: true, ..Quality::Draft.settings() };
+    let inputs0 = scene0.bake_inputs(settings0);
+    let before = bake(&inputs0[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
+    let lobes = |b: &Baked| b.transfer.iirtf.cells.iter().filter(|c| c.has_forward_lobe()).count();
+    let cells = before.transfer.iirtf.cells.iter().filter(|c| !c.is_empty()).count();
+    assert!(lobes(&before) > 0 && lobes(&before) < cells, "{} of {cells} cells keep a lobe", lobes(&before));
+    let basis = recolour_basis(&inputs0[0], None, &Cancel::new(), &|_| {}).expect("basis");
+    let recolour = |m: &MaterialDesc, c_tt: Rgb| match *m {
+        MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_tt, ..p }),
+        MaterialDesc::Lambert { .. } => panic!("the default fabric is fiber"),
+    };
+    let mut scene1 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
+    scene1.material_descs = vec![
+        recolour(&scene0.material_descs[0], Rgb::new(0.05, 0.08, 0.45)),
+        recolour(&scene0.material_descs[1], Rgb::new(0.92, 0.86, 0.7)),
+    ];
+    let inputs1 = scene1.bake_inputs(settings0);
+    let mut settings = frame_settings(&scene1, Components::All);
+    (settings.width, settings.height, settings.spp) = (24, 24, 4);
+    let pattern = PatternMap::uniform(0);
+    let mut session = SceneRenderer::with_gpu(gpu, &scene0, &[&before], &pattern).expect("scene uploads");
+    let written = session.renderer.recolour(0, &basis, &scene1.material_descs).expect("recolours");
+    assert_eq!(written, ["materials", "cs_table", "iirtf", "forward_lobes"]);
+    let live = session.render(&scene1, &settings).expect("frame renders");
+    assert!(live.plan.forward_lobe, "the recoloured cells keep lobes: {}", live.plan);
+    let live = live.radiance_image();
+    assert!(live.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
+    let preview = bake_material_preview(&inputs1[0], &before, Some(&basis), None, &Cancel::new(), &|_, _| {})
+        .expect("preview")
+        .baked;
+    assert!(preview.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe));
+    session.renderer.update_fabric(&[&preview], &pattern).expect("packs").expect("same layout");
+    let packed = session.render(&scene1, &settings).expect("frame renders").radiance_image();
+    let largest = packed.pixels.iter().map(|p| p.max_element()).fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    for (a, b) in live.pixels.iter().zip(&packed.pixels) {
+        assert!((*a - *b).abs().max_element() <= 1e-6 * largest, "in place {a:?} vs packed {b:?}");
+    }
+}
+
 /// Live recolouring on the GPU (the colourways issue, part 2): the default fabric's draft bake,
 /// recoloured to a navy warp and a cream weft from its recolouring basis, written in place
 /// (`Renderer::recolour`):

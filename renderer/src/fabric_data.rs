@@ -411,7 +411,7 @@ impl FabricArrays {
     /// Cells whose lobe slot is not all zeros.
     fn count_forward_lobe_cells(&self) -> usize {
         let per_cell = self.header.sh_count as usize + 1;
-        self.forward_lobes.chunks_exact(per_cell).filter(|c| c.iter().any(|v| *v != [0.0; 4])).count()
+        self.forward_lobes.chunks_exact(per_cell).filter(|c| c.iter().flatten().any(|v| *v != 0.0)).count()
     }
 
     /// Every buffer with its label and contents, in binding order (1 ..= 14).
@@ -639,6 +639,10 @@ impl FabricData {
     }
 }
 
+/// Writes one cell of a recolouring: its IIRTF (f16 bits) and its forward lobe
+/// ([`Recolouring::write_cell`]).
+pub type WriteRecolouredCell<'a> = dyn Fn(usize, &mut [u16], &mut [f32]) + Sync + 'a;
+
 /// A recolouring of one exemplar, ready to write ([`FabricData::write_recolouring`]).
 pub struct Recolouring<'a> {
     /// The exemplar (pattern order).
@@ -654,7 +658,7 @@ pub struct Recolouring<'a> {
     /// holds no forward lobes; both from one evaluation of the cell (`write_cell` of the basis:
     /// one decision whether its forward light folds into the matrix). Called for every cell of
     /// the exemplar, in parallel.
-    pub write_cell: &'a (dyn Fn(usize, &mut [u16], &mut [f32]) + Sync),
+    pub write_cell: &'a WriteRecolouredCell<'a>,
 }
 
 impl FabricData {
