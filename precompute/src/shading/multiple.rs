@@ -24,6 +24,10 @@
 //!   varies smoothly through the fabric; without a point it is the constant of the segment's
 //!   own cell (`CellGrid::cell_of_segment`), the paper's choice, which shows each cell as a
 //!   flat block.
+//! - [`forward_scattering`]: a bake with forward lobes (`BakeSettings::forward_lobe`) holds the
+//!   forward-scattered light of the cells whose lobe is too sharp for the SH outside their
+//!   matrices; it is added per light as an SG about the light's direction through Γ by
+//!   quadrature (docs/MATH.md, "Forward lobes").
 
 use std::f64::consts::PI;
 
@@ -196,8 +200,8 @@ pub fn forward_sharpness(forward0: Rgb, forward_cosine: Rgb) -> f64 {
 /// directional light of irradiance E gives `E F(ω_d)`) arrives as a normalized SG about the
 /// light's axis, of the cell's sharpness λ_C ([`forward_sharpness`]; an SG light of sharpness
 /// λ_l widens it to `λ_C λ_l / (λ_C + λ_l)`, the product of two vMF convolutions' usual
-/// approximation), and is scattered toward ωo in closed form: `s · V̄_glo · Γ(axis, λ, ωo) /
-/// M(λ)`, Γ by quadrature ([`gamma_quadrature`]: the lobes are broad, λ about 0.5–30, where the
+/// approximation), and is scattered toward ωo: `s · V̄_glo · Γ(axis, λ, ωo) / M(λ)`, Γ by
+/// quadrature ([`gamma_quadrature`]: the lobes are broad, λ about 0.5–30, where the
 /// closed form is off by up to 70%). Zero when the bake has no forward lobes.
 pub fn forward_scattering(
     baked: &Baked,
