@@ -747,8 +747,6 @@ pub(crate) fn for_each_cell<T: Send>(
     Ok(cells)
 }
 
-/// One cell; `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop
-/// (then `None`).
 /// The sharpness below which a cell's forward-scattered light stays in its SH matrix at SH
 /// order `order`: `(L+1)(L+2)/FORWARD_LOBE_BAND_DIVISOR`. A normalized SG's band-l zonal
 /// coefficient falls as about `exp(−l(l+1)/(2λ))`, so below this λ the bands above L hold
@@ -770,6 +768,7 @@ pub const FORWARD_LOBE_BAND_DIVISOR: f64 = 6.0;
 /// forward-chain share goes to the forward-lobe sums (its SH over ω0, and its cosine to the
 /// arrival direction ω1) and the rest to the matrix; a cell whose forward light turns out
 /// broad ([`forward_lobe_min_sharpness`]) takes it back into its matrix and holds no lobe.
+/// `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop (then `None`).
 fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
@@ -789,8 +788,9 @@ fn bake_cell(
     let mut forward_cosine = Rgb::ZERO;
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut light = vec![Rgb::ZERO; n];
-    // The forward chains' own matrix (and its light vector per path), for a cell that keeps
-    // them in SH; its squares go with the whole matrix's (the error is of the sum then).
+    // The forward chains' light vector per path (summed into `forward`) and their own matrix,
+    // for a cell that keeps them in SH; its squares go with the whole matrix's (the error is of
+    // the sum then).
     let mut forward_light = vec![Rgb::ZERO; if forward_lobe { n } else { 0 }];
     let mut forward_sum = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
     let mut forward_sum2 = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
@@ -808,8 +808,7 @@ fn bake_cell(
         for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
             sh_eval(order, *to_light, &mut y0);
             let weight = if forward_lobe {
-                for ((f, l), y) in forward.iter_mut().zip(forward_light.iter_mut()).zip(&y0) {
-                    *f += *share * *y;
+                for (l, y) in forward_light.iter_mut().zip(&y0) {
                     *l += *share * *y;
                 }
                 forward_cosine += *share * to_light.dot(s.view);
@@ -830,6 +829,9 @@ fn bake_cell(
             }
         }
         if forward_lobe {
+            for (f, l) in forward.iter_mut().zip(&forward_light) {
+                *f += *l;
+            }
             let rows = forward_sum.chunks_exact_mut(n).zip(forward_sum2.chunks_exact_mut(n));
             for (j1, (row, row2)) in rows.enumerate() {
                 for (((a, a2), f), l) in row.iter_mut().zip(row2.iter_mut()).zip(&forward_light).zip(&light) {

@@ -202,7 +202,7 @@ pub fn forward_sharpness(forward0: Rgb, forward_cosine: Rgb) -> f64 {
 /// λ_l widens it to `λ_C λ_l / (λ_C + λ_l)`, the product of two vMF convolutions' usual
 /// approximation), and is scattered toward ωo: `s · V̄_glo · Γ(axis, λ, ωo) / M(λ)`, Γ by
 /// quadrature ([`gamma_quadrature`]: the lobes are broad, λ about 0.5–30, where the
-/// closed form is off by up to 70%). Zero when the bake has no forward lobes.
+/// closed form is off by up to 70%). Zero where no cell around the point holds a lobe.
 pub fn forward_scattering(
     baked: &Baked,
     segment: u32,
@@ -213,9 +213,6 @@ pub fn forward_scattering(
     let order = baked.transfer.iirtf.sh_order;
     let n = sh_count(order);
     let cells = &baked.transfer.iirtf.cells;
-    if !cells.iter().any(CellTransfer::has_forward_lobe) {
-        return Ok(Rgb::ZERO);
-    }
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
@@ -232,6 +229,9 @@ pub fn forward_scattering(
             }
             cosine += glam::Vec3::from(cell.forward_cosine).as_dvec3() * weight;
         }
+    }
+    if forward[0] == Rgb::ZERO {
+        return Ok(Rgb::ZERO); // No cell around the point holds a lobe.
     }
     let lambda_cell = forward_sharpness(forward[0], cosine);
     let mut out = Rgb::ZERO;

@@ -78,8 +78,11 @@ fn shade_segment(
         // the image, by 50–200 points in the error budget; docs/BENCHMARKS.md), and the sum
         // goes below zero less often than the term.
         total += multiple_scattering(baked, segment, position, wo, &c_light)?;
-        let blurred: Vec<(Light, f64)> = lights.iter().map(|(light, _, v)| (*light, *v)).collect();
-        total += forward_scattering(baked, segment, position, wo, &blurred)?;
+        // Only a bake made with forward lobes has cells that hold one.
+        if baked.settings.forward_lobe {
+            let blurred: Vec<(Light, f64)> = lights.iter().map(|(light, _, v)| (*light, *v)).collect();
+            total += forward_scattering(baked, segment, position, wo, &blurred)?;
+        }
     }
     Ok(if clamp_at_zero { total.max(Rgb::ZERO) } else { total })
 }
