@@ -891,10 +891,10 @@ fn live_recolouring_writes_forward_lobes_in_place() {
         return;
     };
     let scene0 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
-    let settings0 = BakeSettings { forward_lobe: true, ..Quality::Draft.settings() };
+    let settings0 = BakeSettings { fiber_lobes: true, ..Quality::Draft.settings() };
     let inputs0 = scene0.bake_inputs(settings0);
     let before = bake(&inputs0[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
-    let lobes = |b: &Baked| b.transfer.iirtf.cells.iter().filter(|c| c.has_forward_lobe()).count();
+    let lobes = |b: &Baked| b.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count();
     let cells = before.transfer.iirtf.cells.iter().filter(|c| !c.is_empty()).count();
     assert!(lobes(&before) > 0 && lobes(&before) < cells, "{} of {cells} cells keep a lobe", lobes(&before));
     let basis = recolour_basis(&inputs0[0], None, &Cancel::new(), &|_| {}).expect("basis");
@@ -921,7 +921,7 @@ fn live_recolouring_writes_forward_lobes_in_place() {
     let preview = bake_material_preview(&inputs1[0], &before, Some(&basis), None, &Cancel::new(), &|_, _| {})
         .expect("preview")
         .baked;
-    assert!(preview.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe));
+    assert!(preview.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes));
     session.renderer.update_fabric(&[&preview], &pattern).expect("packs").expect("same layout");
     let packed = session.render(&scene1, &settings).expect("frame renders").radiance_image();
     let largest = packed.pixels.iter().map(|p| p.max_element()).fold(0.0, f64::max);

@@ -141,7 +141,7 @@ struct ReportArgs {
     presets: Vec<QualityArg>,
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
     /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, sos_count, sos_sharpness,
-    /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, spp, sigma_glo_cm, forward_lobe: 0 or 1).
+    /// iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp, spp, sigma_glo_cm, fiber_lobes: 0 or 1).
     #[arg(long, default_value = "all")]
     knobs: String,
     /// Skip the CPU version of the method at the presets.

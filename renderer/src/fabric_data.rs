@@ -293,7 +293,7 @@ impl FabricArrays {
             });
             out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
             for cell in &baked.transfer.iirtf.cells {
-                let lobe = cell.has_forward_lobe();
+                let lobe = cell.has_lobes();
                 if lobe && cell.forward.len() != sh_count {
                     return Err(FabricDataError::Inconsistent(format!(
                         "exemplar {e}: a forward lobe of {} coefficients, expected {sh_count}",
@@ -310,8 +310,8 @@ impl FabricArrays {
             }
             // A bake made with forward lobes keeps its buffer even when every cell folded its
             // forward light back into SH: a recolouring can give a cell a lobe again.
-            any_forward_lobe |= baked.settings.forward_lobe
-                || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe);
+            any_forward_lobe |= baked.settings.fiber_lobes
+                || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
                 out.segments.push(SegmentGpu {
@@ -397,7 +397,7 @@ impl FabricArrays {
     /// Whether any cell carries a forward lobe now (then the frame plan compiles the shading
     /// pass with `ENABLE_FORWARD_LOBE`).
     #[must_use]
-    pub fn has_forward_lobes(&self) -> bool {
+    pub fn has_lobess(&self) -> bool {
         self.forward_lobe_cells > 0
     }
 

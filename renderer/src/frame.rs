@@ -333,7 +333,7 @@ impl Renderer {
             settings,
             self.shell.flat_normal,
             self.shell.uniform_frame.is_some(),
-            self.fabric.arrays.has_forward_lobes(),
+            self.fabric.arrays.has_lobess(),
         )
     }
 
@@ -875,7 +875,7 @@ fn read_display(device: &wgpu::Device, targets: &FrameTargets) -> Result<Vec<[u8
 
 /// Plans a frame (also usable without a device, e.g. for `--print-plan`). `uniform_frame`:
 /// every tetrahedron of the shell has the same world → flat-fabric frame; `forward_lobe`: the
-/// bake carries forward lobes (`FabricArrays::has_forward_lobes`).
+/// bake carries forward lobes (`FabricArrays::has_lobess`).
 #[must_use]
 pub fn plan_frame(
     lights: &[Light],

@@ -90,7 +90,7 @@ pub struct PlanInputs {
     /// then the lights' SH is the same at every pixel unless shadow maps vary it.
     pub uniform_frame: bool,
     /// The loaded bake carries forward lobes (`BakeSettings::forward_lobe`: some cell with
-    /// `CellTransfer::has_forward_lobe`, `FabricArrays::has_forward_lobes`).
+    /// `CellTransfer::has_lobes`, `FabricArrays::has_lobess`).
     pub forward_lobe: bool,
 }
 

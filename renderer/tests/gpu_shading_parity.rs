@@ -473,7 +473,7 @@ fn forward_bake() -> &'static Baked {
     static BAKE: std::sync::OnceLock<Baked> = std::sync::OnceLock::new();
     BAKE.get_or_init(|| {
         let scene = forward_scene(&[sun_toml()]);
-        let settings = BakeSettings { forward_lobe: true, ..Quality::Draft.settings() };
+        let settings = BakeSettings { fiber_lobes: true, ..Quality::Draft.settings() };
         let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
         let started = std::time::Instant::now();
         let baked =
@@ -486,14 +486,14 @@ fn forward_bake() -> &'static Baked {
 /// Asserts that some of `baked`'s cells carry forward lobes (a cell whose forward light is
 /// broad keeps it in its matrix), and that most of those lobes hold light; returns how many
 /// cells have one.
-fn assert_has_forward_lobes(baked: &Baked) -> usize {
+fn assert_has_lobess(baked: &Baked) -> usize {
     let cells = &baked.transfer.iirtf.cells;
-    let with = cells.iter().filter(|c| c.has_forward_lobe()).count();
+    let with = cells.iter().filter(|c| c.has_lobes()).count();
     let nonempty = cells.iter().filter(|c| !c.is_empty()).count();
     eprintln!("forward lobes: {with} of {} cells ({nonempty} hold segments)", cells.len());
     assert!(with * 20 >= nonempty, "a forward-lobe bake must give at least 5% of its non-empty cells a lobe");
     let strong =
-        cells.iter().filter(|c| c.has_forward_lobe() && c.forward[0].iter().sum::<f32>() > 0.0).count();
+        cells.iter().filter(|c| c.has_lobes() && c.forward[0].iter().sum::<f32>() > 0.0).count();
     assert!(strong * 2 > with, "most forward lobes must carry light ({strong} of {with} do)");
     with
 }
@@ -522,10 +522,10 @@ fn forward_case(input: vec4<f32>) -> vec4<f32> {
 fn forward_lobe_matches_its_rust_twin() {
     let Some(gpu) = Gpu::for_test("forward_lobe_matches_its_rust_twin") else { return };
     let baked = forward_bake();
-    assert_has_forward_lobes(baked);
+    assert_has_lobess(baked);
     let fabric =
         FabricData::upload(&gpu.device, &gpu.queue, &[baked], &PatternMap::uniform(0)).expect("upload");
-    assert!(fabric.arrays.has_forward_lobes());
+    assert!(fabric.arrays.has_lobess());
     let library = format!("{}\n{DECODE}\n{FORWARD_DECODE}", shaders::shared_library());
     let forward_cases = cases(baked, &[-1.0, 2e-4, 3.0, 300.0, 1e5]);
     let inputs: Vec<[f32; 4]> = forward_cases.iter().map(Case::input).collect();
@@ -683,7 +683,7 @@ const MIN_FORWARD_SHARE: f64 = 30.0 * FRAME_MEAN_TOLERANCE;
 fn forward_lobe_frames_match_the_cpu_method() {
     let Some(gpu) = Gpu::for_test("forward_lobe_frames_match_the_cpu_method") else { return };
     let baked = forward_bake();
-    assert_has_forward_lobes(baked);
+    assert_has_lobess(baked);
     let without = without_forward_lobes(baked);
     let sun = sun_toml();
     let grazing = directional_toml(from_zenith(85.0, 30.0), 3.0);
@@ -762,15 +762,15 @@ fn forward_lobe_frames_match_the_cpu_method() {
 #[test]
 fn the_plan_enables_forward_lobes_only_for_a_bake_that_has_them() {
     let plain = default_bake();
-    assert!(!plain.settings.forward_lobe);
-    assert!(!plain.transfer.iirtf.cells.iter().any(CellTransfer::has_forward_lobe));
+    assert!(!plain.settings.fiber_lobes);
+    assert!(!plain.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes));
     let scene = forward_scene(&[sun_toml(), sg_toml(from_zenith(20.0, 200.0), 3.0, 1.0)]);
     let settings = frame_settings(&scene, Components::All);
     for (label, baked, expected) in
         [("forward_lobe: false", plain, false), ("forward_lobe: true", forward_bake(), true)]
     {
         let arrays = FabricArrays::pack(&[baked], &PatternMap::uniform(0)).expect("pack");
-        assert_eq!(arrays.has_forward_lobes(), expected, "{label}");
+        assert_eq!(arrays.has_lobess(), expected, "{label}");
         // Without lobes the buffer is empty (bound as one zeroed vec4); with them n + 1 per cell.
         let n = arrays.header.sh_count as usize;
         let expected_len = if expected { arrays.cell_flags.len() * (n + 1) } else { 0 };
@@ -778,7 +778,7 @@ fn the_plan_enables_forward_lobes_only_for_a_bake_that_has_them() {
         assert_eq!(arrays.forward_lobes.len(), expected_len, "{label}");
         for (flat, uniform) in [(Some(glam::Vec3::Z), true), (None, false)] {
             let plan =
-                plan_frame(&scene.path_scene.lights, &settings, flat, uniform, arrays.has_forward_lobes());
+                plan_frame(&scene.path_scene.lights, &settings, flat, uniform, arrays.has_lobess());
             let variant = plan.passes().iter().find_map(ShadeVariant::of).expect("a shading pass");
             assert_eq!(variant.forward_lobe, expected, "{label}: {plan}");
             assert_eq!(plan.forward_lobe, expected, "{label}: {plan}");

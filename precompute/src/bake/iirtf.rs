@@ -91,15 +91,84 @@ pub struct CellTransfer {
     /// Standard error of each entry (same layout), estimated as if the paths were independent:
     /// their starts are stratified ([`path_strata`]), so this is an upper bound.
     pub std_error: Vec<[f32; 3]>,
-    /// Forward-scattered light (`BakeSettings::forward_lobe`; empty without it, and then the
-    /// matrix holds all of the transfer): the SH coefficients over light directions ω0 of
-    /// `F(ω0) = ∫ T_fwd(ω0, ω1, C) dω1`, the forward chains' radiance arriving in the cell
-    /// from a unit-irradiance light, integrated over its arrival directions; n entries, RGB.
+    /// The forward chains' strength (`BakeSettings::fiber_lobes`; empty without it, and in a
+    /// cell that keeps all of its transfer in its matrix): the SH coefficients, at
+    /// [`LOBE_SH_ORDER`], over light directions ω0 of `F(ω0) = ∫ T_fwd(ω0, ω1, C) dω1`, the
+    /// radiance transmitted by every fiber on its way arriving in the cell from a
+    /// unit-irradiance light, integrated over its arrival directions ω1; RGB.
     pub forward: Vec<[f32; 3]>,
     /// `∫∫ T_fwd(ω0, ω1, C) (ω0·ω1) dω0 dω1`: over `√(4π) forward[0]`, the mean cosine between
-    /// the light's direction and the one its forward-scattered light arrives from, which sets
-    /// the width of the lobe it is shaded as ([`forward_sharpness`]). Zero without a lobe.
+    /// the light's direction and the one its forward chains arrive from, whose sharpness
+    /// ([`forward_sharpness`]) decides whether the cell keeps its lobes
+    /// ([`forward_lobe_min_sharpness`]). Zero without lobes.
     pub forward_cosine: [f32; 3],
+    /// The light reflected at least once (everything but the forward chains), as `forward`:
+    /// `R(ω0) = ∫ T_refl(ω0, ω1, C) dω1` at [`LOBE_SH_ORDER`]; empty exactly when `forward` is.
+    pub reflected: Vec<[f32; 3]>,
+    /// Where the forward chains arrive from, against the light's direction, in the fiber frame
+    /// of the segment they arrive at ([`FiberOffset`]): [`LOBE_SHAPE_LEN`] sums over the
+    /// cell's paths, each weighted by the connection's forward share (summed over channels)
+    /// and divided by the paths: `cos Δφ`, then `cos kΔθ`, `sin kΔθ` for k = 1..=
+    /// [`LOBE_FOURIER_TERMS`]. Over `√(4π) Σ forward[0]`, the means the lobe is shaded with
+    /// (`shading::multiple::LobeShape`). Empty without lobes.
+    pub forward_shape: Vec<f32>,
+    /// As `forward_shape`, for the reflected light.
+    pub reflected_shape: Vec<f32>,
+}
+
+/// SH order of the fiber lobes' strength over light directions (`BakeSettings::fiber_lobes`),
+/// whatever the transfer's order: the silk satin's reflected strength is peaked about the
+/// normal, and order 4 held it 40% low head-on where order 6 is within 7%
+/// (`docs/BENCHMARKS.md`). The highest the SH rotation and the GPU hold.
+pub const LOBE_SH_ORDER: usize = crate::sh::EULER_MAX_ORDER;
+
+/// Fourier terms of a lobe's longitudinal shape: enough for offsets of about 15 degrees (a
+/// chain of transmissions through silk spreads 10 degrees per fiber; the R cones are sharper,
+/// but the shaded fiber's own lobe averages them; 40 terms changed nothing measured).
+pub const LOBE_FOURIER_TERMS: usize = 12;
+
+/// Floats of one lobe shape ([`CellTransfer::forward_shape`]).
+pub const LOBE_SHAPE_LEN: usize = 1 + 2 * LOBE_FOURIER_TERMS;
+
+/// Where light arrives from (ω1) against the light's own direction (ω0), both toward their
+/// sources, in the frame of a fiber of unit tangent t: `Δθ = θ1 − θ0` of their angles to the
+/// plane normal to t, and the cosine of the angle Δφ between their azimuths about t (1 where
+/// either lies along t). A fiber's R and TT lobes keep the light's angle to the fiber (a
+/// parallel neighbour sends light on at its own θ), so Δθ stays small along a yarn, while R
+/// spreads the azimuth about the fiber and TT keeps it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FiberOffset {
+    pub delta_theta: f64,
+    pub cos_delta_phi: f64,
+}
+
+impl FiberOffset {
+    #[must_use]
+    pub fn new(tangent: DVec3, to_light: DVec3, arrival: DVec3) -> Self {
+        let angle = |w: DVec3| {
+            let along = w.dot(tangent).clamp(-1.0, 1.0);
+            (along.asin(), w - tangent * along)
+        };
+        let (theta0, across0) = angle(to_light);
+        let (theta1, across1) = angle(arrival);
+        let lengths = across0.length() * across1.length();
+        let cos_delta_phi =
+            if lengths > 1e-12 { (across0.dot(across1) / lengths).clamp(-1.0, 1.0) } else { 1.0 };
+        Self { delta_theta: theta1 - theta0, cos_delta_phi }
+    }
+
+    /// Adds `weight ×` this offset's shape terms (`CellTransfer::forward_shape`'s layout) to
+    /// `shape`.
+    pub fn accumulate(&self, weight: f64, shape: &mut [f64]) {
+        shape[0] += weight * self.cos_delta_phi;
+        let (s1, c1) = self.delta_theta.sin_cos();
+        let (mut sk, mut ck) = (s1, c1);
+        for k in 0..LOBE_FOURIER_TERMS {
+            shape[1 + 2 * k] += weight * ck;
+            shape[2 + 2 * k] += weight * sk;
+            (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+        }
+    }
 }
 
 impl CellTransfer {
@@ -112,12 +181,15 @@ impl CellTransfer {
             std_error: Vec::new(),
             forward: Vec::new(),
             forward_cosine: [0.0; 3],
+            reflected: Vec::new(),
+            forward_shape: Vec::new(),
+            reflected_shape: Vec::new(),
         }
     }
 
-    /// Whether the cell carries forward-scattered light outside its matrix.
+    /// Whether the cell carries its transfer as fiber lobes (its matrix is then zero).
     #[must_use]
-    pub fn has_forward_lobe(&self) -> bool {
+    pub fn has_lobes(&self) -> bool {
         !self.forward.is_empty()
     }
 
@@ -206,11 +278,14 @@ impl TryFrom<StoredIirtf> for Iirtf {
                     c.std_error.len()
                 ));
             }
-            if !c.forward.is_empty() && (c.paths == 0 || c.forward.len() != n) {
+            let lobe = sh_count(LOBE_SH_ORDER);
+            let sizes = [c.forward.len(), c.reflected.len(), c.forward_shape.len(), c.reflected_shape.len()];
+            if sizes != [0; 4] && (c.paths == 0 || sizes != [lobe, lobe, LOBE_SHAPE_LEN, LOBE_SHAPE_LEN]) {
                 return Err(format!(
-                    "IIRTF cell {i} ({} paths) has {} forward-lobe coefficients, expected 0 or {n}",
-                    c.paths,
-                    c.forward.len()
+                    "IIRTF cell {i} ({} paths) has fiber lobes of {} forward, {} reflected coefficients \
+                     and shapes of {} and {} terms, expected none or {lobe}, {lobe}, {LOBE_SHAPE_LEN} \
+                     and {LOBE_SHAPE_LEN}",
+                    c.paths, sizes[0], sizes[1], sizes[2], sizes[3]
                 ));
             }
         }
@@ -302,6 +377,8 @@ pub struct TransferSampler {
     /// Material slot of each yarn (`Yarn::material`), for the colour-free walk.
     yarn_slots: Vec<u32>,
     midpoints: Vec<DVec3>,
+    /// Unit tangent of each segment (the fiber frame [`FiberOffset`] is taken in).
+    tangents: Vec<DVec3>,
     fibers: Vec<u32>,
     light_domain: LightDomain,
     part: TransferPart,
@@ -325,8 +402,10 @@ impl TransferSampler {
         let segments = exemplar.segments();
         let midpoints = segments.iter().map(|s| s.midpoint().as_dvec3() + offset).collect();
         let fiber_ids = segments.iter().map(|s| s.fiber).collect();
+        let tangents = segments.iter().map(|s| s.tangent().as_dvec3().normalize_or_zero()).collect();
         Ok(Self {
             scene,
+            tangents,
             yarn_materials: yarn_materials.to_vec(),
             yarn_slots: exemplar.yarns.iter().map(|y| y.material).collect(),
             midpoints,
@@ -340,6 +419,12 @@ impl TransferSampler {
     #[must_use]
     pub fn with_part(self, part: TransferPart) -> Self {
         Self { part, ..self }
+    }
+
+    /// Unit tangent of segment k.
+    #[must_use]
+    pub fn tangent(&self, k: u32) -> DVec3 {
+        self.tangents[k as usize]
     }
 
     /// World position (central copy) of segment k's midpoint.
@@ -678,9 +763,9 @@ pub fn bake_iirtf_cells(
         TransferSampler::new(exemplar, yarn_materials, options.light_domain)?.with_part(options.part);
     let order = settings.sh_order;
     let paths = settings.iirtf_paths_per_cell;
-    let forward_lobe = settings.forward_lobe && options.part == TransferPart::All;
+    let lobes = settings.fiber_lobes && options.part == TransferPart::All;
     Ok(for_each_cell(grid, cells, paths, settings.seed, cancel, progress, &|segments, stream, tick| {
-        bake_cell(&sampler, segments, order, paths, forward_lobe, stream, tick)
+        bake_cell(&sampler, segments, order, paths, lobes, stream, tick)
     })?)
 }
 
@@ -747,13 +832,13 @@ pub(crate) fn for_each_cell<T: Send>(
     Ok(cells)
 }
 
-/// The sharpness below which a cell's forward-scattered light stays in its SH matrix at SH
-/// order `order`: `(L+1)(L+2)/FORWARD_LOBE_BAND_DIVISOR`. A normalized SG's band-l zonal
+/// The sharpness below which a cell keeps its transfer in its SH matrix instead of fiber
+/// lobes, at SH order `order`: `(L+1)(L+2)/FORWARD_LOBE_BAND_DIVISOR`, read from the forward
+/// chains' mean cosine to the light ([`forward_sharpness`]). A normalized SG's band-l zonal
 /// coefficient falls as about `exp(−l(l+1)/(2λ))`, so below this λ the bands above L hold
-/// little of it and the SH transfer carries it as well as a lobe does (better: the lobe's
-/// single isotropic SG about the light's direction is a coarse shape for broad forward light,
-/// measured 30% dark on the default cotton, λ 0.6–3.3), and above it the SH rings (the silk
-/// satin's forward chains, λ 5–11, come out up to 12 times too bright at order 4).
+/// little of it and the SH transfer carries the cell's light as well as lobes do (the default
+/// cotton's forward light, λ 0.6–3.3, came out 30% dark as an isotropic lobe), and above it
+/// the SH rings (the silk satin's, λ 5–11, up to 12 times too bright at order 4).
 #[must_use]
 pub fn forward_lobe_min_sharpness(order: usize) -> f64 {
     let l = order as f64;
@@ -764,17 +849,20 @@ pub fn forward_lobe_min_sharpness(order: usize) -> f64 {
 /// the lobe's constant term.
 pub const FORWARD_LOBE_BAND_DIVISOR: f64 = 6.0;
 
-/// One cell's transfer from `paths` paths. With `forward_lobe`, each light connection's
-/// forward-chain share goes to the forward-lobe sums (its SH over ω0, and its cosine to the
-/// arrival direction ω1) and the rest to the matrix; a cell whose forward light turns out
-/// broad ([`forward_lobe_min_sharpness`]) takes it back into its matrix and holds no lobe.
-/// `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop (then `None`).
+/// One cell's transfer from `paths` paths. With `lobes` (`BakeSettings::fiber_lobes`), every
+/// light connection also goes to the two lobes' sums, split into its forward-chain share and
+/// the rest: their strength over ω0 (SH at [`LOBE_SH_ORDER`]) and their shape
+/// ([`FiberOffset`] in the start segment's frame), and the forward chains' cosine to the
+/// arrival direction ω1. A cell whose forward light turns out sharp
+/// ([`forward_lobe_min_sharpness`]) then keeps the lobes and a zero matrix; any other keeps
+/// its matrix and no lobes. `tick(paths)` is called every [`CHECK_EVERY`] paths and returns
+/// false to stop (then `None`).
 fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
     order: usize,
     paths: usize,
-    forward_lobe: bool,
+    lobes: bool,
     stream: u64,
     tick: &dyn Fn(usize) -> bool,
 ) -> Option<CellTransfer> {
@@ -784,16 +872,14 @@ fn bake_cell(
     }
     let mut sum = vec![Rgb::ZERO; n * n];
     let mut sum2 = vec![Rgb::ZERO; n * n];
-    let mut forward = vec![Rgb::ZERO; if forward_lobe { n } else { 0 }];
-    let mut forward_cosine = Rgb::ZERO;
     let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
     let mut light = vec![Rgb::ZERO; n];
-    // The forward chains' light vector per path (summed into `forward`) and their own matrix,
-    // for a cell that keeps them in SH; its squares go with the whole matrix's (the error is of
-    // the sum then).
-    let mut forward_light = vec![Rgb::ZERO; if forward_lobe { n } else { 0 }];
-    let mut forward_sum = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
-    let mut forward_sum2 = vec![Rgb::ZERO; if forward_lobe { n * n } else { 0 }];
+    let lobe_n = if lobes { sh_count(LOBE_SH_ORDER) } else { 0 };
+    let mut y_lobe = vec![0.0; lobe_n];
+    let mut forward = vec![Rgb::ZERO; lobe_n];
+    let mut reflected = vec![Rgb::ZERO; lobe_n];
+    let mut forward_cosine = Rgb::ZERO;
+    let mut shapes = [vec![0.0; LOBE_SHAPE_LEN], vec![0.0; LOBE_SHAPE_LEN]];
     for p in 0..paths {
         if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
             return None;
@@ -804,20 +890,23 @@ fn bake_cell(
         }
         // The path's light-side SH vector: Σ over its events of weight · Y(ω0).
         light.fill(Rgb::ZERO);
-        forward_light.fill(Rgb::ZERO);
+        let tangent = sampler.tangent(s.segment);
         for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
             sh_eval(order, *to_light, &mut y0);
-            let weight = if forward_lobe {
-                for (l, y) in forward_light.iter_mut().zip(&y0) {
-                    *l += *share * *y;
+            for (l, y) in light.iter_mut().zip(&y0) {
+                *l += *weight * *y;
+            }
+            if lobes {
+                let rest = *weight - *share;
+                sh_eval(LOBE_SH_ORDER, *to_light, &mut y_lobe);
+                for ((f, r), y) in forward.iter_mut().zip(reflected.iter_mut()).zip(&y_lobe) {
+                    *f += *share * *y;
+                    *r += rest * *y;
                 }
                 forward_cosine += *share * to_light.dot(s.view);
-                *weight - *share
-            } else {
-                *weight
-            };
-            for (l, y) in light.iter_mut().zip(&y0) {
-                *l += weight * *y;
+                let offset = FiberOffset::new(tangent, *to_light, s.view);
+                offset.accumulate(share.element_sum(), &mut shapes[0]);
+                offset.accumulate(rest.element_sum(), &mut shapes[1]);
             }
         }
         sh_eval(order, s.view, &mut y1);
@@ -828,37 +917,27 @@ fn bake_cell(
                 *a2 += v * v;
             }
         }
-        if forward_lobe {
-            for (f, l) in forward.iter_mut().zip(&forward_light) {
-                *f += *l;
-            }
-            let rows = forward_sum.chunks_exact_mut(n).zip(forward_sum2.chunks_exact_mut(n));
-            for (j1, (row, row2)) in rows.enumerate() {
-                for (((a, a2), f), l) in row.iter_mut().zip(row2.iter_mut()).zip(&forward_light).zip(&light) {
-                    let v = *f * y1[j1];
-                    *a += v;
-                    // The square of the whole entry less that of the rest: Σ (r + f)² − Σ r².
-                    *a2 += v * (v + 2.0 * *l * y1[j1]);
-                }
-            }
-        }
     }
     tick(paths % CHECK_EVERY);
     let count = paths as f64;
-    if forward_lobe {
-        let lambda = crate::shading::multiple::forward_sharpness(forward[0] / count, forward_cosine / count);
-        if lambda < forward_lobe_min_sharpness(order) {
-            for ((a, a2), (f, f2)) in
-                sum.iter_mut().zip(sum2.iter_mut()).zip(forward_sum.iter().zip(&forward_sum2))
-            {
-                *a += *f;
-                *a2 += *f2;
-            }
-            forward.clear();
-            forward_cosine = Rgb::ZERO;
-        }
-    }
+    let keeps_lobes = lobes
+        && crate::shading::multiple::forward_sharpness(forward[0] / count, forward_cosine / count)
+            >= forward_lobe_min_sharpness(order);
     let to_f32 = |v: Rgb| v.as_vec3().to_array();
+    if keeps_lobes {
+        let lobe = |v: &[Rgb]| v.iter().map(|f| to_f32(*f / count)).collect();
+        let shape = |v: &[f64]| v.iter().map(|t| (t / count) as f32).collect();
+        return Some(CellTransfer {
+            paths,
+            matrix: vec![[0.0; 3]; n * n],
+            std_error: vec![[0.0; 3]; n * n],
+            forward: lobe(&forward),
+            forward_cosine: to_f32(forward_cosine / count),
+            reflected: lobe(&reflected),
+            forward_shape: shape(&shapes[0]),
+            reflected_shape: shape(&shapes[1]),
+        });
+    }
     let matrix = sum.iter().map(|s| to_f32(*s / count)).collect();
     let std_error = sum
         .iter()
@@ -872,9 +951,7 @@ fn bake_cell(
             })
         })
         .collect();
-    let forward = forward.iter().map(|f| to_f32(*f / count)).collect();
-    let forward_cosine = to_f32(forward_cosine / count);
-    Some(CellTransfer { paths, matrix, std_error, forward, forward_cosine })
+    Some(CellTransfer { paths, matrix, std_error, ..CellTransfer::empty() })
 }
 
 #[cfg(test)]
@@ -994,7 +1071,7 @@ mod tests {
         let n = sh_count(order);
         let settings = small_settings(600, order);
         let bake = |forward_lobe| {
-            let settings = BakeSettings { forward_lobe, ..settings };
+            let settings = BakeSettings { fiber_lobes: forward_lobe, ..settings };
             bake_iirtf(
                 &exemplar,
                 &materials,
@@ -1013,14 +1090,14 @@ mod tests {
         let y0 = 1.0 / (4.0 * std::f64::consts::PI).sqrt();
         for (c, (a, b)) in all.cells.iter().zip(&split.cells).enumerate() {
             if a.is_empty() {
-                assert!(b.is_empty() && !b.has_forward_lobe());
+                assert!(b.is_empty() && !b.has_lobes());
                 continue;
             }
             let scale = a.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs())).max(1e-30);
             let close = |x: f64, y: f64, what: &str| {
                 assert!((x - y).abs() <= 2e-5 * f64::from(scale), "cell {c}, {what}: {x} against {y}");
             };
-            if b.has_forward_lobe() {
+            if b.has_lobes() {
                 lobes += 1;
                 let f0 = glam::Vec3::from(b.forward[0]).as_dvec3();
                 let cosine = glam::Vec3::from(b.forward_cosine).as_dvec3();

@@ -368,7 +368,7 @@ pub fn recolour_basis(
         .usize(s.sh_order)
         .usize(s.cs_theta_count)
         .u64(s.seed)
-        .bool(s.forward_lobe);
+        .bool(s.fiber_lobes);
     let key = h.finish();
     let name = "recolour_basis";
     if let Some(file) = cache.and_then(|c| c.load(key)) {
@@ -576,7 +576,7 @@ fn bake_stages(
 
     let gn = stage_runner.run(Stage::GnTables, keys.gn, || Ok(GnTable::new(inputs.materials)?))?;
     let cg =
-        stage_runner.run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.sh_order, CG_DEFAULT_POINTS)?))?;
+        stage_runner.run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.light_sh_order(), CG_DEFAULT_POINTS)?))?;
 
     let volume = stage_runner.run(Stage::Volume, keys.volume, || {
         let (vpd, occupancy) = fit_resolution(inputs.exemplar, s.voxels_per_fiber_diameter)?;
@@ -1007,7 +1007,7 @@ impl StageKeys {
             .finish();
         let cs = key(Stage::CsTables).hash(&materials).usize(s.sh_order).usize(s.cs_theta_count).finish();
         let gn = key(Stage::GnTables).hash(&materials).finish();
-        let cg = key(Stage::CgTable).usize(s.sh_order).usize(CG_DEFAULT_POINTS).finish();
+        let cg = key(Stage::CgTable).usize(s.light_sh_order()).usize(CG_DEFAULT_POINTS).finish();
         let volume = volume_key(&geometry, s.voxels_per_fiber_diameter);
         Ok(Self { geometry, materials, settings: s, mfp, visibility, cs, gn, cg, volume })
     }
@@ -1025,7 +1025,7 @@ impl StageKeys {
             .usize(s.iirtf_paths_per_cell)
             .usize(s.sh_order)
             .u64(s.seed)
-            .u32(u32::from(s.forward_lobe));
+            .u32(u32::from(s.fiber_lobes));
         h.finish()
     }
 }
@@ -1078,7 +1078,7 @@ pub(crate) mod tests {
             voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 3,
-            forward_lobe: false,
+            fiber_lobes: false,
         }
     }
 

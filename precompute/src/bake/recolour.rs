@@ -462,6 +462,7 @@ impl RecolourBasis {
             std_error: t.std_error.into_iter().map(|s| [s; 3]).collect(),
             forward: t.forward,
             forward_cosine,
+            ..super::iirtf::CellTransfer::empty()
         })
     }
 
@@ -676,7 +677,7 @@ pub fn bake_recolour_basis(
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let slots = materials.len();
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
-    let shape = CellShape { order, paths, slots, forward_lobe: settings.forward_lobe };
+    let shape = CellShape { order, paths, slots, forward_lobe: settings.fiber_lobes };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -698,7 +699,7 @@ pub fn bake_recolour_basis(
         materials: materials.iter().map(colour_free).collect(),
         sh_order: order,
         light_domain,
-        forward_lobe: settings.forward_lobe,
+        forward_lobe: settings.fiber_lobes,
         slot_count: slots,
         cells,
         cs_parts,
@@ -731,7 +732,7 @@ pub fn same_paths_iirtf(
     }
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
-    let shape = CellShape { order, paths, slots: colours.len(), forward_lobe: settings.forward_lobe };
+    let shape = CellShape { order, paths, slots: colours.len(), forward_lobe: settings.fiber_lobes };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -849,7 +850,7 @@ fn same_paths_cell(
             (mean.map(|v| v as f32), error)
         })
         .unzip();
-    Some(super::iirtf::CellTransfer { paths, matrix, std_error, forward, forward_cosine })
+    Some(super::iirtf::CellTransfer { paths, matrix, std_error, forward, forward_cosine, ..super::iirtf::CellTransfer::empty() })
 }
 
 /// What shapes a cell's accumulation: SH order, paths, material slots and whether the forward
@@ -1854,7 +1855,7 @@ mod tests {
 
     /// `settings` with the forward chains held apart.
     fn forward_settings(paths: usize, order: usize) -> BakeSettings {
-        BakeSettings { forward_lobe: true, ..settings(paths, order) }
+        BakeSettings { fiber_lobes: true, ..settings(paths, order) }
     }
 
     /// Each channel's forward strength `forward[0]` and forward cosine summed over cells.
@@ -2019,8 +2020,8 @@ mod tests {
         let (mut kept, mut folded, mut worst) = (0, 0, [0.0_f64; 2]);
         for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
             let (a, b) = (&same.cells[c], &from_basis.cells[c]);
-            assert_eq!(a.has_forward_lobe(), b.has_forward_lobe(), "cell {c}: the fold decisions differ");
-            if a.has_forward_lobe() {
+            assert_eq!(a.has_lobes(), b.has_lobes(), "cell {c}: the fold decisions differ");
+            if a.has_lobes() {
                 assert_eq!((a.forward.len(), b.forward.len()), (n, n), "cell {c}");
                 kept += 1;
             } else {
@@ -2093,7 +2094,7 @@ mod tests {
             let (p, q) = (plain.iirtf(&colours).unwrap(), split.iirtf(&colours).unwrap());
             let (mut whole, mut parts, mut forward, mut error) = ([0.0; 2], [0.0; 2], 0.0, 0.0);
             for (a, b) in p.cells.iter().zip(&q.cells).filter(|(a, _)| !a.is_empty()) {
-                assert!(b.has_forward_lobe(), "{label}: a cell folded its forward light");
+                assert!(b.has_lobes(), "{label}: a cell folded its forward light");
                 let f0 = Y00 * f64::from(b.forward[0][0]);
                 whole[0] += f64::from(a.matrix[0][0]);
                 parts[0] += f64::from(b.matrix[0][0]) + f0;
@@ -2151,11 +2152,11 @@ mod tests {
                 let rgb = |v: [f32; 3]| glam::Vec3::from(v).as_dvec3();
                 lambdas.push(crate::shading::multiple::forward_sharpness(rgb(f0), rgb(cosine)));
                 assert_eq!(
-                    a.has_forward_lobe(),
-                    b.has_forward_lobe(),
+                    a.has_lobes(),
+                    b.has_lobes(),
                     "{label}, cell {c}: the decisions differ"
                 );
-                assert_eq!(a.has_forward_lobe(), !folds, "{label}, cell {c}");
+                assert_eq!(a.has_lobes(), !folds, "{label}, cell {c}");
                 forward_dc += f64::from(cell.entry(n * n, &prepared).0[0]);
                 cells += 1;
             }
@@ -2228,7 +2229,7 @@ mod tests {
                     assert_eq!(folds, expected, "{label}, cell {c}");
                 }
                 let t = basis.cell_transfer(c, &colours).unwrap();
-                assert_eq!(t.has_forward_lobe(), !folds, "{label}, cell {c}");
+                assert_eq!(t.has_lobes(), !folds, "{label}, cell {c}");
                 for e in 0..n2 {
                     let ((rest, rest_error), (chains, whole_error)) = (entry(e), entry(n2 + e));
                     let (value, error) = if folds {

@@ -51,12 +51,15 @@ pub struct BakeSettings {
     /// Rays cast to measure the mean free path.
     pub mfp_samples: usize,
     pub seed: u64,
-    /// Carry forward-scattered light (light transmitted by every fiber on its way, peaked
-    /// around the light's direction) outside the SH transfer, as a lobe about each light shaded
-    /// in closed form (`bake::iirtf`, `shading::multiple`). Off: the paper's SH transfer holds
-    /// all of it.
-    #[serde(default)]
-    pub forward_lobe: bool,
+    /// Carry the light that keeps each light's angle to the fibers outside the SH transfer,
+    /// as two lobes per cell shaded in closed form against the shaded fiber's lobes
+    /// (`bake::iirtf`, `shading::multiple`, `docs/MATH.md` "Fiber lobes"): the forward chains
+    /// (light transmitted by every fiber on its way: a fan about the light's direction) and
+    /// the light reflected at least once (a ring at the light's angle to the fibers). A cell
+    /// whose forward light is broad keeps both in its matrix. Off: the paper's SH transfer
+    /// holds all of it. (Read as `forward_lobe` too, its name before the ring.)
+    #[serde(default, alias = "forward_lobe")]
+    pub fiber_lobes: bool,
 }
 
 impl Quality {
@@ -87,7 +90,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 1.75,
                 mfp_samples: 4_000,
                 seed: 1,
-                forward_lobe: false,
+                fiber_lobes: false,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
@@ -102,7 +105,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 2.0,
                 mfp_samples: 20_000,
                 seed: 1,
-                forward_lobe: false,
+                fiber_lobes: false,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
@@ -117,13 +120,20 @@ impl Quality {
                 voxels_per_fiber_diameter: 2.5,
                 mfp_samples: 100_000,
                 seed: 1,
-                forward_lobe: false,
+                fiber_lobes: false,
             },
         }
     }
 }
 
 impl BakeSettings {
+    /// The SH order of the C_G table and of a light's coefficients: the transfer's, or that of
+    /// the fiber lobes' strength ([`super::iirtf::LOBE_SH_ORDER`]) where it is higher.
+    #[must_use]
+    pub fn light_sh_order(&self) -> usize {
+        if self.fiber_lobes { self.sh_order.max(super::iirtf::LOBE_SH_ORDER) } else { self.sh_order }
+    }
+
     /// Rejects values outside the ranges the stages support, naming the knob and the range.
     pub fn validate(&self) -> Result<(), ParamError> {
         check_count("svf_resolution", self.svf_resolution, 4, 512)?;
@@ -133,7 +143,7 @@ impl BakeSettings {
         check_range("cell_size_mfp", self.cell_size_mfp, 0.25, 64.0)?;
         check_range("cell_depth_mfp", self.cell_depth_mfp, 0.25, 64.0)?;
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
-        check_count("sh_order", self.sh_order, 0, 8)?;
+        check_count("sh_order", self.sh_order, 0, crate::sh::EULER_MAX_ORDER)?;
         check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;
         check_range(
             "voxels_per_fiber_diameter",
@@ -159,7 +169,9 @@ mod tests {
         assert_eq!((p.svf_resolution, p.pca_components, p.sos_count), (128, 48, 48));
         assert_eq!((p.iirtf_paths_per_cell, p.sh_order, p.cs_theta_count), (50_000, 5, 512));
         let mut bad = p;
-        bad.sh_order = 9;
-        assert!(bad.validate().unwrap_err().to_string().contains("0 <= sh_order <= 8"));
+        // Orders above the SH rotation's tables (and the GPU's SH_MAX_ORDER) are refused, not
+        // left to panic in the shading.
+        bad.sh_order = 7;
+        assert!(bad.validate().unwrap_err().to_string().contains("0 <= sh_order <= 6"));
     }
 }

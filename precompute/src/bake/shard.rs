@@ -295,8 +295,8 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
         for cell in x.transfer.iter().filter(|c| c.paths > 0) {
             matrix.extend(cell.matrix.iter().flatten());
             error.extend(cell.std_error.iter().flatten());
-            lobes.push(u32::from(cell.has_forward_lobe()));
-            if cell.has_forward_lobe() {
+            lobes.push(u32::from(cell.has_lobes()));
+            if cell.has_lobes() {
                 forward.extend(cell.forward.iter().flatten().chain(&cell.forward_cosine));
             }
         }
@@ -430,6 +430,7 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
                     paths: p as usize,
                     forward,
                     forward_cosine,
+                    ..CellTransfer::empty()
                 }
             })
             .collect();
@@ -538,12 +539,12 @@ mod tests {
 
     fn merged_parts_are_the_single_process_bake(forward_lobe: bool) {
         let (exemplar, materials) = tiny();
-        let settings = BakeSettings { forward_lobe, ..settings() };
+        let settings = BakeSettings { fiber_lobes: forward_lobe, ..settings() };
         let inputs = [BakeInputs { exemplar: &exemplar, materials: &materials, settings }];
         let dir = tempfile::tempdir().unwrap();
         let whole = bake_set(&inputs, PatternMap::uniform(0), None, &Cancel::new(), &|_, _| {}).unwrap();
         let lobes =
-            whole.exemplars[0].baked.transfer.iirtf.cells.iter().filter(|c| c.has_forward_lobe()).count();
+            whole.exemplars[0].baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count();
         assert_eq!(lobes > 0, forward_lobe, "{lobes} cells with a forward lobe");
         let whole_path = dir.path().join("whole.twillbake");
         write_bake(&whole_path, &whole).unwrap();

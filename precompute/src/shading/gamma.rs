@@ -155,51 +155,91 @@ const HERMITE_NODES: [f64; 4] =
 const HERMITE_SCALED_WEIGHTS: [f64; 4] =
     [0.764_544_128_651_728_8, 0.792_890_048_386_401_2, 0.866_752_606_563_357_3, 1.071_930_144_246_006_3];
 
-/// Γ(ξ, λ, ωo) by quadrature, accurate for broad SGs too (the forward lobe's λ is 0.5–30,
-/// where the closed form [`gamma`] is off by up to 70%; `docs/MATH.md`). The φi integral is
-/// the same exact one; the θi integral, per lobe X, is an 8-point Gauss–Hermite rule centred
-/// on the product of the lobe's Gaussian and the SG's quadratic approximation (the closed
-/// form's `θ_X`, `λ'_X`), with the exact integrand at each node: the SG's `1 − cos(θi − θ')`
-/// itself and the slowly varying rest (`cos²θi`, Gn, the azimuthal factors, Fresnel) where
-/// the closed form reads them at `θ_X` alone. Nodes beyond ±π/2 count zero (the integrand
-/// ends there). Every exponential has a non-positive argument, so the result is finite and
-/// non-negative for any λ ≥ 0.
+/// The light a fiber lobe brings (`shading::multiple`'s fiber lobes), per unit strength, over
+/// the angles of its arrival direction ωi in the shaded fiber's frame, about an axis ξ at
+/// (θ', φ'): `L(ωi) dωi = p(θi − θ') v(φi − φ') dθi dφi` with
+/// - `p(Δθ) = (1 + 2 Σ_k c_k cos kΔθ + s_k sin kΔθ) / 2π`, the Fourier series of the
+///   longitudinal offset, clamped at zero (its terms are means `c_k = E cos kΔθ`, so it
+///   integrates to 1 over a period);
+/// - `v` a von Mises density of concentration κ.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LobeAngles {
+    /// `[c_1, s_1, c_2, s_2, …]`.
+    pub fourier: Vec<f64>,
+    pub kappa: f64,
+}
+
+impl LobeAngles {
+    /// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
+    #[must_use]
+    pub fn longitudinal(&self, delta_theta: f64) -> f64 {
+        let (s1, c1) = delta_theta.sin_cos();
+        let (mut sk, mut ck) = (s1, c1);
+        let mut v = 1.0;
+        for term in self.fourier.chunks_exact(2) {
+            v += 2.0 * (term[0] * ck + term[1] * sk);
+            (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+        }
+        (v / (2.0 * PI)).max(0.0)
+    }
+}
+
+/// `∫ L(ωi) S(ωi, ωo) cos θi dωi` for the unit lobe `angles` about unit `xi` ([`LobeAngles`]),
+/// per RGB channel: unit tangent `t`, unit view direction `wo`. The φi integrals are exact:
+/// S_R's azimuth is uniform, so its integral against `v` is `1/2π`; S_TT's von Mises about
+/// φ = π times `v` about φ' integrates to `I0(|κ e^{iφ'} − κ_TT|) / (2π I0(κ) I0(κ_TT))`, held
+/// scaled and without cancellation as Γ's TT factor is (module docs). The θi integral, per lobe
+/// X, is an 8-point Gauss–Hermite rule on the lobe's own Gaussian `exp(−λ_X (θi + θo)²)` (its
+/// width sets the scale; `p` varies over about 15 degrees), with `p`, `cos θi`, Gn and Fresnel
+/// exact at each node; nodes beyond ±π/2 count zero. Finite and non-negative for any lobe.
 #[must_use]
-pub fn gamma_quadrature(
+pub fn lobe_quadrature(
     fiber: &FiberConstants,
     gn: &GnTable,
     t: DVec3,
     xi: DVec3,
-    lambda: f64,
+    angles: &LobeAngles,
     wo: DVec3,
 ) -> Rgb {
     let axis = AxisInOmegaOSpace::new(t, wo, xi);
-    let half = 0.5 * lambda;
+    let kappa = angles.kappa;
+    let kappa_tt = fiber.kappa;
+    // |κ e^{iφ'} − κ_TT| and its deficit against κ + κ_TT, with cos φ' = ξ_b / h and
+    // 1 + cos φ' = (h + ξ_b)/h, h − ξ_b likewise (no cancellation when φ' is near 0 or π).
+    let (one_plus_cos, one_minus_cos) = if axis.cos_theta > 0.0 {
+        (axis.h_plus_b / axis.cos_theta, axis.h_minus_b / axis.cos_theta)
+    } else {
+        (1.0, 1.0)
+    };
+    let r = ((kappa - kappa_tt).powi(2) + 2.0 * kappa * kappa_tt * one_minus_cos).sqrt();
+    let deficit = -2.0 * kappa * kappa_tt * one_plus_cos / (r + kappa + kappa_tt).max(f64::MIN_POSITIVE);
+    let tt_azimuth = i0e(r) * deficit.exp() / (2.0 * PI * i0e(kappa) * fiber.i0e_kappa);
     let mut out = Rgb::ZERO;
     for (lobe, lambda_lobe) in [(LOBE_R, fiber.lambda_r), (LOBE_TT, fiber.lambda_tt)] {
-        let sharpness = lambda_lobe + half;
-        let centre = (-lambda_lobe * axis.theta_o + half * axis.theta) / sharpness;
-        let step = 1.0 / sharpness.sqrt();
+        let centre = -axis.theta_o;
+        let step = 1.0 / lambda_lobe.sqrt();
         let norm = (lambda_lobe / PI).sqrt();
+        let mut sum = 0.0_f64;
+        let mut fresnel = Rgb::ZERO;
         for (x, w) in HERMITE_NODES.iter().zip(HERMITE_SCALED_WEIGHTS) {
             for theta in [centre - x * step, centre + x * step] {
                 if theta.abs() >= FRAC_PI_2 {
                     continue;
                 }
                 let cos = theta.cos();
-                let sum = theta + axis.theta_o;
-                let s = (0.5 * (theta - axis.theta)).sin();
-                let gaussians = (-lambda_lobe * sum * sum - 2.0 * lambda * s * s).exp();
-                let common =
-                    cos * cos * norm * gaussians / gn.eval(fiber.material, lobe, -theta) * (w * step);
-                let f = fiber.fresnel(cos);
-                out += if lobe == LOBE_R {
-                    f * (common * i0e(lambda * cos * axis.cos_theta))
-                } else {
-                    (Rgb::ONE - f) * fiber.c_tt * (common * tt_azimuthal(fiber, lambda, cos, &axis))
-                };
+                let offset = theta + axis.theta_o;
+                let term = cos * norm * (-lambda_lobe * offset * offset).exp() * angles.longitudinal(theta - axis.theta)
+                    / gn.eval(fiber.material, lobe, -theta)
+                    * (w * step);
+                sum += term;
+                fresnel += fiber.fresnel(cos) * term;
             }
         }
+        out += if lobe == LOBE_R {
+            fresnel / (2.0 * PI)
+        } else {
+            (Rgb::splat(sum) - fresnel) * fiber.c_tt * tt_azimuth
+        };
     }
     out
 }

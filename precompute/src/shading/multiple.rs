@@ -24,24 +24,25 @@
 //!   varies smoothly through the fabric; without a point it is the constant of the segment's
 //!   own cell (`CellGrid::cell_of_segment`), the paper's choice, which shows each cell as a
 //!   flat block.
-//! - [`forward_scattering`]: a bake with forward lobes (`BakeSettings::forward_lobe`) holds the
-//!   forward-scattered light of the cells whose lobe is too sharp for the SH outside their
-//!   matrices; it is added per light as an SG about the light's direction through Γ by
-//!   quadrature (docs/MATH.md, "Forward lobes").
+//! - [`lobe_scattering`]: a bake with fiber lobes (`BakeSettings::fiber_lobes`) holds the
+//!   light of the cells whose forward light is too sharp for the SH as two lobes instead of
+//!   their matrices: the forward chains and the light reflected at least once, each a strength
+//!   over light directions (SH at `LOBE_SH_ORDER`) and a shape in the fiber frame
+//!   ([`FiberLobe`]). Per light, each is scattered toward ωo by the shaded fiber in closed
+//!   form ([`lobe_quadrature`]; docs/MATH.md, "Fiber lobes").
 
 use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use super::gamma::gamma_quadrature;
+use super::gamma::{LobeAngles, lobe_quadrature};
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
-use crate::bake::iirtf::CellTransfer;
+use crate::bake::iirtf::{CellTransfer, LOBE_FOURIER_TERMS, LOBE_SH_ORDER, LOBE_SHAPE_LEN};
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
-use crate::sg::sg_mass;
 use crate::sh::{ShEulerRotation, sh_count, sh_eval};
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
@@ -193,25 +194,100 @@ pub fn forward_sharpness(forward0: Rgb, forward_cosine: Rgb) -> f64 {
     mu * (3.0 - mu * mu) / (1.0 - mu * mu)
 }
 
-/// Forward-scattered light (`BakeSettings::forward_lobe`) of `segment` of `baked` at `position`
-/// (as [`multiple_scattering`]: `None` the segment's own cell, else interpolated between cells)
-/// seen from unit `wo`, under `lights` given as `(light, V̄_glo)`. Per light: the strength
-/// `s = Σ_j F_j c_j` (per channel, clamped at zero; `c` the light's SH, [`light_sh`], so a
-/// directional light of irradiance E gives `E F(ω_d)`) arrives as a normalized SG about the
-/// light's axis, of the cell's sharpness λ_C ([`forward_sharpness`]; an SG light of sharpness
-/// λ_l widens it to `λ_C λ_l / (λ_C + λ_l)`, the product of two vMF convolutions' usual
-/// approximation), and is scattered toward ωo: `s · V̄_glo · Γ(axis, λ, ωo) / M(λ)`, Γ by
-/// quadrature ([`gamma_quadrature`]: the lobes are broad, λ about 0.5–30, where the
-/// closed form is off by up to 70%). Zero where no cell around the point holds a lobe.
-pub fn forward_scattering(
+/// The largest |mean cos Δφ| a lobe's azimuth is given (κ about 50): beyond it a few hundred
+/// paths cannot tell "narrow" from "a delta".
+pub const MAX_AZIMUTH_MEAN_COSINE: f64 = 0.99;
+
+/// One fiber lobe (`CellTransfer::forward` and `forward_shape`, or `reflected` and
+/// `reflected_shape`) summed over the cells around a point with their interpolation weights.
+/// Both parts are sums over the same connections, so the weighted sum of the shapes over the
+/// weighted total strength is the interpolated lobe's mean shape.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FiberLobe {
+    /// SH over light directions at [`LOBE_SH_ORDER`], RGB.
+    pub strength: Vec<Rgb>,
+    /// [`LOBE_SHAPE_LEN`] sums (`CellTransfer::forward_shape`'s layout).
+    pub shape: Vec<f64>,
+}
+
+impl Default for FiberLobe {
+    fn default() -> Self {
+        Self { strength: vec![Rgb::ZERO; sh_count(LOBE_SH_ORDER)], shape: vec![0.0; LOBE_SHAPE_LEN] }
+    }
+}
+
+impl FiberLobe {
+    /// Adds `weight ×` a cell's lobe.
+    pub fn add(&mut self, strength: &[[f32; 3]], shape: &[f32], weight: f64) {
+        for (sum, f) in self.strength.iter_mut().zip(strength) {
+            *sum += glam::Vec3::from(*f).as_dvec3() * weight;
+        }
+        for (sum, v) in self.shape.iter_mut().zip(shape) {
+            *sum += f64::from(*v) * weight;
+        }
+    }
+
+    /// `s = Σ_j strength_j c_j` per channel, clamped at zero, for a light's SH `c` at
+    /// [`LOBE_SH_ORDER`] ([`light_sh`]: a directional light of irradiance E gives E F(ω_d)).
+    #[must_use]
+    pub fn strength_for(&self, c_light: &[Rgb]) -> Rgb {
+        self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO)
+    }
+
+    /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
+    /// ξ its angles are measured from and their densities ([`LobeAngles`]), or `None` for a
+    /// lobe without light. The shape's means are its sums over `√(4π) Σ strength[0]` (the
+    /// total weight). The azimuth: a von Mises density of concentration
+    /// `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s estimate from the mean resultant
+    /// r = |mean cos Δφ|, clamped to [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth,
+    /// or about the opposite one (ξ mirrored across the fiber axis) where the mean is
+    /// negative: reflected light arrives mostly from the far side. An SG light of sharpness
+    /// λ widens both densities: its own longitudinal spread (variance 1/λ) multiplies the
+    /// Fourier terms by `exp(−k²/2λ)`, and its azimuthal concentration about t,
+    /// `κ_l = λ (1 − (ξ·t)²)`, combines as `κ κ_l / (κ + κ_l)` (von Mises convolution's usual
+    /// approximation).
+    #[must_use]
+    pub fn angles(&self, light: &Light, t: DVec3) -> Option<(DVec3, LobeAngles)> {
+        let total = self.strength[0].element_sum() * (4.0 * PI).sqrt();
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        let mean_cos = (self.shape[0] / total).clamp(-MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
+        let r = mean_cos.abs();
+        let mut kappa = r * (2.0 - r * r) / (1.0 - r * r);
+        let mut fourier: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
+        let axis = match *light {
+            Light::Directional { to_light, .. } => to_light,
+            Light::Sg { axis, sharpness, .. } => {
+                let kappa_light = sharpness * (1.0 - axis.dot(t).powi(2)).max(0.0);
+                kappa = if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
+                for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
+                    let damping = (-((k + 1) as f64).powi(2) / (2.0 * sharpness)).exp();
+                    term[0] *= damping;
+                    term[1] *= damping;
+                }
+                axis
+            }
+        };
+        let axis = if mean_cos < 0.0 { 2.0 * axis.dot(t) * t - axis } else { axis };
+        debug_assert_eq!(fourier.len(), 2 * LOBE_FOURIER_TERMS);
+        Some((axis, LobeAngles { fourier, kappa }))
+    }
+}
+
+/// The fiber lobes (`BakeSettings::fiber_lobes`) of `segment` of `baked` at `position` (as
+/// [`multiple_scattering`]: `None` the segment's own cell, else interpolated between cells),
+/// seen from unit `wo`, under `lights` given as `(light, V̄_glo)`: per light and lobe
+/// ([`FiberLobe`]: forward chains, then reflected light), `s · V̄_glo · ∫ L S cos θi dωi` with s
+/// the lobe's strength for the light and L its unit shape ([`FiberLobe::angles`],
+/// [`lobe_quadrature`]). Zero where no cell around the point holds lobes.
+pub fn lobe_scattering(
     baked: &Baked,
     segment: u32,
     position: Option<DVec3>,
     wo: DVec3,
     lights: &[(Light, f64)],
 ) -> Result<Rgb, ShadingError> {
-    let order = baked.transfer.iirtf.sh_order;
-    let n = sh_count(order);
     let cells = &baked.transfer.iirtf.cells;
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
@@ -219,40 +295,33 @@ pub fn forward_scattering(
     let grid = &baked.transfer.cells;
     let own = (grid.cell_of_segment(segment), 1.0);
     let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
-    let mut forward = vec![Rgb::ZERO; n];
-    let mut cosine = Rgb::ZERO;
-    for (cell, weight) in around.map_or_else(|| vec![own], |a| a.to_vec()) {
+    let around = around.map_or_else(|| vec![own], |a| a.to_vec());
+    if !around.iter().any(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes()) {
+        return Ok(Rgb::ZERO);
+    }
+    let (mut forward, mut reflected) = (FiberLobe::default(), FiberLobe::default());
+    for (cell, weight) in around {
         let cell = &cells[cell as usize];
-        if weight > 0.0 && cell.has_forward_lobe() {
-            for (sum, f) in forward.iter_mut().zip(&cell.forward) {
-                *sum += glam::Vec3::from(*f).as_dvec3() * weight;
-            }
-            cosine += glam::Vec3::from(cell.forward_cosine).as_dvec3() * weight;
+        if weight > 0.0 && cell.has_lobes() {
+            forward.add(&cell.forward, &cell.forward_shape, weight);
+            reflected.add(&cell.reflected, &cell.reflected_shape, weight);
         }
     }
-    if forward[0] == Rgb::ZERO {
-        return Ok(Rgb::ZERO); // No cell around the point holds a lobe.
-    }
-    let lambda_cell = forward_sharpness(forward[0], cosine);
     let mut out = Rgb::ZERO;
     for (light, v_blurred) in lights {
         if *v_blurred == 0.0 {
             continue;
         }
-        let c = light_sh(light, order, &baked.cg);
-        let strength: Rgb = forward.iter().zip(&c).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO);
-        if strength == Rgb::ZERO {
-            continue;
-        }
-        let (axis, lambda) = match *light {
-            Light::Directional { to_light, .. } => (to_light, lambda_cell),
-            Light::Sg { axis, sharpness, .. } => {
-                (axis, lambda_cell * sharpness / (lambda_cell + sharpness).max(f64::MIN_POSITIVE))
+        let c = light_sh(light, LOBE_SH_ORDER, &baked.cg);
+        for lobe in [&forward, &reflected] {
+            let strength = lobe.strength_for(&c);
+            if strength == Rgb::ZERO {
+                continue;
             }
-        };
-        let scattered =
-            gamma_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, lambda, wo) / sg_mass(lambda);
-        out += strength * scattered * *v_blurred;
+            if let Some((axis, angles)) = lobe.angles(light, seg.tangent) {
+                out += strength * lobe_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, &angles, wo) * *v_blurred;
+            }
+        }
     }
     Ok(out)
 }

@@ -18,7 +18,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use super::ShadingError;
-use super::multiple::{forward_scattering, light_sh, multiple_scattering};
+use super::multiple::{light_sh, lobe_scattering, multiple_scattering};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
@@ -78,10 +78,10 @@ fn shade_segment(
         // the image, by 50–200 points in the error budget; docs/BENCHMARKS.md), and the sum
         // goes below zero less often than the term.
         total += multiple_scattering(baked, segment, position, wo, &c_light)?;
-        // Only a bake made with forward lobes has cells that hold one.
-        if baked.settings.forward_lobe {
+        // Only a bake made with fiber lobes has cells that hold them.
+        if baked.settings.fiber_lobes {
             let blurred: Vec<(Light, f64)> = lights.iter().map(|(light, _, v)| (*light, *v)).collect();
-            total += forward_scattering(baked, segment, position, wo, &blurred)?;
+            total += lobe_scattering(baked, segment, position, wo, &blurred)?;
         }
     }
     Ok(if clamp_at_zero { total.max(Rgb::ZERO) } else { total })

@@ -163,7 +163,7 @@ pub enum Knob {
     CellDepth,
     Spp,
     SigmaGlo,
-    ForwardLobe,
+    FiberLobes,
 }
 
 impl Knob {
@@ -178,7 +178,7 @@ impl Knob {
         Knob::CellDepth,
         Knob::Spp,
         Knob::SigmaGlo,
-        Knob::ForwardLobe,
+        Knob::FiberLobes,
     ];
 
     /// Its name: the bake knob's (`--set`), or the frame setting's.
@@ -195,7 +195,7 @@ impl Knob {
             Self::CellDepth => "cell_depth_mfp",
             Self::Spp => "spp",
             Self::SigmaGlo => "sigma_glo_cm",
-            Self::ForwardLobe => "forward_lobe",
+            Self::FiberLobes => "fiber_lobes",
         }
     }
 
@@ -227,7 +227,7 @@ impl Knob {
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
-            Self::ForwardLobe => vec![0.0, 1.0],
+            Self::FiberLobes => vec![0.0, 1.0],
         }
     }
 
@@ -244,7 +244,7 @@ impl Knob {
             Self::CellDepth => bake.cell_depth_mfp = value,
             Self::Spp => frame.spp = count as u32,
             Self::SigmaGlo => frame.gpu.sigma_glo_cm = value,
-            Self::ForwardLobe => bake.forward_lobe = value >= 0.5,
+            Self::FiberLobes => bake.fiber_lobes = value >= 0.5,
         }
     }
 
@@ -262,7 +262,7 @@ impl Knob {
             Self::CellDepth => bake.cell_depth_mfp,
             Self::Spp => f64::from(frame.spp),
             Self::SigmaGlo => frame.gpu.sigma_glo_cm,
-            Self::ForwardLobe => f64::from(u8::from(bake.forward_lobe)),
+            Self::FiberLobes => f64::from(u8::from(bake.fiber_lobes)),
         }
     }
 }
