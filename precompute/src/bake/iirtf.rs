@@ -130,6 +130,14 @@ pub const LOBE_FOURIER_TERMS: usize = 12;
 /// Floats of one lobe shape ([`CellTransfer::forward_shape`]).
 pub const LOBE_SHAPE_LEN: usize = 1 + 2 * LOBE_FOURIER_TERMS;
 
+/// Floats of one cell's fiber lobes as the GPU reads them (`lobes` in
+/// `shaders/shared/fabric_data.wgsl`, written by [`CellTransfer::pack_lobes`]): the forward
+/// strength as `sh_count(LOBE_SH_ORDER)` vec4s (RGB, 0), the reflected strength likewise, then
+/// the forward shape's and the reflected shape's [`LOBE_SHAPE_LEN`] floats each, back to back,
+/// padded with zeros to whole vec4s.
+pub const LOBE_PACKED_FLOATS: usize =
+    8 * sh_count(LOBE_SH_ORDER) + (2 * LOBE_SHAPE_LEN).div_ceil(4) * 4;
+
 /// Where light arrives from (ω1) against the light's own direction (ω0), both toward their
 /// sources, in the frame of a fiber of unit tangent t: `Δθ = θ1 − θ0` of their angles to the
 /// plane normal to t, and the cosine of the angle Δφ between their azimuths about t (1 where
@@ -191,6 +199,27 @@ impl CellTransfer {
     #[must_use]
     pub fn has_lobes(&self) -> bool {
         !self.forward.is_empty()
+    }
+
+    /// Writes the cell's lobes in the GPU's layout ([`LOBE_PACKED_FLOATS`] floats) into `out`:
+    /// zeros for a cell without lobes.
+    ///
+    /// # Panics
+    /// If `out` does not hold [`LOBE_PACKED_FLOATS`] floats.
+    pub fn pack_lobes(&self, out: &mut [f32]) {
+        assert_eq!(out.len(), LOBE_PACKED_FLOATS, "pack_lobes: {} floats", out.len());
+        out.fill(0.0);
+        if !self.has_lobes() {
+            return;
+        }
+        let strengths = self.forward.iter().chain(&self.reflected);
+        for (vec4, rgb) in out.chunks_exact_mut(4).zip(strengths) {
+            vec4[..3].copy_from_slice(rgb);
+        }
+        let shapes = &mut out[8 * sh_count(LOBE_SH_ORDER)..];
+        for (v, s) in shapes.iter_mut().zip(self.forward_shape.iter().chain(&self.reflected_shape)) {
+            *v = *s;
+        }
     }
 
     /// Whether the cell holds no matrix (it has no segments and transfers nothing).
