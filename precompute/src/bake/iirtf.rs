@@ -135,8 +135,7 @@ pub const LOBE_SHAPE_LEN: usize = 1 + 2 * LOBE_FOURIER_TERMS;
 /// strength as `sh_count(LOBE_SH_ORDER)` vec4s (RGB, 0), the reflected strength likewise, then
 /// the forward shape's and the reflected shape's [`LOBE_SHAPE_LEN`] floats each, back to back,
 /// padded with zeros to whole vec4s.
-pub const LOBE_PACKED_FLOATS: usize =
-    8 * sh_count(LOBE_SH_ORDER) + (2 * LOBE_SHAPE_LEN).div_ceil(4) * 4;
+pub const LOBE_PACKED_FLOATS: usize = 8 * sh_count(LOBE_SH_ORDER) + (2 * LOBE_SHAPE_LEN).div_ceil(4) * 4;
 
 /// Where light arrives from (ω1) against the light's own direction (ω0), both toward their
 /// sources, in the frame of a fiber of unit tangent t: `Δθ = θ1 − θ0` of their angles to the
@@ -588,6 +587,9 @@ pub struct ColourFreeSample {
     /// share [`TransferSampler::sample`] splits off exactly, at any colours: a forward chain's
     /// colour factors are its τ's alone.
     pub forward: Vec<bool>,
+    /// The segment k the path starts at (as [`TransferSample::segment`]): its tangent is the
+    /// fiber frame of the lobes' shapes ([`FiberOffset`]).
+    pub segment: u32,
     /// Material slots (the width of the two arrays above).
     pub slots: usize,
 }
@@ -598,7 +600,7 @@ impl TransferSampler {
     /// Russian roulette follows the colour-free weight at TT factor
     /// [`COLOUR_FREE_ROULETTE_ALBEDO`], and each light connection records its colour-free
     /// weight, its event counts and whether it is a forward chain, from which the transfer at
-    /// any colours, split as [`BakeSettings::forward_lobe`] splits it, follows by multiplying
+    /// any colours, split as [`BakeSettings::fiber_lobes`] splits it, follows by multiplying
     /// in the colour factors. The walk does not depend on the materials' colours
     /// (tested), so differentiating it in the colours is unbiased. `slots` is the number of
     /// material slots (every yarn's slot is below it, slots no yarn uses included), the width
@@ -619,8 +621,9 @@ impl TransferSampler {
         out.slots = slots;
         let strata = path_strata(stream, path);
         let mut rng = pixel_rng(stream, path);
-        let (_, view, mut hit) = self.first_hit(cell_segments, &strata);
+        let (segment, view, mut hit) = self.first_hit(cell_segments, &strata);
         out.view = view;
+        out.segment = segment;
         let inv_p1 = 4.0 * std::f64::consts::PI;
         let fibers = &self.scene;
         let mut dir = view;
@@ -1093,14 +1096,14 @@ mod tests {
     }
 
     #[test]
-    fn forward_lobes_split_the_same_paths_and_broad_ones_fold_back_into_the_matrix() {
+    fn fiber_lobes_split_the_same_paths_and_broad_cells_keep_their_matrix() {
         let (exemplar, materials) = default_fabric();
         let grid = CellGrid::new(&exemplar, 0.01, 2.0, 2.0).unwrap();
         let order = 2;
         let n = sh_count(order);
         let settings = small_settings(600, order);
-        let bake = |forward_lobe| {
-            let settings = BakeSettings { fiber_lobes: forward_lobe, ..settings };
+        let bake = |fiber_lobes| {
+            let settings = BakeSettings { fiber_lobes, ..settings };
             bake_iirtf(
                 &exemplar,
                 &materials,
@@ -1131,24 +1134,29 @@ mod tests {
                 let f0 = glam::Vec3::from(b.forward[0]).as_dvec3();
                 let cosine = glam::Vec3::from(b.forward_cosine).as_dvec3();
                 let lambda = crate::shading::multiple::forward_sharpness(f0, cosine);
-                assert!(lambda >= cut, "cell {c} kept a lobe of λ {lambda} below {cut}");
+                assert!(lambda >= cut, "cell {c} kept lobes of λ {lambda} below {cut}");
+                // All of the cell's light is in the lobes.
+                assert!(b.matrix.iter().chain(&b.std_error).flatten().all(|v| *v == 0.0));
+                // Row j1 = 0 of the whole matrix is (F + R)_j0 · Y_0(ω1): the two lobes' first
+                // bands hold every connection, split by share (order 6's first n SH are order 2's).
                 for ch in 0..3 {
-                    // Row j1 = 0 of the whole matrix is the rest's plus F_j0 · Y_0(ω1).
                     for j0 in 0..n {
-                        let forward = f64::from(b.forward[j0][ch]) * y0;
-                        close(f64::from(a.matrix[j0][ch]), f64::from(b.matrix[j0][ch]) + forward, "row 0");
+                        let lobes = f64::from(b.forward[j0][ch]) + f64::from(b.reflected[j0][ch]);
+                        close(f64::from(a.matrix[j0][ch]), lobes * y0, "row 0");
                     }
-                    // ω0·ω1 = (4π/3) Σ_m Y_1m(ω0) Y_1m(ω1): the cosine is band 1's trace.
-                    let trace = |m: &CellTransfer| -> f64 {
-                        (1..4).map(|j| f64::from(m.matrix[j * n + j][ch])).sum()
-                    };
-                    let cosine = f64::from(b.forward_cosine[ch]) * 3.0 / (4.0 * std::f64::consts::PI);
-                    close(trace(a), trace(b) + cosine, "band 1's trace");
                 }
-                // The forward chains really left the matrix.
-                assert!(b.forward[0].iter().all(|&f| f > 0.0), "cell {c}: {:?}", b.forward[0]);
+                // Shapes are sums of weight × cosines: no mean beyond ±1.
+                for (strength, shape) in [(&b.forward, &b.forward_shape), (&b.reflected, &b.reflected_shape)]
+                {
+                    let total = f64::from(strength[0].iter().sum::<f32>()) / y0;
+                    assert!(total > 0.0, "cell {c}: both parts carry light");
+                    for v in shape {
+                        assert!(f64::from(v.abs()) <= total * (1.0 + 1e-5), "cell {c}: {v} beyond {total}");
+                    }
+                }
             } else {
                 folded += 1;
+                assert!(b.forward.is_empty() && b.reflected.is_empty() && b.forward_shape.is_empty());
                 for (x, y) in a.matrix.iter().zip(&b.matrix) {
                     for ch in 0..3 {
                         close(f64::from(x[ch]), f64::from(y[ch]), "folded matrix");
@@ -1157,8 +1165,8 @@ mod tests {
             }
         }
         // The default cotton's forward light is broad in most cells and sharp enough in some.
-        eprintln!("{lobes} cells with a lobe, {folded} folded back");
-        assert!(lobes > 0 && folded > 0, "{lobes} cells with a lobe, {folded} folded back");
+        eprintln!("{lobes} cells with lobes, {folded} with their matrix");
+        assert!(lobes > 0 && folded > 0, "{lobes} cells with lobes, {folded} with their matrix");
     }
 
     #[test]
@@ -1212,8 +1220,11 @@ mod tests {
             paths,
             matrix: vec![[0.5, 0.25, -1.0]; 16],
             std_error: vec![[0.1; 3]; 16],
-            forward: vec![[0.25; 3]; 4],
+            forward: vec![[0.25; 3]; sh_count(LOBE_SH_ORDER)],
             forward_cosine: [0.2; 3],
+            reflected: vec![[0.5; 3]; sh_count(LOBE_SH_ORDER)],
+            forward_shape: vec![0.1; LOBE_SHAPE_LEN],
+            reflected_shape: vec![-0.1; LOBE_SHAPE_LEN],
         };
         let iirtf = Iirtf {
             sh_order: 1,
@@ -1225,7 +1236,15 @@ mod tests {
         assert_eq!(iirtf.cells[0].apply(&[1.0; 4]), vec![Rgb::ZERO; 4], "an empty cell transfers nothing");
         // (SH order 1: 4 x 4 entries.) A cell with paths but the wrong number of entries, and
         // an empty cell with entries.
-        for cells in [vec![CellTransfer { matrix: vec![[0.0; 3]; 15], ..full(7) }], vec![full(0)]] {
+        // Lobes of the wrong size, or only some of the four parts of them.
+        let lobes_short = CellTransfer { reflected: vec![[0.5; 3]; 25], ..full(7) };
+        let shape_missing = CellTransfer { reflected_shape: Vec::new(), ..full(7) };
+        for cells in [
+            vec![CellTransfer { matrix: vec![[0.0; 3]; 15], ..full(7) }],
+            vec![full(0)],
+            vec![lobes_short],
+            vec![shape_missing],
+        ] {
             let bad = Iirtf { cells, ..iirtf.clone() };
             let error = postcard::from_bytes::<Iirtf>(&postcard::to_allocvec(&bad).unwrap()).unwrap_err();
             assert!(matches!(error, postcard::Error::SerdeDeCustom), "{error:?}");

@@ -174,4 +174,23 @@ mod tests {
         bad.sh_order = 7;
         assert!(bad.validate().unwrap_err().to_string().contains("0 <= sh_order <= 6"));
     }
+
+    #[test]
+    fn fiber_lobes_read_under_their_old_name_and_raise_the_light_sh_order() {
+        let text = |key: &str| {
+            let s = Quality::Interactive.settings();
+            let mut table = toml::Table::try_from(s).unwrap();
+            table.remove("fiber_lobes");
+            table.insert(key.to_string(), toml::Value::Boolean(true));
+            table.to_string()
+        };
+        for key in ["fiber_lobes", "forward_lobe"] {
+            let s: BakeSettings = toml::from_str(&text(key)).unwrap();
+            assert!(s.fiber_lobes, "{key}");
+            assert_eq!(s.light_sh_order(), super::super::iirtf::LOBE_SH_ORDER);
+        }
+        let plain = Quality::Draft.settings();
+        assert!(!plain.fiber_lobes);
+        assert_eq!(plain.light_sh_order(), plain.sh_order);
+    }
 }

@@ -228,7 +228,10 @@ pub fn lobe_quadrature(
                 }
                 let cos = theta.cos();
                 let offset = theta + axis.theta_o;
-                let term = cos * norm * (-lambda_lobe * offset * offset).exp() * angles.longitudinal(theta - axis.theta)
+                let term = cos
+                    * norm
+                    * (-lambda_lobe * offset * offset).exp()
+                    * angles.longitudinal(theta - axis.theta)
                     / gn.eval(fiber.material, lobe, -theta)
                     * (w * step);
                 sum += term;

@@ -260,7 +260,8 @@ impl FiberLobe {
             Light::Directional { to_light, .. } => to_light,
             Light::Sg { axis, sharpness, .. } => {
                 let kappa_light = sharpness * (1.0 - axis.dot(t).powi(2)).max(0.0);
-                kappa = if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
+                kappa =
+                    if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
                 for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
                     let damping = (-((k + 1) as f64).powi(2) / (2.0 * sharpness)).exp();
                     term[0] *= damping;
@@ -319,7 +320,9 @@ pub fn lobe_scattering(
                 continue;
             }
             if let Some((axis, angles)) = lobe.angles(light, seg.tangent) {
-                out += strength * lobe_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, &angles, wo) * *v_blurred;
+                out += strength
+                    * lobe_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, &angles, wo)
+                    * *v_blurred;
             }
         }
     }
