@@ -1,6 +1,6 @@
 // Deferred shading (paper 5.2, 5.3): one invocation per pixel reads the G-buffer, moves the
 // view and light directions into the hit tetrahedron's flat-fabric frame, and adds single and
-// multiple scattering (with the bake's forward lobes, when it has them) from every light to the
+// multiple scattering (with the bake's fiber lobes, when it has them) from every light to the
 // accumulation buffer. Which terms and which
 // local-visibility paths exist is fixed by override constants from the frame plan, so a path
 // the scene does not need is not even compiled.
@@ -18,10 +18,10 @@ override ENABLE_GLOBAL_VISIBILITY: bool = true;
 // the light's SH is the same at every pixel (a shell with one flat-fabric frame and no shadow
 // maps), so each pixel reads it instead of multiplying eight transfer matrices.
 override ENABLE_FRAME_TRANSFER: bool = false;
-// The bake carries forward-scattered light outside its SH transfer (BakeSettings::forward_lobe):
-// each light adds its forward lobe (shared/shading.wgsl forward_scattered), with multiple
-// scattering and before the clamp. Off, `forward_lobes` is a placeholder and is never read.
-override ENABLE_FORWARD_LOBE: bool = false;
+// Some cells of the bake hold their light as fiber lobes (BakeSettings::fiber_lobes) instead of
+// their matrices: each light adds the lobes' light (shared/shading.wgsl fiber_lobes_light), with
+// multiple scattering and before the clamp. Off, `lobes` is a placeholder and is never read.
+override ENABLE_FIBER_LOBES: bool = false;
 
 
 struct ShadeUniforms {
@@ -116,11 +116,12 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     var radiance = vec3<f32>(0.0);
     // Zero, as every WGSL var starts (no loop: unused when the frame's cell transfer is read).
     var c_in: array<vec3<f32>, 49>;
-    // The forward lobe at p, interpolated once for every light (ENABLE_FORWARD_LOBE).
-    var forward: array<vec3<f32>, 49>;
-    var lambda_forward = 0.0;
-    if (ENABLE_MULTIPLE && ENABLE_FORWARD_LOBE) {
-        lambda_forward = forward_lobe_at(e, segment, p, &forward);
+    // The fiber lobes' cells and shapes at p, gathered once for every light
+    // (ENABLE_FIBER_LOBES); none around p: the term is zero.
+    var lobes_at: FiberLobesAt;
+    var with_lobes = false;
+    if (ENABLE_MULTIPLE && ENABLE_FIBER_LOBES) {
+        with_lobes = fiber_lobes_at(e, segment, p, &lobes_at);
     }
     for (var i = 0u; i < shade.counts.x; i++) {
         let light = lights[i];
@@ -150,11 +151,11 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         if (ENABLE_MULTIPLE && !ENABLE_FRAME_TRANSFER && v_blurred > 0.0) {
             light_sh_add(light, dir, v_blurred * light.color, &c_in);
         }
-        // Forward-scattered light, per light in either transfer path (its SH is never summed),
+        // The fiber lobes' light, per light in either transfer path (its SH is never summed),
         // into the radiance the clamp below acts on (shading::render::shade_segment).
-        if (ENABLE_MULTIPLE && ENABLE_FORWARD_LOBE && v_blurred > 0.0) {
+        if (with_lobes && v_blurred > 0.0) {
             let sharpness = select(-1.0, light.sharpness, light.kind == LIGHT_SG);
-            radiance += v_blurred * light.color * forward_scattered(segment, wo, dir, sharpness, &forward, lambda_forward);
+            radiance += v_blurred * light.color * fiber_lobes_light(segment, wo, dir, sharpness, &lobes_at);
         }
     }
     if (ENABLE_MULTIPLE) {
@@ -162,7 +163,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         // cannot, so the radiance shaded (single and multiple scattering together, not the
         // multiple-scattering term alone: a clamp lifts the mean where it acts) is clamped per
         // channel (shading::render::shade_segment, the CPU twin); `radiance` already holds the
-        // forward lobes.
+        // fiber lobes.
         if (ENABLE_FRAME_TRANSFER) {
             var coeffs: array<vec3<f32>, 49>;
             for (var j = 0u; j < fabric.sh_count; j++) {

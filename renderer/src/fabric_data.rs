@@ -10,14 +10,16 @@
 //! The IIRTF dominates the memory (`cells × 3 × (L+1)⁴` values) and is stored as f16 pairs:
 //! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
 //! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
-//! binding. Forward lobes (`BakeSettings::forward_lobe`) are small beside it, `n + 1` vec4s
-//! of f32 per cell (n = (L+1)²: 16 (n + 1) bytes against the f16 IIRTF's 6 n², 11% of it at SH
-//! order 4, 6% at order 6), so they stay f32; a bake without them binds one zeroed vec4.
+//! binding. Fiber lobes (`BakeSettings::fiber_lobes`) are packed per cell by
+//! `CellTransfer::pack_lobes` ([`LOBE_PACKED_FLOATS`] f32s, 1,776 bytes: 47% of the f16 IIRTF's
+//! 6 n² bytes at SH order 4, 12% at order 6, n = (L+1)²), so they stay f32; a bake without them
+//! binds one zeroed vec4. The C_G table is packed at its own order (`BakeSettings::light_sh_order`,
+//! which is above the transfer's with fiber lobes), which the header carries (`cg_order`).
 //! Every buffer is checked against the adapter's `max_storage_buffer_binding_size`
 //! before upload; one that does not fit is an error naming the buffer, its size and the limit.
 
 use glam::Vec3;
-use twill_precompute::bake::iirtf::CellTransfer;
+use twill_precompute::bake::iirtf::{CellTransfer, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN};
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::Baked;
 
@@ -61,8 +63,13 @@ pub struct FabricHeaderGpu {
     pub pattern_height: u32,
     pub block_size: [f32; 2],
     pub z_range: [f32; 2],
+    /// SH order of the C_G table (`cg_table` holds `cg_points × (cg_order + 1)` values): the
+    /// transfer's `sh_order`, or [`LOBE_SH_ORDER`] when the bake has fiber lobes
+    /// (`BakeSettings::light_sh_order`).
+    pub cg_order: u32,
+    pub pad: [u32; 3],
 }
-const _: () = assert!(size_of::<FabricHeaderGpu>() == 64);
+const _: () = assert!(size_of::<FabricHeaderGpu>() == 80);
 
 /// Twin of `ExemplarGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
@@ -142,18 +149,17 @@ pub struct FabricArrays {
     pub iirtf: Vec<u32>,
     /// Per global cell: 1 if it holds segments (and so a transfer matrix), 0 if empty.
     pub cell_flags: Vec<u32>,
-    /// Forward-scattered light outside the SH transfer (`CellTransfer::forward`), twin of
-    /// `forward_lobes` in `shaders/shared/fabric_data.wgsl`: per global cell `n + 1` vec4s
-    /// (n = `header.sh_count`), `[cell * (n + 1) + j]` = `forward[j]` (rgb, w = 0) for
-    /// `j < n` and `[cell * (n + 1) + n]` = `forward_cosine` (rgb, w = 0); zeros for a cell
-    /// without a lobe. Empty for a set baked without forward lobes in which no cell has one
-    /// (the buffer is then one zeroed vec4, never read).
-    pub forward_lobes: Vec<[f32; 4]>,
-    /// Cells whose lobe is not all zeros: the plan compiles `ENABLE_FORWARD_LOBE` only when
-    /// there are any (a bake made with the option whose cells all folded their forward light
-    /// into SH shades without it). Counted when packed and after every recolouring, which can
-    /// give a cell a lobe or take it away.
-    pub forward_lobe_cells: usize,
+    /// The fiber lobes (`CellTransfer::forward`, `reflected` and their shapes), twin of `lobes`
+    /// in `shaders/shared/fabric_data.wgsl`: per global cell [`LOBE_PACKED_FLOATS`] floats in
+    /// `CellTransfer::pack_lobes`' layout, zeros for a cell without lobes (one that folded its
+    /// light into its matrix). Empty for a set baked without fiber lobes in which no cell has
+    /// them (the buffer is then one zeroed vec4, never read).
+    pub lobes: Vec<f32>,
+    /// Cells whose lobe slot is not all zeros: the plan compiles `ENABLE_FIBER_LOBES` only when
+    /// there are any (a bake made with the option whose cells all folded their light into their
+    /// matrices shades without them). Counted when packed and after every recolouring, which
+    /// can give a cell lobes or take them away.
+    pub lobe_cells: usize,
     pub cs_table: Vec<f32>,
     pub cg_table: Vec<f32>,
     pub gn_table: Vec<f32>,
@@ -230,8 +236,8 @@ impl FabricArrays {
             sos_weights: Vec::new(),
             iirtf: Vec::new(),
             cell_flags: Vec::new(),
-            forward_lobes: Vec::new(),
-            forward_lobe_cells: 0,
+            lobes: Vec::new(),
+            lobe_cells: 0,
             cs_table: Vec::new(),
             cg_table: first.cg.values().to_vec(),
             gn_table: Vec::new(),
@@ -245,7 +251,7 @@ impl FabricArrays {
             )));
         }
         let mut iirtf_values: Vec<f32> = Vec::new();
-        let mut any_forward_lobe = false;
+        let mut any_lobes = false;
         let mut z_range = [f32::INFINITY, f32::NEG_INFINITY];
         let mut block_size = [0.0_f32; 2];
         for (e, baked) in exemplars.iter().enumerate() {
@@ -292,26 +298,28 @@ impl FabricArrays {
                 cell_blocks_y: cells.blocks()[1],
             });
             out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
-            for cell in &baked.transfer.iirtf.cells {
-                let lobe = cell.has_lobes();
-                if lobe && cell.forward.len() != sh_count {
+            let lobe_sh = twill_precompute::sh::sh_count(LOBE_SH_ORDER);
+            for (c, cell) in baked.transfer.iirtf.cells.iter().enumerate() {
+                let sizes = [
+                    cell.forward.len(),
+                    cell.reflected.len(),
+                    cell.forward_shape.len(),
+                    cell.reflected_shape.len(),
+                ];
+                if cell.has_lobes() && sizes != [lobe_sh, lobe_sh, LOBE_SHAPE_LEN, LOBE_SHAPE_LEN] {
                     return Err(FabricDataError::Inconsistent(format!(
-                        "exemplar {e}: a forward lobe of {} coefficients, expected {sh_count}",
-                        cell.forward.len()
+                        "exemplar {e} cell {c}: lobes of {sizes:?} values, expected {lobe_sh}, {lobe_sh}, \
+                         {LOBE_SHAPE_LEN} and {LOBE_SHAPE_LEN}"
                     )));
                 }
-                let rgb = |c: [f32; 3]| [c[0], c[1], c[2], 0.0];
-                if lobe {
-                    out.forward_lobes.extend(cell.forward.iter().map(|f| rgb(*f)));
-                    out.forward_lobes.push(rgb(cell.forward_cosine));
-                } else {
-                    out.forward_lobes.extend(std::iter::repeat_n([0.0; 4], sh_count + 1));
-                }
+                let start = out.lobes.len();
+                out.lobes.resize(start + LOBE_PACKED_FLOATS, 0.0);
+                cell.pack_lobes(&mut out.lobes[start..]);
             }
-            // A bake made with forward lobes keeps its buffer even when every cell folded its
-            // forward light back into SH: a recolouring can give a cell a lobe again.
-            any_forward_lobe |= baked.settings.fiber_lobes
-                || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes);
+            // A bake made with fiber lobes keeps its buffer even when every cell folded its light
+            // into its matrix: a recolouring can give a cell lobes again.
+            any_lobes |=
+                baked.settings.fiber_lobes || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
                 out.segments.push(SegmentGpu {
@@ -371,8 +379,16 @@ impl FabricArrays {
             out.gn_table.extend_from_slice(baked.gn.data());
         }
         out.iirtf = pack_f16_pairs(&iirtf_values);
-        if !any_forward_lobe {
-            out.forward_lobes = Vec::new();
+        if !any_lobes {
+            out.lobes = Vec::new();
+        }
+        // The C_G table gives every light's SH: at the transfer's order, and at the lobes'.
+        let cg_order = first.cg.order();
+        let needed = if any_lobes { sh_order.max(LOBE_SH_ORDER) } else { sh_order };
+        if cg_order < needed || cg_order > MAX_SH_ORDER {
+            return Err(FabricDataError::Inconsistent(format!(
+                "the C_G table has SH order {cg_order}; the bake's lights need order {needed} (at most {MAX_SH_ORDER})"
+            )));
         }
         out.header = FabricHeaderGpu {
             exemplar_count: to_u32(exemplars.len(), "exemplars")?,
@@ -389,29 +405,30 @@ impl FabricArrays {
             pattern_height: pattern.height,
             block_size,
             z_range,
+            cg_order: to_u32(cg_order, "C_G order")?,
+            pad: [0; 3],
         };
-        out.forward_lobe_cells = out.count_forward_lobe_cells();
+        out.lobe_cells = out.count_lobe_cells();
         Ok(out)
     }
 
-    /// Whether any cell carries a forward lobe now (then the frame plan compiles the shading
-    /// pass with `ENABLE_FORWARD_LOBE`).
+    /// Whether any cell carries fiber lobes now (then the frame plan compiles the shading pass
+    /// with `ENABLE_FIBER_LOBES`).
     #[must_use]
-    pub fn has_lobess(&self) -> bool {
-        self.forward_lobe_cells > 0
+    pub fn has_lobes(&self) -> bool {
+        self.lobe_cells > 0
     }
 
-    /// Whether the buffer holds a lobe slot for every cell (the set was baked with forward
-    /// lobes, or some cell has one), so that a recolouring can write lobes.
+    /// Whether the buffer holds a lobe slot for every cell (the set was baked with fiber lobes,
+    /// or some cell has them), so that a recolouring can write lobes.
     #[must_use]
-    pub fn holds_forward_lobes(&self) -> bool {
-        !self.forward_lobes.is_empty()
+    pub fn holds_lobes(&self) -> bool {
+        !self.lobes.is_empty()
     }
 
     /// Cells whose lobe slot is not all zeros.
-    fn count_forward_lobe_cells(&self) -> usize {
-        let per_cell = self.header.sh_count as usize + 1;
-        self.forward_lobes.chunks_exact(per_cell).filter(|c| c.iter().flatten().any(|v| *v != 0.0)).count()
+    fn count_lobe_cells(&self) -> usize {
+        self.lobes.chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
     }
 
     /// Every buffer with its label and contents, in binding order (1 ..= 14).
@@ -431,7 +448,7 @@ impl FabricArrays {
             ("cg_table", bytemuck::cast_slice(&self.cg_table)),
             ("gn_table", bytemuck::cast_slice(&self.gn_table)),
             ("cell_flags", bytemuck::cast_slice(&self.cell_flags)),
-            ("forward_lobes", bytemuck::cast_slice(&self.forward_lobes)),
+            ("lobes", bytemuck::cast_slice(&self.lobes)),
         ]
     }
 
@@ -639,7 +656,7 @@ impl FabricData {
     }
 }
 
-/// Writes one cell of a recolouring: its IIRTF (f16 bits) and its forward lobe
+/// Writes one cell of a recolouring: its IIRTF (f16 bits) and its fiber lobes
 /// ([`Recolouring::write_cell`]).
 pub type WriteRecolouredCell<'a> = dyn Fn(usize, &mut [u16], &mut [f32]) + Sync + 'a;
 
@@ -653,10 +670,10 @@ pub struct Recolouring<'a> {
     pub cs_tables: &'a [Option<twill_precompute::bake::cs_table::CsTable>],
     /// Writes cell `c`'s IIRTF as f16 bits, channel-planar (`3 n²` values: what
     /// `RecolourBasis::write_planar` writes, converted), into the first slice it is given, and
-    /// its forward lobe (`n + 1` vec4s, `forward_lobes`' layout: what
-    /// `RecolourBasis::write_forward` writes) into the second, which is empty when the fabric
-    /// holds no forward lobes; both from one evaluation of the cell (`write_cell` of the basis:
-    /// one decision whether its forward light folds into the matrix). Called for every cell of
+    /// its fiber lobes ([`LOBE_PACKED_FLOATS`] floats, `CellTransfer::pack_lobes`' layout, zeros
+    /// for a cell that folds them into its matrix) into the second, which is empty when the
+    /// fabric holds no lobes; both from one evaluation of the cell (`RecolourBasis::write_cell`:
+    /// one decision whether the cell keeps lobes at the new colours). Called for every cell of
     /// the exemplar, in parallel.
     pub write_cell: &'a WriteRecolouredCell<'a>,
 }
@@ -664,7 +681,7 @@ pub struct Recolouring<'a> {
 impl FabricData {
     /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows,
     /// IIRTF cells (as f16, written straight into the packed array by `write_cell`) and, when
-    /// the fabric holds them, forward lobes; nothing else. Returns the buffers written.
+    /// the fabric holds them, fiber lobes; nothing else. Returns the buffers written.
     ///
     /// # Errors
     /// When the recolouring does not fit the exemplar's slots in the buffers.
@@ -674,11 +691,11 @@ impl FabricData {
         r: &Recolouring<'_>,
     ) -> Result<Vec<&'static str>, FabricDataError> {
         use rayon::prelude::*;
-        let (materials_buffer, cs_buffer, iirtf_buffer, forward_buffer) = (
+        let (materials_buffer, cs_buffer, iirtf_buffer, lobes_buffer) = (
             self.buffer("materials").clone(),
             self.buffer("cs_table").clone(),
             self.buffer("iirtf").clone(),
-            self.buffer("forward_lobes").clone(),
+            self.buffer("lobes").clone(),
         );
         let a = &mut self.arrays;
         let exemplars = a.exemplars.len();
@@ -736,21 +753,20 @@ impl FabricData {
                 "the exemplar's IIRTF cells lie outside the buffer".into(),
             ));
         };
-        let per_cell = sh_count + 1;
-        let lobe_range = first_cell * per_cell..(first_cell + cells) * per_cell;
-        let with_lobes = !a.forward_lobes.is_empty(); // holds_forward_lobes(), while a.iirtf is borrowed
+        let lobe_range = first_cell * LOBE_PACKED_FLOATS..(first_cell + cells) * LOBE_PACKED_FLOATS;
+        let with_lobes = !a.lobes.is_empty(); // holds_lobes(), while a.iirtf is borrowed
         let lobe_values: &mut [f32] = if with_lobes {
-            let Some(lobes) = a.forward_lobes.get_mut(lobe_range.clone()) else {
+            let Some(lobes) = a.lobes.get_mut(lobe_range.clone()) else {
                 return Err(FabricDataError::Inconsistent(
-                    "the exemplar's forward lobes lie outside the buffer".into(),
+                    "the exemplar's fiber lobes lie outside the buffer".into(),
                 ));
             };
-            bytemuck::cast_slice_mut(lobes)
+            lobes
         } else {
             &mut []
         };
         if with_lobes {
-            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(4 * per_cell)))
+            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
                 .enumerate()
                 .for_each(|(c, (out, lobe))| (r.write_cell)(c, out, lobe));
         } else {
@@ -767,10 +783,10 @@ impl FabricData {
         );
         written.push("iirtf");
         if with_lobes {
-            let lobes = &a.forward_lobes[lobe_range.clone()];
-            queue.write_buffer(&forward_buffer, (lobe_range.start * 16) as u64, bytemuck::cast_slice(lobes));
-            written.push("forward_lobes");
-            a.forward_lobe_cells = a.count_forward_lobe_cells();
+            let lobes = &a.lobes[lobe_range.clone()];
+            queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
+            written.push("lobes");
+            a.lobe_cells = a.count_lobe_cells();
         }
         Ok(written)
     }

@@ -333,7 +333,7 @@ impl Renderer {
             settings,
             self.shell.flat_normal,
             self.shell.uniform_frame.is_some(),
-            self.fabric.arrays.has_lobess(),
+            self.fabric.arrays.has_lobes(),
         )
     }
 
@@ -874,15 +874,15 @@ fn read_display(device: &wgpu::Device, targets: &FrameTargets) -> Result<Vec<[u8
 }
 
 /// Plans a frame (also usable without a device, e.g. for `--print-plan`). `uniform_frame`:
-/// every tetrahedron of the shell has the same world → flat-fabric frame; `forward_lobe`: the
-/// bake carries forward lobes (`FabricArrays::has_lobess`).
+/// every tetrahedron of the shell has the same world → flat-fabric frame; `fiber_lobes`: the
+/// bake carries fiber lobes (`FabricArrays::has_lobes`).
 #[must_use]
 pub fn plan_frame(
     lights: &[Light],
     settings: &FrameSettings,
     flat_normal: Option<glam::Vec3>,
     uniform_frame: bool,
-    forward_lobe: bool,
+    fiber_lobes: bool,
 ) -> FramePlan {
     let plan_lights: Vec<PlanLight> = lights
         .iter()
@@ -899,7 +899,7 @@ pub fn plan_frame(
             sigma_glo_cm: settings.gpu.sigma_glo_cm,
             spp: settings.spp,
             uniform_frame: uniform_frame && settings.frame_transfer,
-            forward_lobe,
+            fiber_lobes,
         },
     )
 }

@@ -16,7 +16,7 @@
 //!   only with shadow maps), and the Gaussian blur of V (only with multiple scattering, shadow
 //!   maps and σ_glo > 0);
 //! - which shading terms are compiled into the shading pipeline (single, multiple, each
-//!   visibility path, the forward lobes of a bake that has them), as WGSL override constants,
+//!   visibility path, the fiber lobes of a bake that has them), as WGSL override constants,
 //!   so a skipped path costs nothing.
 //!
 //! The thresholds are the shading twins' (`twill_precompute::shading::sg_path_weights`).
@@ -89,9 +89,9 @@ pub struct PlanInputs {
     /// Every tetrahedron of the shell has the same world → flat-fabric frame (the flat swatch):
     /// then the lights' SH is the same at every pixel unless shadow maps vary it.
     pub uniform_frame: bool,
-    /// The loaded bake carries forward lobes (`BakeSettings::forward_lobe`: some cell with
-    /// `CellTransfer::has_lobes`, `FabricArrays::has_lobess`).
-    pub forward_lobe: bool,
+    /// The loaded bake carries fiber lobes (`BakeSettings::fiber_lobes`: some cell with
+    /// `CellTransfer::has_lobes`, `FabricArrays::has_lobes`).
+    pub fiber_lobes: bool,
 }
 
 /// One pass of a frame, with everything that decides how it runs (the frame executes these:
@@ -117,14 +117,14 @@ pub enum Pass {
     GBuffer,
     /// Deferred shading, compiled with exactly these terms: single scattering by the listed
     /// local-visibility paths, multiple scattering, the shadow maps' visibility, the cells'
-    /// once-per-frame transfer in place of the per-pixel one, and the bake's forward lobes.
+    /// once-per-frame transfer in place of the per-pixel one, and the bake's fiber lobes.
     Shade {
         single: bool,
         multiple: bool,
         paths: Vec<LocalVisibility>,
         global_visibility: bool,
         cell_transfer: bool,
-        forward_lobe: bool,
+        fiber_lobes: bool,
     },
     ToneMap,
 }
@@ -177,8 +177,8 @@ pub struct FramePlan {
     pub blur: bool,
     /// Multiple scattering reads each cell's A c_in from a once-per-frame pass.
     pub cell_transfer: bool,
-    /// Multiple scattering adds each light's forward lobe (the bake has them).
-    pub forward_lobe: bool,
+    /// Multiple scattering adds each light's fiber lobes (the bake has them).
+    pub fiber_lobes: bool,
     pub sigma_glo_cm: f64,
     pub spp: u32,
 }
@@ -237,7 +237,7 @@ impl FramePlan {
             shadow_maps,
             blur: shadow_maps && multiple && inputs.sigma_glo_cm > 0.0,
             cell_transfer: multiple && !shadow_maps && inputs.uniform_frame,
-            forward_lobe: multiple && inputs.forward_lobe,
+            fiber_lobes: multiple && inputs.fiber_lobes,
             sigma_glo_cm: inputs.sigma_glo_cm,
             spp: inputs.spp,
         }
@@ -304,7 +304,7 @@ impl FramePlan {
             paths,
             global_visibility: self.shadow_maps,
             cell_transfer: self.cell_transfer,
-            forward_lobe: self.forward_lobe,
+            fiber_lobes: self.fiber_lobes,
         });
         passes.push(Pass::ToneMap);
         passes
@@ -326,7 +326,7 @@ impl fmt::Display for FramePlan {
                 Pass::CellTransfer => {
                     writeln!(f, "  {} (once per frame: one fabric frame, no shadows)", pass.name())?;
                 }
-                Pass::Shade { single, multiple, paths, global_visibility, cell_transfer, forward_lobe } => {
+                Pass::Shade { single, multiple, paths, global_visibility, cell_transfer, fiber_lobes } => {
                     let mut terms = Vec::new();
                     if *single {
                         terms.push(format!(
@@ -336,8 +336,8 @@ impl fmt::Display for FramePlan {
                     }
                     if *multiple {
                         let cells = if *cell_transfer { "cells' A c_in" } else { "per pixel" };
-                        let forward = if *forward_lobe { " + forward lobes" } else { "" };
-                        terms.push(format!("multiple scattering [IIRTF, {cells}{forward}]"));
+                        let lobes = if *fiber_lobes { " + fiber lobes" } else { "" };
+                        terms.push(format!("multiple scattering [IIRTF, {cells}{lobes}]"));
                     }
                     let shadows = if *global_visibility { " x shadow-map visibility" } else { "" };
                     writeln!(f, "  {}: {}{shadows}; per sample", pass.name(), terms.join(" + "))?;
@@ -366,7 +366,7 @@ mod tests {
             sigma_glo_cm: 0.05,
             spp: 4,
             uniform_frame: flat,
-            forward_lobe: false,
+            fiber_lobes: false,
         }
     }
 
@@ -414,24 +414,24 @@ mod tests {
     }
 
     #[test]
-    fn forward_lobes_are_shaded_only_for_a_bake_that_has_them() {
+    fn fiber_lobes_are_shaded_only_for_a_bake_that_has_them() {
         let sky = PlanLight::Sg { axis: [0.0, 0.0, 1.0], sharpness: 8.0 };
         let shade = |plan: &FramePlan| {
             plan.passes().into_iter().find_map(|p| match p {
-                Pass::Shade { forward_lobe, .. } => Some(forward_lobe),
+                Pass::Shade { fiber_lobes, .. } => Some(fiber_lobes),
                 _ => None,
             })
         };
         for flat in [true, false] {
-            // A bake without forward lobes: the shading pass is compiled without them.
+            // A bake without fiber lobes: the shading pass is compiled without them.
             let plan = FramePlan::new(&[SUN, sky], &inputs(flat));
-            assert!(!plan.forward_lobe && shade(&plan) == Some(false), "{plan}");
-            assert!(!plan.to_string().contains("forward"), "{plan}");
+            assert!(!plan.fiber_lobes && shade(&plan) == Some(false), "{plan}");
+            assert!(!plan.to_string().contains("lobes"), "{plan}");
             // With them: on, in either transfer path.
-            let with = PlanInputs { forward_lobe: true, ..inputs(flat) };
+            let with = PlanInputs { fiber_lobes: true, ..inputs(flat) };
             let plan = FramePlan::new(&[SUN, sky], &with);
-            assert!(plan.forward_lobe && shade(&plan) == Some(true), "{plan}");
-            assert!(plan.to_string().contains("forward lobes"), "{plan}");
+            assert!(plan.fiber_lobes && shade(&plan) == Some(true), "{plan}");
+            assert!(plan.to_string().contains("fiber lobes"), "{plan}");
             // ... but not without multiple scattering.
             let single = PlanInputs { components: Components::SingleOnly, ..with };
             assert_eq!(shade(&FramePlan::new(&[SUN, sky], &single)), Some(false));

@@ -93,8 +93,27 @@ pub fn prelude() -> String {
     #[allow(clippy::cast_possible_truncation)]
     let nudge = twill_precompute::bake::volume::VOXEL_START_NUDGE as f32;
     let _ = writeln!(out, "const VOXEL_START_NUDGE: f32 = {nudge:?};");
+    // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
+    {
+        use twill_precompute::bake::iirtf::{
+            LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
+        };
+        let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
+        let _ =
+            writeln!(out, "const LOBE_SH_COUNT: u32 = {}u;", twill_precompute::sh::sh_count(LOBE_SH_ORDER));
+        let _ = writeln!(out, "const LOBE_FOURIER_TERMS: u32 = {LOBE_FOURIER_TERMS}u;");
+        let _ = writeln!(out, "const LOBE_SHAPE_LEN: u32 = {LOBE_SHAPE_LEN}u;");
+        let _ = writeln!(out, "const LOBE_PACKED_VEC4S: u32 = {}u;", LOBE_PACKED_FLOATS / 4);
+        #[allow(clippy::cast_possible_truncation)]
+        let max_cos = twill_precompute::shading::multiple::MAX_AZIMUTH_MEAN_COSINE as f32;
+        let _ = writeln!(out, "const MAX_AZIMUTH_MEAN_COSINE: f32 = {max_cos:?};");
+    }
     out
 }
+
+// `LOBE_PACKED_VEC4S` is a whole number of vec4s, and the lobes fit the shaders' SH arrays.
+const _: () = assert!(twill_precompute::bake::iirtf::LOBE_PACKED_FLOATS % 4 == 0);
+const _: () = assert!(twill_precompute::bake::iirtf::LOBE_SH_ORDER <= crate::fabric_data::MAX_SH_ORDER);
 
 /// The `#import`s of `source`, in order.
 fn imports(source: &str) -> impl Iterator<Item = &str> {

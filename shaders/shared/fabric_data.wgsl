@@ -13,16 +13,19 @@
 //                   the value a_C[j0, j1] (light coefficient j0 -> incoming-radiance coefficient j1)
 //                   is unpack2x16float(iirtf[e / 2])[e % 2]
 //   cs_table        [((global material * cs_theta_count + row) * sh_count + j) * 3 + channel]
-//   cg_table        [point * (sh_order + 1) + l]
+//   cg_table        [point * (cg_order + 1) + l], at the table's own order (cg_order >= sh_order;
+//                   LOBE_SH_ORDER when the bake has fiber lobes)
 //   gn_table        [(((global material * 2 + lobe) * (gn_intervals + 1) + node) * 2 + {0: Gn, 1: dGn/dmu}]
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
 //   cell_flags      [global cell] = 1 if the cell holds segments (has a transfer matrix), else 0
-//   forward_lobes   [global cell * (sh_count + 1) + j] = the cell's forward lobe F_j (rgb, w unused)
-//                   for j < sh_count, and [global cell * (sh_count + 1) + sh_count] its forward
-//                   cosine (rgb); zeros for a cell without a lobe (FabricArrays::forward_lobes).
-//                   A bake without forward lobes binds one zeroed vec4, read only when
-//                   ENABLE_FORWARD_LOBE is set (shade.wgsl), which the plan sets only for a bake
-//                   that has them.
+//   lobes           per global cell LOBE_PACKED_VEC4S vec4s (CellTransfer::pack_lobes, the layout's
+//                   owner): [cell * LOBE_PACKED_VEC4S + j] = forward strength j (rgb, w = 0) and
+//                   [... + LOBE_SH_COUNT + j] = reflected strength j, j < LOBE_SH_COUNT; then,
+//                   as floats from vec4 2 * LOBE_SH_COUNT on, the forward shape's LOBE_SHAPE_LEN
+//                   sums and the reflected shape's, back to back, zero-padded; zeros for a cell
+//                   without lobes (FabricArrays::lobes). A bake without fiber lobes binds one
+//                   zeroed vec4, read only when ENABLE_FIBER_LOBES is set (shade.wgsl), which
+//                   the plan sets only while some cell holds lobes.
 
 const EMPTY_VOXEL: u32 = 0xffffffffu;
 const MATERIAL_FIBER: u32 = 0u;
@@ -43,6 +46,11 @@ struct FabricHeader {
     pattern_height: u32,
     block_size: vec2<f32>,
     z_range: vec2<f32>,
+    // SH order of the C_G table (cg_table's rows hold cg_order + 1 values).
+    cg_order: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 struct ExemplarGpu {
@@ -101,7 +109,7 @@ struct MaterialGpu {
 @group(1) @binding(11) var<storage, read> cg_table: array<f32>;
 @group(1) @binding(12) var<storage, read> gn_table: array<f32>;
 @group(1) @binding(13) var<storage, read> cell_flags: array<u32>;
-@group(1) @binding(14) var<storage, read> forward_lobes: array<vec4<f32>>;
+@group(1) @binding(14) var<storage, read> lobes: array<vec4<f32>>;
 
 // Euclidean remainder (WGSL's % keeps the sign of the dividend).
 fn wrap_f32(x: f32, period: f32) -> f32 {

@@ -1,8 +1,8 @@
 // Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
-// precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma, gamma_quadrature;
-// visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs; multiple.rs:
-// light_sh, multiple_scattering_in_cell, forward_sharpness, forward_scattering), compared on the
-// GPU by renderer/tests/gpu_shading_parity.rs.
+// precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma, LobeAngles,
+// lobe_quadrature; visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs;
+// multiple.rs: light_sh, multiple_scattering_in_cell, FiberLobe, lobe_scattering), compared on
+// the GPU by renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
 // global segment id.
 #import shared/special.wgsl
@@ -213,48 +213,6 @@ fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: 
     return fresnel(f, cos_r) * (r.y * b_r) + (vec3<f32>(1.0) - fresnel(f, cos_tt)) * f.c_tt * (tt.y * b_tt);
 }
 
-// Gamma(xi, lambda, wo) by quadrature (gamma.rs gamma_quadrature), accurate for the broad SGs
-// of the forward lobes (lambda about 0.5-30, where the closed form is off by up to 70%): the
-// same exact phi_i integral; the theta_i integral per lobe by the 8-point Gauss-Hermite rule
-// centred on the closed form's theta_X (unclamped) with step 1/sqrt(lambda'_X), the exact
-// integrand at each node (1 - cos(theta_i - theta') itself, cos^2, Gn, Fresnel and the
-// azimuthal factors there); nodes at or beyond +-pi/2 count zero.
-fn sg_bcsdf_gamma_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: f32) -> vec3<f32> {
-    // Positive nodes of the rule (weight e^(-x^2)) and its weights times e^(x^2) (gamma.rs
-    // HERMITE_NODES, HERMITE_SCALED_WEIGHTS).
-    var nodes = array<f32, 4>(0.381186990207322, 1.15719371244678, 1.981656756695843, 2.930637420257244);
-    var weights = array<f32, 4>(0.7645441286517288, 0.7928900483864012, 0.8667526065633573, 1.0719301442460063);
-    let axis = sg_axis_in_omega_o_space(space, xi);
-    let half = 0.5 * lambda;
-    var out = vec3<f32>(0.0);
-    for (var lobe = LOBE_R; lobe <= LOBE_TT; lobe++) {
-        let lambda_lobe = select(f.lambda_r, f.lambda_tt, lobe == LOBE_TT);
-        let sharpness = lambda_lobe + half;
-        let centre = (-lambda_lobe * space.theta_o + half * axis.theta) / sharpness;
-        let step = 1.0 / sqrt(sharpness);
-        let norm = sqrt(lambda_lobe / PI);
-        for (var k = 0u; k < 8u; k++) {
-            // Node k / 2, below the centre for even k and above it for odd k.
-            let theta = centre + select(-1.0, 1.0, (k & 1u) == 1u) * nodes[k / 2u] * step;
-            if (abs(theta) >= HALF_PI) {
-                continue;
-            }
-            let c = cos(theta);
-            let sum = theta + space.theta_o;
-            let s = sin(0.5 * (theta - axis.theta));
-            let gaussians = exp(-lambda_lobe * sum * sum - 2.0 * lambda * s * s);
-            let part = c * c * norm * gaussians / gn_eval(f.material, lobe, -theta) * (weights[k / 2u] * step);
-            let fr = fresnel(f, c);
-            if (lobe == LOBE_R) {
-                out += fr * (part * i0e_f32(lambda * c * axis.h));
-            } else {
-                out += (vec3<f32>(1.0) - fr) * f.c_tt * (part * tt_azimuthal(f, lambda, c, axis));
-            }
-        }
-    }
-    return out;
-}
-
 // One pixel of a segment's PCA-reconstructed SSDF.
 fn ssdf_pixel(e: u32, segment: u32, pixel: u32) -> f32 {
     let base = exemplars[e].pca_offset;
@@ -354,7 +312,8 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32
 // z_l(lambda) of the normalized SG from the C_G table (bake::tables::CgTable::lookup).
 fn cg_lookup(lambda: f32, l: u32) -> f32 {
     let points = fabric.cg_points;
-    let width = arrayLength(&cg_table) / points;
+    // The table's own row length (its order may exceed the transfer's: fiber lobes).
+    let width = fabric.cg_order + 1u;
     let zero_limit = select(0.0, 0.28209479177387814, l == 0u);
     let inf_limit = sqrt(f32(2u * l + 1u) / (4.0 * PI));
     let lambda_min = 1e-4;
@@ -482,93 +441,265 @@ fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<f
     return multiple_from_transferred(segment, wo, &coeffs);
 }
 
-// The largest mean cosine a forward lobe is given (multiple.rs MAX_FORWARD_MEAN_COSINE).
-const MAX_FORWARD_MEAN_COSINE: f32 = 0.999;
 
-// The sharpness of the SG a cell's forward-scattered light is shaded as (multiple.rs
-// forward_sharpness), from its F_0 and forward cosine (each summed over channels): the mean
-// cosine mu = sum(cosine) / (sqrt(4 pi) sum(F_0)), clamped to [0, MAX_FORWARD_MEAN_COSINE],
-// to the vMF concentration mu (3 - mu^2) / (1 - mu^2) (Banerjee et al.). No forward light: 0.
-fn forward_sharpness(forward0: vec3<f32>, forward_cosine: vec3<f32>) -> f32 {
-    let strength = (forward0.x + forward0.y + forward0.z) * sqrt(4.0 * PI);
-    if (!(strength > 0.0)) {
-        return 0.0;
-    }
-    let mu = clamp((forward_cosine.x + forward_cosine.y + forward_cosine.z) / strength, 0.0, MAX_FORWARD_MEAN_COSINE);
-    return mu * (3.0 - mu * mu) / (1.0 - mu * mu);
+// ---- Fiber lobes (BakeSettings::fiber_lobes): multiple.rs lobe_scattering, FiberLobe;
+// gamma.rs LobeAngles, lobe_quadrature. A cell that keeps lobes holds its light as two of
+// them instead of its matrix (the forward chains, then the light reflected at least once),
+// each a strength over light directions (SH at LOBE_SH_ORDER) and a shape in the fiber frame
+// (`lobes` in shared/fabric_data.wgsl, CellTransfer::pack_lobes' layout). Per light, each
+// lobe's strength for the light times its unit shape scattered toward wo by the shaded fiber.
+
+// Where a lobe's light arrives from, per unit strength (gamma.rs LobeAngles): about an axis xi
+// at fiber angles (theta', phi'), L dwi = p(theta_i - theta') v(phi_i - phi') dtheta_i dphi_i,
+// p the Fourier series [c_1, s_1, c_2, s_2, ...] of the longitudinal offset and v a von Mises
+// density of concentration kappa.
+struct LobeAngles {
+    fourier: array<f32, 2u * LOBE_FOURIER_TERMS>,
+    kappa: f32,
 }
 
-// The forward lobe at the shaded point p (exemplar cm): F_j interpolated over the same cells
-// and weights as the transfer (transfer_cells: trilinear between the cells around p, or the
-// segment's own cell where all eight are empty), written to `forward` (its first sh_count
-// entries); returns the sharpness lambda_C of the interpolated lobe (forward_sharpness of the
-// interpolated F_0 and cosine). Read from `forward_lobes` (shared/fabric_data.wgsl); the
-// first half of multiple.rs forward_scattering.
-fn forward_lobe_at(e: u32, segment: u32, p: vec3<f32>, forward: ptr<function, array<vec3<f32>, 49>>) -> f32 {
-    let n = fabric.sh_count;
-    for (var j = 0u; j < n; j++) {
-        (*forward)[j] = vec3<f32>(0.0);
+// p(dtheta) = (1 + 2 sum_k c_k cos k dtheta + s_k sin k dtheta) / 2 pi, clamped at zero
+// (gamma.rs LobeAngles::longitudinal): cos k dtheta and sin k dtheta by the same rotation
+// recurrence.
+fn lobe_longitudinal(angles: ptr<function, LobeAngles>, delta_theta: f32) -> f32 {
+    let s1 = sin(delta_theta);
+    let c1 = cos(delta_theta);
+    var sk = s1;
+    var ck = c1;
+    var v = 1.0;
+    for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
+        v += 2.0 * ((*angles).fourier[2u * k] * ck + (*angles).fourier[2u * k + 1u] * sk);
+        let next = ck * c1 - sk * s1;
+        sk = sk * c1 + ck * s1;
+        ck = next;
     }
-    var cosine = vec3<f32>(0.0);
-    let around = transfer_cells(e, segment, p);
-    for (var k = 0u; k < 8u; k++) {
-        let w = around.weights[k];
-        if (w > 0.0) {
-            let base = around.cells[k] * (n + 1u);
-            for (var j = 0u; j < n; j++) {
-                (*forward)[j] += w * forward_lobes[base + j].xyz;
+    return max(v / (2.0 * PI), 0.0);
+}
+
+// 1 / sqrt(pi): a lobe's normalization sqrt(lambda_X / pi) times the quadrature's node step
+// 1 / sqrt(lambda_X).
+const INV_SQRT_PI: f32 = 0.5641895835477563;
+
+// int L(wi) S(wi, wo) cos(theta_i) dwi for the unit lobe `angles` about unit xi, per RGB channel
+// (gamma.rs lobe_quadrature). The phi_i integrals are exact: S_R's azimuth is uniform (1 / 2 pi
+// against v); S_TT's von Mises about phi = pi times v about phi' gives
+// i0e(r) e^(r - kappa - kappa_TT) / (2 pi i0e(kappa) i0e(kappa_TT)) with
+// r = |kappa e^(i phi') - kappa_TT|, held without cancellation as tt_azimuthal is: r from
+// 1 - cos phi' = (h - xi_b) / h, the exponent -2 kappa kappa_TT (1 + cos phi') / (r + kappa +
+// kappa_TT). The theta_i integral per lobe X is the 8-point Gauss-Hermite rule on the lobe's own
+// Gaussian exp(-lambda_X (theta_i + theta_o)^2): nodes theta_i = -theta_o +- x_k / sqrt(lambda_X),
+// where that Gaussian is exactly e^(-x_k^2) (folded into the plain weights here; the twin keeps
+// the scaled weights and evaluates it), with p, cos(theta_i), Gn and Fresnel exact at each node;
+// nodes at or beyond +-pi/2 count zero.
+fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
+    // Positive nodes of the rule (gamma.rs HERMITE_NODES) and its weights (weight e^(-x^2);
+    // HERMITE_SCALED_WEIGHTS times e^(-x_k^2)).
+    var nodes = array<f32, 4>(0.381186990207322, 1.15719371244678, 1.981656756695843, 2.930637420257244);
+    var weights = array<f32, 4>(0.661147012558241, 0.207802325814892, 0.017077983007413, 0.000199604072211);
+    let axis = sg_axis_in_omega_o_space(space, xi);
+    let kappa = (*angles).kappa;
+    let kappa_tt = f.kappa;
+    var one_plus_cos = 1.0;
+    var one_minus_cos = 1.0;
+    if (axis.h > 0.0) {
+        one_plus_cos = axis.h_plus_b / axis.h;
+        one_minus_cos = axis.h_minus_b / axis.h;
+    }
+    let r = sqrt((kappa - kappa_tt) * (kappa - kappa_tt) + 2.0 * kappa * kappa_tt * one_minus_cos);
+    let deficit = -2.0 * kappa * kappa_tt * one_plus_cos / max(r + kappa + kappa_tt, 1e-30);
+    let tt_azimuth = i0e_f32(r) * exp(deficit) / (2.0 * PI * i0e_f32(kappa) * f.i0e_kappa);
+    var out = vec3<f32>(0.0);
+    for (var lobe = LOBE_R; lobe <= LOBE_TT; lobe++) {
+        let step = 1.0 / sqrt(select(f.lambda_r, f.lambda_tt, lobe == LOBE_TT));
+        var sum = 0.0;
+        var fresnel_sum = vec3<f32>(0.0);
+        for (var k = 0u; k < 8u; k++) {
+            // Node k / 2, below the centre for even k and above it for odd k.
+            let theta = select(-1.0, 1.0, (k & 1u) == 1u) * nodes[k / 2u] * step - space.theta_o;
+            if (abs(theta) >= HALF_PI) {
+                continue;
             }
-            cosine += w * forward_lobes[base + n].xyz;
+            let c = cos(theta);
+            let term = c * lobe_longitudinal(angles, theta - axis.theta) / gn_eval(f.material, lobe, -theta) * weights[k / 2u];
+            sum += term;
+            fresnel_sum += fresnel(f, c) * term;
+        }
+        if (lobe == LOBE_R) {
+            out += fresnel_sum * (INV_SQRT_PI / (2.0 * PI));
+        } else {
+            out += (vec3<f32>(sum) - fresnel_sum) * f.c_tt * (INV_SQRT_PI * tt_azimuth);
         }
     }
-    return forward_sharpness((*forward)[0], cosine);
+    return out;
 }
 
-// Forward-scattered radiance of one light of unit colour toward wo (multiple.rs
-// forward_scattering, its per-light term, without V_glo and the light's colour, which the
-// caller multiplies in): the strength s = sum_j F_j c_j (c the light's SH, light_sh_accumulate
-// with unit weight: Y_j(dir) for a directional light, sqrt(4 pi / (2l + 1)) z_l(lambda_l)
-// Y_j(dir) for an SG light of sharpness lambda_l >= 0; `sharpness` < 0 marks directional),
-// clamped at zero per channel, arrives as a normalized SG about `dir` of sharpness lambda_C
-// (directional) or lambda_C lambda_l / (lambda_C + lambda_l) (SG), scattered as
-// s Gamma(dir, lambda, wo) / M(lambda), Gamma by quadrature (the lobes are broad:
-// sg_bcsdf_gamma_quadrature). `forward` and `lambda_cell` from forward_lobe_at.
-fn forward_scattered(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, forward: ptr<function, array<vec3<f32>, 49>>, lambda_cell: f32) -> vec3<f32> {
-    let order = fabric.sh_order;
-    var y: array<f32, 49>;
-    sh_eval_f32(order, dir, &y);
-    var strength = vec3<f32>(0.0);
-    for (var l = 0u; l <= order; l++) {
-        var scale = 1.0;
-        if (sharpness >= 0.0) {
-            scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
-        }
-        var band = vec3<f32>(0.0);
-        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
-            band += (*forward)[j] * y[j];
-        }
-        strength += scale * band;
+// The fiber lobes around a shaded point: the cells and weights the transfer is interpolated
+// with (transfer_cells, multiple.rs lobe_scattering's cells), the cells without lobes given
+// weight 0, and both lobes' interpolated total strength and shape sums (multiple.rs FiberLobe:
+// the weighted sums of strength[0] over channels and of the shapes). The strengths over light
+// directions stay in the buffer and are read per light (fiber_lobe_strengths), so that
+// 2 x LOBE_SH_COUNT RGB coefficients need not live in every invocation's registers.
+struct FiberLobesAt {
+    around: CellWeights,
+    // Sum over channels of the interpolated strength[0]: forward (x) and reflected (y).
+    total: vec2<f32>,
+    // The interpolated shape sums, forward then reflected, LOBE_SHAPE_LEN each.
+    shapes: array<f32, 2u * LOBE_SHAPE_LEN>,
+}
+
+// Fills `at` for the shaded point p (exemplar cm) of `segment` (multiple.rs lobe_scattering,
+// its first half); false when no cell around p holds lobes (the term is then zero).
+fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLobesAt>) -> bool {
+    (*at).around = transfer_cells(e, segment, p);
+    (*at).total = vec2<f32>(0.0);
+    for (var i = 0u; i < 2u * LOBE_SHAPE_LEN; i++) {
+        (*at).shapes[i] = 0.0;
     }
-    strength = max(strength, vec3<f32>(0.0));
-    if (all(strength == vec3<f32>(0.0))) {
+    var any = false;
+    for (var k = 0u; k < 8u; k++) {
+        let w = (*at).around.weights[k];
+        if (!(w > 0.0)) {
+            continue;
+        }
+        let base = (*at).around.cells[k] * LOBE_PACKED_VEC4S;
+        let forward0 = lobes[base].xyz;
+        let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
+        // A cell without lobes is all zeros; one whose lobes carry no light has no strength
+        // either (each strength[0] sums non-negative shares): both add nothing.
+        if (all(forward0 == vec3<f32>(0.0)) && all(reflected0 == vec3<f32>(0.0))) {
+            (*at).around.weights[k] = 0.0;
+            continue;
+        }
+        any = true;
+        (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
+        let shapes = base + 2u * LOBE_SH_COUNT;
+        for (var q = 0u; q < (2u * LOBE_SHAPE_LEN + 3u) / 4u; q++) {
+            let v = lobes[shapes + q];
+            for (var c = 0u; c < 4u; c++) {
+                let i = 4u * q + c;
+                if (i < 2u * LOBE_SHAPE_LEN) {
+                    (*at).shapes[i] += w * v[c];
+                }
+            }
+        }
+    }
+    return any;
+}
+
+// A light's SH at LOBE_SH_ORDER for unit colour (multiple.rs light_sh at LOBE_SH_ORDER over
+// the light's colour): Y_j(dir) for a directional light (sharpness < 0), sqrt(4 pi / (2l + 1))
+// z_l(lambda) Y_j(dir) for an SG light of sharpness lambda (z_l from the C_G table, whose order
+// the packing checks is at least LOBE_SH_ORDER for a bake with lobes).
+fn lobe_light_sh(dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>>) {
+    sh_eval_f32(LOBE_SH_ORDER, dir, c);
+    if (sharpness >= 0.0) {
+        for (var l = 0u; l <= LOBE_SH_ORDER; l++) {
+            let scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+            for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+                (*c)[j] *= scale;
+            }
+        }
+    }
+}
+
+// Both lobes' strength for the light of SH `c` (FiberLobe::strength_for of the interpolated
+// lobes: sum_j strength_j c_j, the cells' weighted sum taken per cell), per channel, before the
+// clamp at zero: [0] forward, [1] reflected.
+fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<f32, 49>>) -> array<vec3<f32>, 2> {
+    var out = array<vec3<f32>, 2>(vec3<f32>(0.0), vec3<f32>(0.0));
+    for (var k = 0u; k < 8u; k++) {
+        let w = (*at).around.weights[k];
+        if (!(w > 0.0)) {
+            continue;
+        }
+        let base = (*at).around.cells[k] * LOBE_PACKED_VEC4S;
+        var forward = vec3<f32>(0.0);
+        var reflected = vec3<f32>(0.0);
+        for (var j = 0u; j < LOBE_SH_COUNT; j++) {
+            forward += lobes[base + j].xyz * (*c)[j];
+            reflected += lobes[base + LOBE_SH_COUNT + j].xyz * (*c)[j];
+        }
+        out[0] += w * forward;
+        out[1] += w * reflected;
+    }
+    return out;
+}
+
+// Where lobe `lobe` (0 forward, 1 reflected) of `at` brings the light from direction `dir`
+// (sharpness < 0: directional, else an SG of that sharpness) at a fiber of unit tangent t
+// (multiple.rs FiberLobe::angles): writes the axis and the angles' densities and returns true,
+// or false for a lobe without light. The shape's means are its sums over sqrt(4 pi) times the
+// total strength; the azimuth a von Mises density of concentration r (2 - r^2) / (1 - r^2)
+// (r = |mean cos dphi|, clamped to MAX_AZIMUTH_MEAN_COSINE), about the light's azimuth, or the
+// opposite one (the axis mirrored across t) where the mean is negative. An SG light widens both:
+// the Fourier terms are damped by exp(-k^2 / 2 lambda), and kappa combines with the light's own
+// concentration about t, lambda |dir x t|^2 (= lambda (1 - (dir.t)^2), without its f32
+// cancellation near t), as kappa kappa_l / (kappa + kappa_l).
+fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>, sharpness: f32, t: vec3<f32>, axis: ptr<function, vec3<f32>>, angles: ptr<function, LobeAngles>) -> bool {
+    let total = select((*at).total.x, (*at).total.y, lobe == 1u) * sqrt(4.0 * PI);
+    if (!(total > 0.0)) {
+        return false;
+    }
+    let base = lobe * LOBE_SHAPE_LEN;
+    let mean_cos = clamp((*at).shapes[base] / total, -MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
+    let r = abs(mean_cos);
+    var kappa = r * (2.0 - r * r) / (1.0 - r * r);
+    for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
+        (*angles).fourier[i] = (*at).shapes[base + 1u + i] / total;
+    }
+    if (sharpness >= 0.0) {
+        let across = cross(dir, t);
+        let kappa_light = sharpness * dot(across, across);
+        kappa = select(0.0, kappa * kappa_light / (kappa + kappa_light), kappa + kappa_light > 0.0);
+        for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
+            let order = f32(k + 1u);
+            let damping = exp(-order * order / (2.0 * max(sharpness, 1e-30)));
+            (*angles).fourier[2u * k] *= damping;
+            (*angles).fourier[2u * k + 1u] *= damping;
+        }
+    }
+    (*angles).kappa = kappa;
+    *axis = select(dir, 2.0 * dot(dir, t) * t - dir, mean_cos < 0.0);
+    return true;
+}
+
+// The fiber lobes' radiance toward wo for one light of unit colour from `dir` (flat-fabric
+// frame; sharpness < 0: directional, else an SG of that sharpness), without V_glo and the
+// light's colour, which the caller multiplies in (multiple.rs lobe_scattering, its per-light
+// sum): per lobe, s lobe_quadrature(...) with s the lobe's strength for the light clamped at
+// zero per channel. `at` from fiber_lobes_at.
+fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, at: ptr<function, FiberLobesAt>) -> vec3<f32> {
+    var c: array<f32, 49>;
+    lobe_light_sh(dir, sharpness, &c);
+    let strengths = fiber_lobe_strengths(at, &c);
+    let s = segments[segment];
+    let t = normalize(s.direction);
+    let f = fiber_constants(s.material);
+    let space = omega_o_space(t, wo);
+    var out = vec3<f32>(0.0);
+    for (var lobe = 0u; lobe < 2u; lobe++) {
+        let strength = max(strengths[lobe], vec3<f32>(0.0));
+        if (all(strength == vec3<f32>(0.0))) {
+            continue;
+        }
+        var axis: vec3<f32>;
+        var angles: LobeAngles;
+        if (fiber_lobe_angles(at, lobe, dir, sharpness, t, &axis, &angles)) {
+            out += strength * lobe_quadrature(f, space, axis, &angles);
+        }
+    }
+    return out;
+}
+
+// The fiber lobes' radiance of `light` (from direction `dir`, flat-fabric frame) at the shaded
+// point p of `segment` toward wo, with its colour and without V_glo (multiple.rs
+// lobe_scattering for one light of V_glo = 1): fiber_lobes_at and fiber_lobes_light in one.
+// The shading pass calls the two halves itself, to gather the cells once per pixel.
+fn shade_fiber_lobes(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, light: LightGpu, dir: vec3<f32>) -> vec3<f32> {
+    var at: FiberLobesAt;
+    if (!fiber_lobes_at(e, segment, p, &at)) {
         return vec3<f32>(0.0);
     }
-    var lambda = lambda_cell;
-    if (sharpness >= 0.0) {
-        lambda = lambda_cell * sharpness / max(lambda_cell + sharpness, 1e-30);
-    }
-    let s = segments[segment];
-    let space = omega_o_space(normalize(s.direction), wo);
-    return strength * sg_bcsdf_gamma_quadrature(fiber_constants(s.material), space, dir, lambda) / sg_mass_f32(lambda);
-}
-
-// Forward-scattered radiance of `light` (from direction `dir`, flat-fabric frame) at the shaded
-// point p of `segment` toward wo, with its colour and without V_glo (multiple.rs
-// forward_scattering for one light of V_glo = 1): forward_lobe_at and forward_scattered in
-// one. The shading pass calls the two halves itself, to interpolate the lobe once per pixel.
-fn shade_forward(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, light: LightGpu, dir: vec3<f32>) -> vec3<f32> {
-    var forward: array<vec3<f32>, 49>;
-    let lambda_cell = forward_lobe_at(e, segment, p, &forward);
     let sharpness = select(-1.0, light.sharpness, light.kind == LIGHT_SG);
-    return light.color * forward_scattered(segment, wo, dir, sharpness, &forward, lambda_cell);
+    return light.color * fiber_lobes_light(segment, wo, dir, sharpness, &at);
 }

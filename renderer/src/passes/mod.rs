@@ -461,7 +461,7 @@ mod tests {
                 &shared,
                 rust_struct!(FabricHeaderGpu; exemplar_count, sh_order, sh_count, svf_resolution,
                     pca_components, sos_count, sos_sharpness, cs_theta_count, cg_points, gn_intervals,
-                    pattern_width, pattern_height, block_size, z_range),
+                    pattern_width, pattern_height, block_size, z_range, cg_order),
             ),
             (
                 "ExemplarGpu",
@@ -491,7 +491,7 @@ mod tests {
             sigma_glo_cm: 0.05,
             spp: 2,
             uniform_frame: false,
-            forward_lobe: false,
+            fiber_lobes: false,
         };
         let lights = [
             PlanLight::Directional { to_light: [0.0, 0.6, 0.8] },
@@ -504,7 +504,7 @@ mod tests {
         // The blended SG light needs both SG paths; the directional light the SSDF sign; the
         // curved shell's shadow maps the global visibility; no cell transfer with shadows.
         assert!(v.single && v.multiple && v.ssdf_sign && v.sum_of_sg && v.ssdf_erf);
-        assert!(v.global_visibility && !v.frame_transfer && !v.forward_lobe);
+        assert!(v.global_visibility && !v.frame_transfer && !v.fiber_lobes);
         // Exactly what the plan's own switches say.
         assert_eq!(v.ssdf_sign, plan.uses(crate::plan::LocalVisibility::SsdfSign));
         assert_eq!(v.sum_of_sg, plan.uses(crate::plan::LocalVisibility::SumOfSg));

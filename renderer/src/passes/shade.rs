@@ -1,5 +1,5 @@
 //! Deferred shading (paper 5.2, 5.3), once per sample: single scattering from the SG and
-//! directional lights and multiple scattering from the IIRTF (and each light's forward lobe,
+//! directional lights and multiple scattering from the IIRTF (and each light's fiber lobes,
 //! for a bake that has them), per G-buffer pixel, added to the accumulation buffer.
 //!
 //! How it works: the pipeline is specialized by WGSL override constants from the plan's
@@ -58,8 +58,8 @@ pub struct ShadeVariant {
     pub ssdf_erf: bool,
     pub global_visibility: bool,
     pub frame_transfer: bool,
-    /// Each light's forward lobe (the bake has them; `ENABLE_FORWARD_LOBE`).
-    pub forward_lobe: bool,
+    /// Each light's fiber lobes (the bake has them; `ENABLE_FIBER_LOBES`).
+    pub fiber_lobes: bool,
 }
 
 impl ShadeVariant {
@@ -67,7 +67,7 @@ impl ShadeVariant {
     /// both SG paths.
     #[must_use]
     pub fn of(pass: &Pass) -> Option<Self> {
-        let Pass::Shade { single, multiple, paths, global_visibility, cell_transfer, forward_lobe } = pass
+        let Pass::Shade { single, multiple, paths, global_visibility, cell_transfer, fiber_lobes } = pass
         else {
             return None;
         };
@@ -82,7 +82,7 @@ impl ShadeVariant {
             ssdf_erf: uses(LocalVisibility::SsdfErf),
             global_visibility: *global_visibility,
             frame_transfer: *cell_transfer,
-            forward_lobe: *multiple && *forward_lobe,
+            fiber_lobes: *multiple && *fiber_lobes,
         })
     }
 }
@@ -211,7 +211,7 @@ impl ShadePass {
                     ("ENABLE_SSDF_ERF", flag(variant.ssdf_erf)),
                     ("ENABLE_GLOBAL_VISIBILITY", flag(variant.global_visibility)),
                     ("ENABLE_FRAME_TRANSFER", flag(variant.frame_transfer)),
-                    ("ENABLE_FORWARD_LOBE", flag(variant.forward_lobe)),
+                    ("ENABLE_FIBER_LOBES", flag(variant.fiber_lobes)),
                 ];
                 compute_pipeline(device, "twill.shade.pipeline", &module, Some(&pipeline_layout), &constants)
             })
