@@ -17,9 +17,13 @@
 //!
 //! The IIRTF entries are kept as the bake stores them (f32; rounding them again when merging
 //! changes nothing), and empty cells (no segments, no paths) without entries, as in a bake file.
-//! Part files use the bake file container (`file.rs`: magic, version, checksum, atomic writes),
-//! keyed by [`inputs_key`]; a part of other inputs, a missing or repeated shard, or a slice that
-//! does not match its shard is an error naming the file.
+//! With fiber lobes (`BakeSettings::fiber_lobes`) every nonempty cell's flag says whether it
+//! keeps its lobes (its matrix is then zero), and each cell that does has its forward strength
+//! and cosine, its reflected strength and its two shapes in sections of their own
+//! ([`write_part`]). Part files use the bake file container (`file.rs`: magic, version,
+//! checksum, atomic writes), keyed by [`inputs_key`], which holds [`PART_LAYOUT_VERSION`]; a
+//! part of an older layout, of other inputs, a missing or repeated shard, or a slice that does
+//! not match its shard is an error naming the file.
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -27,16 +31,23 @@ use std::path::{Path, PathBuf};
 use super::Cancel;
 use super::cells::CellGrid;
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, ContentHash, Hasher};
-use super::iirtf::{CellTransfer, IirtfOptions, bake_iirtf_cells};
+use super::iirtf::{CellTransfer, IirtfOptions, LOBE_SH_ORDER, LOBE_SHAPE_LEN, bake_iirtf_cells};
 use super::pattern::PatternMap;
 use super::pipeline::{
     BakeError, BakeInputs, BakeProgress, BakeSet, Precomputed, Stage, bake_precomputed, yarn_materials,
 };
 use super::svf::{VisibilityImages, render_segments};
 use crate::raycast::{Extent, FiberScene, mean_free_path};
+use crate::sh::sh_count;
 
 /// Most shards of one bake.
 pub const MAX_SHARDS: usize = 4096;
+
+/// Version of the part file's layout: in its header (`layout`, absent in version 1) and in
+/// [`inputs_key`], so a part of another layout is refused (2: the fiber lobes, each kept
+/// cell's forward and reflected strength, forward cosine and two shapes, where version 1 held
+/// a forward lobe of n coefficients and a cosine).
+pub const PART_LAYOUT_VERSION: u32 = 2;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -145,7 +156,7 @@ pub struct BakePart {
 /// When the materials or settings cannot be serialized.
 pub fn inputs_key(inputs: &[BakeInputs<'_>]) -> Result<ContentHash, BakeError> {
     let mut h = Hasher::new("twill.bake_part");
-    h.usize(inputs.len());
+    h.u32(PART_LAYOUT_VERSION).usize(inputs.len());
     for input in inputs {
         let serialize =
             |e: toml::ser::Error| BakeError::Serialize { stage: "part key", message: e.to_string() };
@@ -276,13 +287,25 @@ pub fn merge_parts(
 
 /// Writes `part` atomically, with `record`: what the caller needs to rebuild the inputs.
 ///
+/// Sections: `part` (the header: shard, exemplar count, [`PART_LAYOUT_VERSION`]) and
+/// `record`, then per exemplar `e{i}.`: `segments`, `resolution` and `images` (the visibility
+/// images' bits), `cells`, `paths` (per cell), `entries` (n² of a nonempty cell), `matrix` and
+/// `std_error` (RGB f32 per entry of every nonempty cell), `lobes` (per nonempty cell, 1 where
+/// it keeps its fiber lobes), and for each cell that does: `forward` (its forward strength,
+/// RGB per coefficient at `LOBE_SH_ORDER`, then its forward cosine), `reflected` (its
+/// reflected strength) and `shapes` (its forward shape, then its reflected shape).
+///
 /// # Errors
 /// When the file cannot be written.
 pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), ShardError> {
     let key = part.key;
     let bytes = |b: Vec<u8>| Array::vector(ArrayData::U8(b));
     let u32s = |v: Vec<u32>| Array::vector(ArrayData::U32(v));
-    let header = format!("shard = \"{}\"\nexemplars = {}\n", part.shard, part.exemplars.len());
+    let header = format!(
+        "shard = \"{}\"\nexemplars = {}\nlayout = {PART_LAYOUT_VERSION}\n",
+        part.shard,
+        part.exemplars.len()
+    );
     let mut writer = BakeWriter::new(key).section("part", key, bytes(header.into_bytes())).section(
         "record",
         key,
@@ -290,14 +313,16 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
     );
     for (e, x) in part.exemplars.iter().enumerate() {
         let range = |r: &Range<usize>| u32s(vec![r.start as u32, r.end as u32]);
-        let (mut matrix, mut error, mut forward, mut lobes) =
-            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut matrix, mut error, mut lobes) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut forward, mut reflected, mut shapes) = (Vec::new(), Vec::new(), Vec::new());
         for cell in x.transfer.iter().filter(|c| c.paths > 0) {
             matrix.extend(cell.matrix.iter().flatten());
             error.extend(cell.std_error.iter().flatten());
             lobes.push(u32::from(cell.has_lobes()));
             if cell.has_lobes() {
                 forward.extend(cell.forward.iter().flatten().chain(&cell.forward_cosine));
+                reflected.extend(cell.reflected.iter().flatten());
+                shapes.extend(cell.forward_shape.iter().chain(&cell.reflected_shape));
             }
         }
         let entries = x.transfer.iter().find(|c| !c.is_empty()).map_or(0, |c| c.matrix.len()) as u32;
@@ -313,7 +338,9 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
             .section(&format!("e{e}.matrix"), key, Array::vector(ArrayData::F32(matrix)))
             .section(&format!("e{e}.std_error"), key, Array::vector(ArrayData::F32(error)))
             .section(&format!("e{e}.lobes"), key, u32s(lobes))
-            .section(&format!("e{e}.forward"), key, Array::vector(ArrayData::F32(forward)));
+            .section(&format!("e{e}.forward"), key, Array::vector(ArrayData::F32(forward)))
+            .section(&format!("e{e}.reflected"), key, Array::vector(ArrayData::F32(reflected)))
+            .section(&format!("e{e}.shapes"), key, Array::vector(ArrayData::F32(shapes)));
     }
     writer.write(path)?;
     Ok(())
@@ -351,6 +378,13 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
         .and_then(toml::Value::as_str)
         .ok_or_else(|| bad("section \"part\" names no shard".into()))?;
     let shard = Shard::parse(shard).map_err(|e| bad(e.to_string()))?;
+    let layout = header.get("layout").map_or(Some(1), toml::Value::as_integer);
+    if layout != Some(i64::from(PART_LAYOUT_VERSION)) {
+        return Err(bad(format!(
+            "a part file of layout {}, this build reads layout {PART_LAYOUT_VERSION}: bake the shard again",
+            layout.map_or_else(|| "?".to_owned(), |l| l.to_string())
+        )));
+    }
     let count =
         header.get("exemplars").and_then(toml::Value::as_integer).filter(|&n| (1..=4096).contains(&n));
     let count = count.ok_or_else(|| bad("section \"part\": exemplars must be 1..=4096".into()))? as usize;
@@ -389,26 +423,30 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
             )));
         }
         let rgb = |v: &[f32]| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        // Forward lobes: which nonempty cells hold one (1) or none (0), and for each that does
-        // n = √entries coefficients and the cosine.
-        let (lobes, forward) = (u32s(&format!("e{e}.lobes"))?, f32s(&format!("e{e}.forward"))?);
-        let n = entries.isqrt();
-        let per_cell = 3 * (n + 1);
-        let with_lobe = lobes.iter().filter(|&&l| l == 1).count();
+        // Fiber lobes: which nonempty cells keep them (1) or not (0), and for each that does
+        // its forward strength and cosine, its reflected strength and its two shapes.
+        let lobes = u32s(&format!("e{e}.lobes"))?;
+        let forward = f32s(&format!("e{e}.forward"))?;
+        let reflected = f32s(&format!("e{e}.reflected"))?;
+        let shapes = f32s(&format!("e{e}.shapes"))?;
+        let lobe_n = 3 * sh_count(LOBE_SH_ORDER);
+        let kept = lobes.iter().filter(|&&l| l == 1).count();
         if lobes.len() != nonempty
             || lobes.iter().any(|&l| l > 1)
-            || (with_lobe > 0 && n * n != entries)
-            || forward.len() != per_cell * with_lobe
+            || forward.len() != (lobe_n + 3) * kept
+            || reflected.len() != lobe_n * kept
+            || shapes.len() != 2 * LOBE_SHAPE_LEN * kept
         {
             return Err(bad(format!(
-                "e{e}: {} lobe flags ({with_lobe} set) and {} forward-lobe values for {nonempty} cells of {entries} entries",
+                "e{e}: {} lobe flags ({kept} set) and {}, {} and {} forward, reflected and shape values for {nonempty} cells",
                 lobes.len(),
-                forward.len()
+                forward.len(),
+                reflected.len(),
+                shapes.len()
             )));
         }
         let mut lobe_flags = lobes.iter();
-        let mut lobe_at = 0;
-        let mut at = 0;
+        let (mut lobe_at, mut at) = (0, 0);
         let transfer = paths
             .iter()
             .map(|&p| {
@@ -417,21 +455,23 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
                 }
                 let range = 3 * entries * at..3 * entries * (at + 1);
                 at += 1;
-                let (forward, forward_cosine) = if lobe_flags.next() == Some(&1) {
-                    let lobe = &forward[per_cell * lobe_at..per_cell * (lobe_at + 1)];
-                    lobe_at += 1;
-                    (rgb(&lobe[..3 * n]), [lobe[3 * n], lobe[3 * n + 1], lobe[3 * n + 2]])
-                } else {
-                    (Vec::new(), [0.0; 3])
-                };
-                CellTransfer {
+                let mut cell = CellTransfer {
                     matrix: rgb(&matrix[range.clone()]),
                     std_error: rgb(&error[range]),
                     paths: p as usize,
-                    forward,
-                    forward_cosine,
                     ..CellTransfer::empty()
+                };
+                if lobe_flags.next() == Some(&1) {
+                    let f = &forward[(lobe_n + 3) * lobe_at..(lobe_n + 3) * (lobe_at + 1)];
+                    let s = &shapes[2 * LOBE_SHAPE_LEN * lobe_at..2 * LOBE_SHAPE_LEN * (lobe_at + 1)];
+                    cell.forward = rgb(&f[..lobe_n]);
+                    cell.forward_cosine = [f[lobe_n], f[lobe_n + 1], f[lobe_n + 2]];
+                    cell.reflected = rgb(&reflected[lobe_n * lobe_at..lobe_n * (lobe_at + 1)]);
+                    cell.forward_shape = s[..LOBE_SHAPE_LEN].to_vec();
+                    cell.reflected_shape = s[LOBE_SHAPE_LEN..].to_vec();
+                    lobe_at += 1;
                 }
+                cell
             })
             .collect();
         exemplars.push(ExemplarPart { segments, images, cells, transfer });
@@ -466,7 +506,7 @@ mod tests {
             voxels_per_fiber_diameter: 0.5,
             mfp_samples: 400,
             seed: 5,
-            forward_lobe: false,
+            fiber_lobes: false,
         }
     }
 
@@ -532,20 +572,23 @@ mod tests {
 
     #[test]
     fn merged_parts_are_the_single_process_bake_byte_for_byte_whatever_the_split() {
-        for forward_lobe in [false, true] {
-            merged_parts_are_the_single_process_bake(forward_lobe);
+        for fiber_lobes in [false, true] {
+            merged_parts_are_the_single_process_bake(fiber_lobes);
         }
     }
 
-    fn merged_parts_are_the_single_process_bake(forward_lobe: bool) {
+    fn merged_parts_are_the_single_process_bake(fiber_lobes: bool) {
         let (exemplar, materials) = tiny();
-        let settings = BakeSettings { fiber_lobes: forward_lobe, ..settings() };
+        let settings = BakeSettings { fiber_lobes, ..settings() };
         let inputs = [BakeInputs { exemplar: &exemplar, materials: &materials, settings }];
         let dir = tempfile::tempdir().unwrap();
         let whole = bake_set(&inputs, PatternMap::uniform(0), None, &Cancel::new(), &|_, _| {}).unwrap();
-        let lobes =
-            whole.exemplars[0].baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count();
-        assert_eq!(lobes > 0, forward_lobe, "{lobes} cells with a forward lobe");
+        let cells = &whole.exemplars[0].baked.transfer.iirtf.cells;
+        let lobes = cells.iter().filter(|c| c.has_lobes()).count();
+        let folded = cells.iter().filter(|c| !c.is_empty() && !c.has_lobes()).count();
+        assert_eq!(lobes > 0, fiber_lobes, "{lobes} cells with fiber lobes");
+        // With lobes, both kinds of cell go through the parts.
+        assert!(folded > 0, "{folded} cells without lobes");
         let whole_path = dir.path().join("whole.twillbake");
         write_bake(&whole_path, &whole).unwrap();
         let whole_bytes = std::fs::read(&whole_path).unwrap();
@@ -567,7 +610,7 @@ mod tests {
             write_bake(&path, &merged).unwrap();
             assert!(
                 std::fs::read(&path).unwrap() == whole_bytes,
-                "{count} shards (forward lobes {forward_lobe}): the merged bake differs"
+                "{count} shards (fiber lobes {fiber_lobes}): the merged bake differs"
             );
         }
     }
@@ -604,5 +647,16 @@ mod tests {
         write_bake(&bake_path, &whole).unwrap();
         let message = read_part(&bake_path).unwrap_err().to_string();
         assert!(message.contains("not a part file"), "{message}");
+        // A part of the layout before the fiber lobes (no `layout` in its header).
+        let old = dir.path().join("old.twillpart");
+        let header = b"shard = \"0/1\"\nexemplars = 1\n".to_vec();
+        let key = three[0].key;
+        BakeWriter::new(key)
+            .section("part", key, Array::vector(ArrayData::U8(header)))
+            .section("record", key, Array::vector(ArrayData::U8(Vec::new())))
+            .write(&old)
+            .unwrap();
+        let message = read_part(&old).unwrap_err().to_string();
+        assert!(message.contains("old.twillpart") && message.contains("layout 1"), "{message}");
     }
 }
