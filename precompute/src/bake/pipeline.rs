@@ -89,11 +89,14 @@ impl Stage {
     }
 }
 
-/// Code version of each stage, in [`Stage::ALL`] order: part of every cache key.
-pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 4, 1, 1, 1, 2];
+/// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (transfer 5:
+/// the fiber lobes, `CellTransfer::reflected` and the two shapes, and a kept cell's zero
+/// matrix).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 5, 1, 1, 1, 2];
 
-/// Version of the serialized layout of [`Baked`] (part of the whole-file key).
-pub const BAKE_LAYOUT_VERSION: u32 = 3;
+/// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
+/// lobes' fields of `CellTransfer`).
+pub const BAKE_LAYOUT_VERSION: u32 = 4;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -395,8 +398,10 @@ pub fn recolour_basis(
 }
 
 /// Version of the recolouring basis's code and layout: part of its cache key (8: the forward
-/// lobes, `RecolourBasis::forward_lobe`; 9: their per-cell fold, the forward chains' own matrix).
-const RECOLOUR_VERSION: u32 = 9;
+/// lobes, `RecolourBasis::forward_lobe`; 9: their per-cell fold, the forward chains' own matrix;
+/// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
+/// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell).
+const RECOLOUR_VERSION: u32 = 10;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
