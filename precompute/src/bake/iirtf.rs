@@ -117,9 +117,10 @@ pub struct CellTransfer {
 }
 
 /// SH order of the fiber lobes' strength over light directions (`BakeSettings::fiber_lobes`),
-/// whatever the transfer's order: the silk satin's reflected strength is peaked about the
-/// normal, and order 4 held it 40% low head-on where order 6 is within 7%
-/// (`docs/BENCHMARKS.md`). The highest the SH rotation and the GPU hold.
+/// whatever the transfer's order: the strength is a function of the light's direction alone,
+/// and peaked on the silk satin (over the 100 hard configurations, order 6 instead of 4 cut
+/// the CPU method's multiple-scattering error from 19.3% to 17.2%, `docs/BENCHMARKS.md`). The
+/// highest the SH rotation and the GPU hold.
 pub const LOBE_SH_ORDER: usize = crate::sh::EULER_MAX_ORDER;
 
 /// Fourier terms of a lobe's longitudinal shape: enough for offsets of about 15 degrees (a
