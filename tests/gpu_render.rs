@@ -876,18 +876,19 @@ fn a_material_rebake_is_written_in_place_and_renders_as_a_new_renderer_would() {
     assert_eq!(unchanged, after);
 }
 
-/// A bake with forward lobes (`forward_lobe`), recoloured in place from its basis: the live
-/// write puts each cell's matrix and forward lobe on the GPU from one evaluation (the basis
-/// decides per cell whether its forward light folds into the matrix at the new colours), and
-/// the picture is exactly the one the whole-bake path gives for the same recolouring.
+/// A bake with fiber lobes (`fiber_lobes`), recoloured in place from its basis: the live write
+/// puts each cell's matrix and lobes on the GPU from one evaluation (`RecolourBasis::write_cell`
+/// in `CellTransfer::pack_lobes`' layout; the basis decides per cell whether it keeps lobes at
+/// the new colours or folds them into its matrix), and the picture is exactly the one the
+/// whole-bake path gives for the same recolouring.
 #[test]
-fn live_recolouring_writes_forward_lobes_in_place() {
+fn live_recolouring_writes_fiber_lobes_in_place() {
     use twill_precompute::Rgb;
     use twill_precompute::bake::iirtf::CellTransfer;
     use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
     use twill_precompute::bake::settings::BakeSettings;
     use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
-    let Some(gpu) = Gpu::for_test("live_recolouring_writes_forward_lobes_in_place") else {
+    let Some(gpu) = Gpu::for_test("live_recolouring_writes_fiber_lobes_in_place") else {
         return;
     };
     let scene0 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
@@ -896,7 +897,7 @@ fn live_recolouring_writes_forward_lobes_in_place() {
     let before = bake(&inputs0[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
     let lobes = |b: &Baked| b.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count();
     let cells = before.transfer.iirtf.cells.iter().filter(|c| !c.is_empty()).count();
-    assert!(lobes(&before) > 0 && lobes(&before) < cells, "{} of {cells} cells keep a lobe", lobes(&before));
+    assert!(lobes(&before) > 0 && lobes(&before) < cells, "{} of {cells} cells keep lobes", lobes(&before));
     let basis = recolour_basis(&inputs0[0], None, &Cancel::new(), &|_| {}).expect("basis");
     let recolour = |m: &MaterialDesc, c_tt: Rgb| match *m {
         MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_tt, ..p }),
@@ -913,9 +914,9 @@ fn live_recolouring_writes_forward_lobes_in_place() {
     let pattern = PatternMap::uniform(0);
     let mut session = SceneRenderer::with_gpu(gpu, &scene0, &[&before], &pattern).expect("scene uploads");
     let written = session.renderer.recolour(0, &basis, &scene1.material_descs).expect("recolours");
-    assert_eq!(written, ["materials", "cs_table", "iirtf", "forward_lobes"]);
+    assert_eq!(written, ["materials", "cs_table", "iirtf", "lobes"]);
     let live = session.render(&scene1, &settings).expect("frame renders");
-    assert!(live.plan.forward_lobe, "the recoloured cells keep lobes: {}", live.plan);
+    assert!(live.plan.fiber_lobes, "the recoloured cells keep lobes: {}", live.plan);
     let live = live.radiance_image();
     assert!(live.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     let preview = bake_material_preview(&inputs1[0], &before, Some(&basis), None, &Cancel::new(), &|_, _| {})
