@@ -98,6 +98,7 @@ pub fn prelude() -> String {
         use twill_precompute::bake::iirtf::{
             LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
         };
+        use twill_precompute::shading::gamma::{LOBE_NODES, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
         let _ =
             writeln!(out, "const LOBE_SH_COUNT: u32 = {}u;", twill_precompute::sh::sh_count(LOBE_SH_ORDER));
@@ -107,12 +108,45 @@ pub fn prelude() -> String {
         #[allow(clippy::cast_possible_truncation)]
         let max_cos = twill_precompute::shading::multiple::MAX_AZIMUTH_MEAN_COSINE as f32;
         let _ = writeln!(out, "const MAX_AZIMUTH_MEAN_COSINE: f32 = {max_cos:?};");
+        // Jackson's factors of Fourier terms 1..=LOBE_FOURIER_TERMS (gamma.rs jackson_factor).
+        #[allow(clippy::cast_possible_truncation)]
+        let jackson: Vec<String> = (1..=LOBE_FOURIER_TERMS)
+            .map(|k| {
+                format!(
+                    "{:?}",
+                    twill_precompute::shading::gamma::jackson_factor(k, LOBE_FOURIER_TERMS) as f32
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "const LOBE_JACKSON: array<f32, {LOBE_FOURIER_TERMS}> = array<f32, {LOBE_FOURIER_TERMS}>({});",
+            jackson.join(", ")
+        );
+        // lobe_quadrature's θi rule: Gauss–Legendre on [−1, 1] over ±LOBE_WINDOW deviations.
+        #[allow(clippy::cast_possible_truncation)]
+        let window = LOBE_WINDOW as f32;
+        let _ = writeln!(out, "const LOBE_WINDOW: f32 = {window:?};");
+        let _ = writeln!(out, "const LOBE_NODES: u32 = {LOBE_NODES}u;");
+        let pairs = twill_precompute::quadrature::gauss_legendre_pairs(LOBE_NODES);
+        for (name, values) in [
+            ("LOBE_LEGENDRE_NODES", pairs.iter().map(|p| p.0).collect::<Vec<_>>()),
+            ("LOBE_LEGENDRE_WEIGHTS", pairs.iter().map(|p| p.1).collect()),
+        ] {
+            #[allow(clippy::cast_possible_truncation)]
+            let values: Vec<String> = values.iter().map(|v| format!("{:?}", *v as f32)).collect();
+            let _ = writeln!(
+                out,
+                "const {name}: array<f32, {LOBE_NODES}> = array<f32, {LOBE_NODES}>({});",
+                values.join(", ")
+            );
+        }
     }
     out
 }
 
 // `LOBE_PACKED_VEC4S` is a whole number of vec4s, and the lobes fit the shaders' SH arrays.
-const _: () = assert!(twill_precompute::bake::iirtf::LOBE_PACKED_FLOATS % 4 == 0);
+const _: () = assert!(twill_precompute::bake::iirtf::LOBE_PACKED_FLOATS.is_multiple_of(4));
 const _: () = assert!(twill_precompute::bake::iirtf::LOBE_SH_ORDER <= crate::fabric_data::MAX_SH_ORDER);
 
 /// The `#import`s of `source`, in order.

@@ -476,26 +476,18 @@ fn lobe_longitudinal(angles: ptr<function, LobeAngles>, delta_theta: f32) -> f32
     return max(v / (2.0 * PI), 0.0);
 }
 
-// 1 / sqrt(pi): a lobe's normalization sqrt(lambda_X / pi) times the quadrature's node step
-// 1 / sqrt(lambda_X).
-const INV_SQRT_PI: f32 = 0.5641895835477563;
-
 // int L(wi) S(wi, wo) cos(theta_i) dwi for the unit lobe `angles` about unit xi, per RGB channel
 // (gamma.rs lobe_quadrature). The phi_i integrals are exact: S_R's azimuth is uniform (1 / 2 pi
 // against v); S_TT's von Mises about phi = pi times v about phi' gives
 // i0e(r) e^(r - kappa - kappa_TT) / (2 pi i0e(kappa) i0e(kappa_TT)) with
 // r = |kappa e^(i phi') - kappa_TT|, held without cancellation as tt_azimuthal is: r from
 // 1 - cos phi' = (h - xi_b) / h, the exponent -2 kappa kappa_TT (1 + cos phi') / (r + kappa +
-// kappa_TT). The theta_i integral per lobe X is the 8-point Gauss-Hermite rule on the lobe's own
-// Gaussian exp(-lambda_X (theta_i + theta_o)^2): nodes theta_i = -theta_o +- x_k / sqrt(lambda_X),
-// where that Gaussian is exactly e^(-x_k^2) (folded into the plain weights here; the twin keeps
-// the scaled weights and evaluates it), with p, cos(theta_i), Gn and Fresnel exact at each node;
-// nodes at or beyond +-pi/2 count zero.
+// kappa_TT). The theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
+// the lobe's Gaussian exp(-lambda_X (theta_i + theta_o)^2) out to LOBE_WINDOW deviations either
+// side, clipped to [-pi/2, pi/2], with p, cos(theta_i), Gn and Fresnel exact at each node. The
+// interval is held in the offset theta_i + theta_o (the twin's theta_i minus its centre), which
+// f32 keeps exact where the window is not clipped.
 fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
-    // Positive nodes of the rule (gamma.rs HERMITE_NODES) and its weights (weight e^(-x^2);
-    // HERMITE_SCALED_WEIGHTS times e^(-x_k^2)).
-    var nodes = array<f32, 4>(0.381186990207322, 1.15719371244678, 1.981656756695843, 2.930637420257244);
-    var weights = array<f32, 4>(0.661147012558241, 0.207802325814892, 0.017077983007413, 0.000199604072211);
     let axis = sg_axis_in_omega_o_space(space, xi);
     let kappa = (*angles).kappa;
     let kappa_tt = f.kappa;
@@ -508,26 +500,35 @@ fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles:
     let r = sqrt((kappa - kappa_tt) * (kappa - kappa_tt) + 2.0 * kappa * kappa_tt * one_minus_cos);
     let deficit = -2.0 * kappa * kappa_tt * one_plus_cos / max(r + kappa + kappa_tt, 1e-30);
     let tt_azimuth = i0e_f32(r) * exp(deficit) / (2.0 * PI * i0e_f32(kappa) * f.i0e_kappa);
+    var nodes = LOBE_LEGENDRE_NODES;
+    var weights = LOBE_LEGENDRE_WEIGHTS;
     var out = vec3<f32>(0.0);
     for (var lobe = LOBE_R; lobe <= LOBE_TT; lobe++) {
-        let step = 1.0 / sqrt(select(f.lambda_r, f.lambda_tt, lobe == LOBE_TT));
+        let lambda_lobe = select(f.lambda_r, f.lambda_tt, lobe == LOBE_TT);
+        let reach = LOBE_WINDOW * sqrt(0.5 / lambda_lobe);
+        let lo = max(-reach, -HALF_PI + space.theta_o);
+        let hi = min(reach, HALF_PI + space.theta_o);
+        if (hi <= lo) {
+            continue;
+        }
+        let mid = 0.5 * (hi + lo);
+        let half = 0.5 * (hi - lo);
+        let norm = sqrt(lambda_lobe / PI);
         var sum = 0.0;
         var fresnel_sum = vec3<f32>(0.0);
-        for (var k = 0u; k < 8u; k++) {
-            // Node k / 2, below the centre for even k and above it for odd k.
-            let theta = select(-1.0, 1.0, (k & 1u) == 1u) * nodes[k / 2u] * step - space.theta_o;
-            if (abs(theta) >= HALF_PI) {
-                continue;
-            }
+        for (var k = 0u; k < LOBE_NODES; k++) {
+            let offset = mid + half * nodes[k];
+            let theta = offset - space.theta_o;
             let c = cos(theta);
-            let term = c * lobe_longitudinal(angles, theta - axis.theta) / gn_eval(f.material, lobe, -theta) * weights[k / 2u];
+            let term = c * norm * exp(-lambda_lobe * offset * offset) * lobe_longitudinal(angles, theta - axis.theta)
+                / gn_eval(f.material, lobe, -theta) * (weights[k] * half);
             sum += term;
             fresnel_sum += fresnel(f, c) * term;
         }
         if (lobe == LOBE_R) {
-            out += fresnel_sum * (INV_SQRT_PI / (2.0 * PI));
+            out += fresnel_sum / (2.0 * PI);
         } else {
-            out += (vec3<f32>(sum) - fresnel_sum) * f.c_tt * (INV_SQRT_PI * tt_azimuth);
+            out += (vec3<f32>(sum) - fresnel_sum) * f.c_tt * tt_azimuth;
         }
     }
     return out;
@@ -629,7 +630,7 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
 // (sharpness < 0: directional, else an SG of that sharpness) at a fiber of unit tangent t
 // (multiple.rs FiberLobe::angles): writes the axis and the angles' densities and returns true,
 // or false for a lobe without light. The shape's means are its sums over sqrt(4 pi) times the
-// total strength; the azimuth a von Mises density of concentration r (2 - r^2) / (1 - r^2)
+// total strength, the longitudinal ones smoothed by Jackson's factors (LOBE_JACKSON); the azimuth a von Mises density of concentration r (2 - r^2) / (1 - r^2)
 // (r = |mean cos dphi|, clamped to MAX_AZIMUTH_MEAN_COSINE), about the light's azimuth, or the
 // opposite one (the axis mirrored across t) where the mean is negative. An SG light widens both:
 // the Fourier terms are damped by exp(-k^2 / 2 lambda), and kappa combines with the light's own
@@ -644,8 +645,10 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     let mean_cos = clamp((*at).shapes[base] / total, -MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
     let r = abs(mean_cos);
     var kappa = r * (2.0 - r * r) / (1.0 - r * r);
+    // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
+    // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
-        (*angles).fourier[i] = (*at).shapes[base + 1u + i] / total;
+        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[base + 1u + i] / total;
     }
     if (sharpness >= 0.0) {
         let across = cross(dir, t);
