@@ -147,14 +147,6 @@ pub fn gamma_in_omega_o_space(
         + (Rgb::ONE - fiber.fresnel(cos_tt)) * fiber.c_tt * (tt.weight * b_tt)
 }
 
-/// Positive nodes x_k of the 8-point Gauss–Hermite rule (weight `e^{−x²}`), and its weights
-/// times `e^{x_k²}`, so that `∫ f dx ≈ Σ_k w_k e^{x_k²} f(±x_k)` for an integrand `f` that
-/// is a Gaussian times a slowly varying factor.
-const HERMITE_NODES: [f64; 4] =
-    [0.381_186_990_207_322, 1.157_193_712_446_78, 1.981_656_756_695_843, 2.930_637_420_257_244];
-const HERMITE_SCALED_WEIGHTS: [f64; 4] =
-    [0.764_544_128_651_728_8, 0.792_890_048_386_401_2, 0.866_752_606_563_357_3, 1.071_930_144_246_006_3];
-
 /// The light a fiber lobe brings (`shading::multiple`'s fiber lobes), per unit strength, over
 /// the angles of its arrival direction ωi in the shaded fiber's frame, about an axis ξ at
 /// (θ', φ'): `L(ωi) dωi = p(θi − θ') v(φi − φ') dθi dφi` with
@@ -170,6 +162,25 @@ pub struct LobeAngles {
 }
 
 impl LobeAngles {
+    /// The unit lobe whose offset has the means `means = [E cos Δθ, E sin Δθ, E cos 2Δθ, …]`
+    /// and azimuthal concentration `kappa`, its Fourier series smoothed by Jackson's factors
+    /// ([`jackson_factor`]): cut after K terms, the series of a sharp density rings below
+    /// zero (an offset 5° wide, cut at 12 terms, loses a third of its mass to the clamp), while
+    /// the series smoothed by a non-negative kernel about 180°/(K+1) wide is itself a density.
+    #[must_use]
+    pub fn from_means(means: &[f64], kappa: f64) -> Self {
+        let terms = means.len() / 2;
+        let fourier = means
+            .chunks_exact(2)
+            .enumerate()
+            .flat_map(|(k, m)| {
+                let g = jackson_factor(k + 1, terms);
+                [g * m[0], g * m[1]]
+            })
+            .collect();
+        Self { fourier, kappa }
+    }
+
     /// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
     #[must_use]
     pub fn longitudinal(&self, delta_theta: f64) -> f64 {
@@ -184,14 +195,39 @@ impl LobeAngles {
     }
 }
 
+/// Half-width, in the fiber lobe's standard deviations, of the θi interval
+/// [`lobe_quadrature`] integrates over (the Gaussian is e^{−12.5} of its peak there).
+pub const LOBE_WINDOW: f64 = 5.0;
+
+/// Nodes on [−1, 1] of [`lobe_quadrature`]'s Gauss–Legendre rule.
+pub const LOBE_NODES: usize = 12;
+
+static LOBE_LEGENDRE: std::sync::LazyLock<Vec<(f64, f64)>> =
+    std::sync::LazyLock::new(|| crate::quadrature::gauss_legendre_pairs(LOBE_NODES));
+
+/// Jackson's damping factor of Fourier term k of a series cut after `terms` terms (Weiße et
+/// al. 2006, the kernel polynomial method): `((N − k) cos(πk/N) + sin(πk/N) cot(π/N)) / N`
+/// with N = terms + 1. The factors make the cut series a convolution with a non-negative
+/// kernel, so a non-negative density stays non-negative and keeps its integral; 1 at k = 0,
+/// falling smoothly to 0 past the last term.
+#[must_use]
+pub fn jackson_factor(k: usize, terms: usize) -> f64 {
+    let n = (terms + 1) as f64;
+    let k = k as f64;
+    let a = PI / n;
+    ((n - k) * (a * k).cos() + (a * k).sin() / a.tan()) / n
+}
+
 /// `∫ L(ωi) S(ωi, ωo) cos θi dωi` for the unit lobe `angles` about unit `xi` ([`LobeAngles`]),
 /// per RGB channel: unit tangent `t`, unit view direction `wo`. The φi integrals are exact:
 /// S_R's azimuth is uniform, so its integral against `v` is `1/2π`; S_TT's von Mises about
 /// φ = π times `v` about φ' integrates to `I0(|κ e^{iφ'} − κ_TT|) / (2π I0(κ) I0(κ_TT))`, held
 /// scaled and without cancellation as Γ's TT factor is (module docs). The θi integral, per lobe
-/// X, is an 8-point Gauss–Hermite rule on the lobe's own Gaussian `exp(−λ_X (θi + θo)²)` (its
-/// width sets the scale; `p` varies over about 15 degrees), with `p`, `cos θi`, Gn and Fresnel
-/// exact at each node; nodes beyond ±π/2 count zero. Finite and non-negative for any lobe.
+/// X, is a [`LOBE_NODES`]-point Gauss–Legendre rule over the lobe's own Gaussian
+/// `exp(−λ_X (θi + θo)²)` within [`LOBE_WINDOW`] standard deviations, clipped to [−π/2, π/2]
+/// (a Gauss–Hermite rule lost its nodes past the pole at grazing views: 12% off on the
+/// fleece), with `p`, `cos θi`, Gn and Fresnel exact at each node. Finite and non-negative for
+/// any lobe.
 #[must_use]
 pub fn lobe_quadrature(
     fiber: &FiberConstants,
@@ -216,27 +252,27 @@ pub fn lobe_quadrature(
     let tt_azimuth = i0e(r) * deficit.exp() / (2.0 * PI * i0e(kappa) * fiber.i0e_kappa);
     let mut out = Rgb::ZERO;
     for (lobe, lambda_lobe) in [(LOBE_R, fiber.lambda_r), (LOBE_TT, fiber.lambda_tt)] {
-        let centre = -axis.theta_o;
-        let step = 1.0 / lambda_lobe.sqrt();
+        // The lobe's Gaussian exp(−λ_X (θi + θo)²) over ±LOBE_WINDOW standard deviations,
+        // clipped to [−π/2, π/2] where the integrand ends.
+        let sigma = (0.5 / lambda_lobe).sqrt();
+        let lo = (-axis.theta_o - LOBE_WINDOW * sigma).max(-FRAC_PI_2);
+        let hi = (-axis.theta_o + LOBE_WINDOW * sigma).min(FRAC_PI_2);
+        if hi <= lo {
+            continue;
+        }
+        let (mid, half) = (0.5 * (hi + lo), 0.5 * (hi - lo));
         let norm = (lambda_lobe / PI).sqrt();
         let mut sum = 0.0_f64;
         let mut fresnel = Rgb::ZERO;
-        for (x, w) in HERMITE_NODES.iter().zip(HERMITE_SCALED_WEIGHTS) {
-            for theta in [centre - x * step, centre + x * step] {
-                if theta.abs() >= FRAC_PI_2 {
-                    continue;
-                }
-                let cos = theta.cos();
-                let offset = theta + axis.theta_o;
-                let term = cos
-                    * norm
-                    * (-lambda_lobe * offset * offset).exp()
-                    * angles.longitudinal(theta - axis.theta)
-                    / gn.eval(fiber.material, lobe, -theta)
-                    * (w * step);
-                sum += term;
-                fresnel += fiber.fresnel(cos) * term;
-            }
+        for &(x, w) in LOBE_LEGENDRE.iter() {
+            let theta = mid + half * x;
+            let cos = theta.cos();
+            let offset = theta + axis.theta_o;
+            let term = cos * norm * (-lambda_lobe * offset * offset).exp() * angles.longitudinal(theta - axis.theta)
+                / gn.eval(fiber.material, lobe, -theta)
+                * (w * half);
+            sum += term;
+            fresnel += fiber.fresnel(cos) * term;
         }
         out += if lobe == LOBE_R {
             fresnel / (2.0 * PI)

@@ -235,9 +235,9 @@ impl FiberLobe {
     }
 
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
-    /// ξ its angles are measured from and their densities ([`LobeAngles`]), or `None` for a
-    /// lobe without light. The shape's means are its sums over `√(4π) Σ strength[0]` (the
-    /// total weight). The azimuth: a von Mises density of concentration
+    /// ξ its angles are measured from and their densities ([`LobeAngles`], the longitudinal
+    /// series smoothed by [`LobeAngles::from_means`]), or `None` for a lobe without light. The
+    /// shape's means are its sums over `√(4π) Σ strength[0]` (the total weight). The azimuth: a von Mises density of concentration
     /// `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s estimate from the mean resultant
     /// r = |mean cos Δφ|, clamped to [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth,
     /// or about the opposite one (ξ mirrored across the fiber axis) where the mean is
@@ -255,7 +255,8 @@ impl FiberLobe {
         let mean_cos = (self.shape[0] / total).clamp(-MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
         let r = mean_cos.abs();
         let mut kappa = r * (2.0 - r * r) / (1.0 - r * r);
-        let mut fourier: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
+        let means: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
+        let LobeAngles { mut fourier, .. } = LobeAngles::from_means(&means, 0.0);
         let axis = match *light {
             Light::Directional { to_light, .. } => to_light,
             Light::Sg { axis, sharpness, .. } => {
