@@ -822,31 +822,15 @@ fn fiber_lobes_match_their_rust_twin() {
         FabricData::upload(&gpu.device, &gpu.queue, &[baked], &PatternMap::uniform(0)).expect("upload");
     assert!(fabric.arrays.has_lobes());
     let library = format!("{}\n{DECODE}\n{LOBES_DECODE}", shaders::shared_library());
-    // A directional light exactly along ±t has no azimuth φ' about the fiber, yet the lobe's
-    // von Mises term depends on it (κ > 0): each side takes its own rounding's φ', so these
-    // cases are only checked for finite, non-negative light. An SG light along t narrows κ to
-    // 0 (its azimuthal concentration λ|ξ × t|² vanishes) and compares.
-    let (lobe_cases, along): (Vec<Case>, Vec<Case>) = cases(baked, &[-1.0, 2.0, 30.0, 300.0, 2000.0])
-        .into_iter()
-        .partition(|c| c.lambda >= 0.0 || !matches!(c.axis_code, 1000 | 1001));
+    // Lights exactly along ±t included: the lobe's azimuthal concentration fades as
+    // 1 − (ξ·t)² there (FiberLobe::angles), so both twins take κ = 0 where φ' is undefined.
+    let lobe_cases = cases(baked, &[-1.0, 2.0, 30.0, 300.0, 2000.0]);
     let inputs: Vec<[f32; 4]> = lobe_cases.iter().map(Case::input).collect();
     let started = std::time::Instant::now();
     let gpu_lobes = gpu
         .evaluate_with_fabric(&library, "lobes_case(input)", &inputs, Some(&fabric))
         .expect("GPU evaluation");
     eprintln!("fiber lobes: {} GPU cases in {:.2} s", inputs.len(), started.elapsed().as_secs_f64());
-    let along_inputs: Vec<[f32; 4]> = along.iter().map(Case::input).collect();
-    let gpu_along = gpu
-        .evaluate_with_fabric(&library, "lobes_case(input)", &along_inputs, Some(&fabric))
-        .expect("GPU evaluation");
-    for (c, g) in along.iter().zip(&gpu_along) {
-        assert!(
-            g.iter().all(|v| v.is_finite() && *v >= 0.0),
-            "segment {}: {g:?} for a light along t",
-            c.segment
-        );
-    }
-    eprintln!("fiber lobes: {} cases of a directional light along ±t finite and non-negative", along.len());
     let cpu_lobes: Vec<Rgb> = lobe_cases
         .iter()
         .map(|c| {

@@ -650,9 +650,12 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
         (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[base + 1u + i] / total;
     }
+    // A light along the fiber has no azimuth about it (multiple.rs FiberLobe::angles).
+    let across_vec = cross(dir, t);
+    let across = dot(across_vec, across_vec);
+    kappa *= across;
     if (sharpness >= 0.0) {
-        let across = cross(dir, t);
-        let kappa_light = sharpness * dot(across, across);
+        let kappa_light = sharpness * across;
         kappa = select(0.0, kappa * kappa_light / (kappa + kappa_light), kappa + kappa_light > 0.0);
         for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
             let order = f32(k + 1u);

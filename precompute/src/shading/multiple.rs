@@ -241,7 +241,9 @@ impl FiberLobe {
     /// `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s estimate from the mean resultant
     /// r = |mean cos Δφ|, clamped to [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth,
     /// or about the opposite one (ξ mirrored across the fiber axis) where the mean is
-    /// negative: reflected light arrives mostly from the far side. An SG light of sharpness
+    /// negative: reflected light arrives mostly from the far side. κ is scaled by
+    /// `1 − (ξ·t)²`: a light along the fiber has no azimuth about it, and the model stays
+    /// continuous where φ' stops being defined. An SG light of sharpness
     /// λ widens both densities: its own longitudinal spread (variance 1/λ) multiplies the
     /// Fourier terms by `exp(−k²/2λ)`, and its azimuthal concentration about t,
     /// `κ_l = λ (1 − (ξ·t)²)`, combines as `κ κ_l / (κ + κ_l)` (von Mises convolution's usual
@@ -257,10 +259,18 @@ impl FiberLobe {
         let mut kappa = r * (2.0 - r * r) / (1.0 - r * r);
         let means: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
         let LobeAngles { mut fourier, .. } = LobeAngles::from_means(&means, 0.0);
-        let axis = match *light {
-            Light::Directional { to_light, .. } => to_light,
-            Light::Sg { axis, sharpness, .. } => {
-                let kappa_light = sharpness * (1.0 - axis.dot(t).powi(2)).max(0.0);
+        let (axis, sharpness) = match *light {
+            Light::Directional { to_light, .. } => (to_light, None),
+            Light::Sg { axis, sharpness, .. } => (axis, Some(sharpness)),
+        };
+        // A light along the fiber has no azimuth about it: the concentration fades with the
+        // axis's distance from t (continuous where φ' stops being defined).
+        let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
+        kappa *= across;
+        let axis = match sharpness {
+            None => axis,
+            Some(sharpness) => {
+                let kappa_light = sharpness * across;
                 kappa =
                     if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
                 for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
