@@ -580,8 +580,8 @@ fn bake_stages(
     };
 
     let gn = stage_runner.run(Stage::GnTables, keys.gn, || Ok(GnTable::new(inputs.materials)?))?;
-    let cg =
-        stage_runner.run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.light_sh_order(), CG_DEFAULT_POINTS)?))?;
+    let cg = stage_runner
+        .run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.light_sh_order(), CG_DEFAULT_POINTS)?))?;
 
     let volume = stage_runner.run(Stage::Volume, keys.volume, || {
         let (vpd, occupancy) = fit_resolution(inputs.exemplar, s.voxels_per_fiber_diameter)?;

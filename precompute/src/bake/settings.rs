@@ -105,7 +105,7 @@ impl Quality {
                 voxels_per_fiber_diameter: 2.0,
                 mfp_samples: 20_000,
                 seed: 1,
-                fiber_lobes: false,
+                fiber_lobes: true,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,

@@ -268,9 +268,10 @@ pub fn lobe_quadrature(
             let theta = mid + half * x;
             let cos = theta.cos();
             let offset = theta + axis.theta_o;
-            let term = cos * norm * (-lambda_lobe * offset * offset).exp() * angles.longitudinal(theta - axis.theta)
-                / gn.eval(fiber.material, lobe, -theta)
-                * (w * half);
+            let term =
+                cos * norm * (-lambda_lobe * offset * offset).exp() * angles.longitudinal(theta - axis.theta)
+                    / gn.eval(fiber.material, lobe, -theta)
+                    * (w * half);
             sum += term;
             fresnel += fiber.fresnel(cos) * term;
         }

@@ -529,9 +529,9 @@ fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() 
     }
     assert!(raw_negative, "the unsmoothed series rings below zero (what the smoothing is for)");
     // Its peak sits at the offsets' centre, and it falls away from it.
-    let peak = (0..=600).map(|i| -0.3 + 0.001 * f64::from(i)).max_by(|a, b| {
-        angles.longitudinal(*a).total_cmp(&angles.longitudinal(*b))
-    });
+    let peak = (0..=600)
+        .map(|i| -0.3 + 0.001 * f64::from(i))
+        .max_by(|a, b| angles.longitudinal(*a).total_cmp(&angles.longitudinal(*b)));
     assert!(peak.is_some_and(|p| p.abs() < 0.01), "peak at {peak:?}");
     assert!(angles.longitudinal(0.0) > 3.0 * angles.longitudinal(0.6));
 }
