@@ -57,7 +57,8 @@ fn draft_bake(file: &SceneFile) -> Baked {
     let inputs = BakeInputs {
         exemplar: &scene.exemplar,
         materials: &scene.material_descs,
-        settings: Quality::Draft.settings(),
+        // The SH transfer alone: the fiber lobes have their own bake (`lobe_bake`).
+        settings: BakeSettings { fiber_lobes: false, ..Quality::Draft.settings() },
     };
     bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
 }

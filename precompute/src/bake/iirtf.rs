@@ -1012,8 +1012,14 @@ mod tests {
         (exemplar, yarn)
     }
 
+    /// Small draft settings with the SH transfer alone (the tests of the lobes set them on).
     fn small_settings(paths: usize, order: usize) -> BakeSettings {
-        BakeSettings { iirtf_paths_per_cell: paths, sh_order: order, ..Quality::Draft.settings() }
+        BakeSettings {
+            iirtf_paths_per_cell: paths,
+            sh_order: order,
+            fiber_lobes: false,
+            ..Quality::Draft.settings()
+        }
     }
 
     #[test]

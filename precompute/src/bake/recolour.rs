@@ -1430,6 +1430,8 @@ mod tests {
             iirtf_paths_per_cell: paths,
             sh_order: order,
             cs_theta_count: 16,
+            // The SH transfer alone; the lobe tests set them on.
+            fiber_lobes: false,
             ..Quality::Draft.settings()
         }
     }
