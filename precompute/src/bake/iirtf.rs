@@ -110,7 +110,7 @@ pub struct CellTransfer {
     /// cell's paths, each weighted by the connection's forward share (summed over channels)
     /// and divided by the paths: `cos Δφ`, then `cos kΔθ`, `sin kΔθ` for k = 1..=
     /// [`LOBE_FOURIER_TERMS`]. Over `√(4π) Σ forward[0]`, the means the lobe is shaded with
-    /// (`shading::multiple::LobeShape`). Empty without lobes.
+    /// ([`crate::shading::multiple::FiberLobe::angles`]). Empty without lobes.
     pub forward_shape: Vec<f32>,
     /// As `forward_shape`, for the reflected light.
     pub reflected_shape: Vec<f32>,
@@ -176,6 +176,40 @@ impl FiberOffset {
             shape[2 + 2 * k] += weight * sk;
             (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
         }
+    }
+}
+
+/// A light connection's SH over ω0, for the matrix (order L) and, with fiber lobes, for their
+/// strengths ([`LOBE_SH_ORDER`]): one evaluation at the higher order serves both, since
+/// [`sh_eval`]'s first (L+1)² values are order L's whatever the order asked for.
+pub(crate) struct ConnectionSh {
+    values: Vec<f64>,
+    matrix_len: usize,
+    order: usize,
+}
+
+impl ConnectionSh {
+    pub(crate) fn new(order: usize, lobes: bool) -> Self {
+        let order_evaluated = if lobes { LOBE_SH_ORDER.max(order) } else { order };
+        Self {
+            values: vec![0.0; sh_count(order_evaluated)],
+            matrix_len: sh_count(order),
+            order: order_evaluated,
+        }
+    }
+
+    pub(crate) fn eval(&mut self, dir: DVec3) {
+        sh_eval(self.order, dir, &mut self.values);
+    }
+
+    /// The (L+1)² values the matrix takes.
+    pub(crate) fn matrix(&self) -> &[f64] {
+        &self.values[..self.matrix_len]
+    }
+
+    /// The `sh_count(LOBE_SH_ORDER)` values a lobe's strength takes (only with lobes).
+    pub(crate) fn lobe(&self) -> &[f64] {
+        &self.values[..sh_count(LOBE_SH_ORDER).min(self.values.len())]
     }
 }
 
@@ -882,6 +916,16 @@ pub fn forward_lobe_min_sharpness(order: usize) -> f64 {
 /// the lobe's constant term.
 pub const FORWARD_LOBE_BAND_DIVISOR: f64 = 6.0;
 
+/// Whether a cell at SH order `order` keeps its light in its matrix rather than in fiber
+/// lobes, from its forward (0) coefficient and forward cosine: their sharpness
+/// ([`forward_sharpness`]) below [`forward_lobe_min_sharpness`]. The sharpness is a ratio of
+/// the two, so they may be sums or means alike. The bake's rule, which the recolouring basis
+/// applies at its colours (`recolour::forward_lobe_folds`).
+#[must_use]
+pub fn folds_lobes(order: usize, forward0: Rgb, forward_cosine: Rgb) -> bool {
+    crate::shading::multiple::forward_sharpness(forward0, forward_cosine) < forward_lobe_min_sharpness(order)
+}
+
 /// One cell's transfer from `paths` paths. With `lobes` (`BakeSettings::fiber_lobes`), every
 /// light connection also goes to the two lobes' sums, split into its forward-chain share and
 /// the rest: their strength over ω0 (SH at [`LOBE_SH_ORDER`]) and their shape
@@ -905,10 +949,9 @@ fn bake_cell(
     }
     let mut sum = vec![Rgb::ZERO; n * n];
     let mut sum2 = vec![Rgb::ZERO; n * n];
-    let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
+    let (mut y0, mut y1) = (ConnectionSh::new(order, lobes), vec![0.0; n]);
     let mut light = vec![Rgb::ZERO; n];
     let lobe_n = if lobes { sh_count(LOBE_SH_ORDER) } else { 0 };
-    let mut y_lobe = vec![0.0; lobe_n];
     let mut forward = vec![Rgb::ZERO; lobe_n];
     let mut reflected = vec![Rgb::ZERO; lobe_n];
     let mut forward_cosine = Rgb::ZERO;
@@ -925,14 +968,13 @@ fn bake_cell(
         light.fill(Rgb::ZERO);
         let tangent = sampler.tangent(s.segment);
         for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
-            sh_eval(order, *to_light, &mut y0);
-            for (l, y) in light.iter_mut().zip(&y0) {
+            y0.eval(*to_light);
+            for (l, y) in light.iter_mut().zip(y0.matrix()) {
                 *l += *weight * *y;
             }
             if lobes {
                 let rest = *weight - *share;
-                sh_eval(LOBE_SH_ORDER, *to_light, &mut y_lobe);
-                for ((f, r), y) in forward.iter_mut().zip(reflected.iter_mut()).zip(&y_lobe) {
+                for ((f, r), y) in forward.iter_mut().zip(reflected.iter_mut()).zip(y0.lobe()) {
                     *f += *share * *y;
                     *r += rest * *y;
                 }
@@ -953,9 +995,7 @@ fn bake_cell(
     }
     tick(paths % CHECK_EVERY);
     let count = paths as f64;
-    let keeps_lobes = lobes
-        && crate::shading::multiple::forward_sharpness(forward[0] / count, forward_cosine / count)
-            >= forward_lobe_min_sharpness(order);
+    let keeps_lobes = lobes && !folds_lobes(order, forward[0] / count, forward_cosine / count);
     let to_f32 = |v: Rgb| v.as_vec3().to_array();
     if keeps_lobes {
         let lobe = |v: &[Rgb]| v.iter().map(|f| to_f32(*f / count)).collect();

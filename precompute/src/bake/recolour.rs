@@ -84,8 +84,8 @@
 use super::cells::CellGrid;
 use super::cs_table::{CsTable, CsTableError};
 use super::iirtf::{
-    CHECK_EVERY, ColourFreeSample, FiberOffset, IirtfError, IirtfOptions, LOBE_PACKED_FLOATS, LOBE_SH_ORDER,
-    LOBE_SHAPE_LEN, LightDomain, TransferSampler, for_each_cell,
+    CHECK_EVERY, ColourFreeSample, ConnectionSh, FiberOffset, IirtfError, IirtfOptions, LOBE_PACKED_FLOATS,
+    LOBE_SH_ORDER, LOBE_SHAPE_LEN, LightDomain, TransferSampler, for_each_cell,
 };
 use super::settings::BakeSettings;
 use super::{Cancel, Progress};
@@ -315,16 +315,13 @@ impl EntryLayout {
     }
 }
 
-/// Whether a cell at SH order `order` folds its forward chains into its matrix, from its
-/// forward (0) coefficient and forward cosine: the bake's rule (`bake_cell` in
-/// [`super::iirtf`]), a sharpness ([`crate::shading::multiple::forward_sharpness`]) below
-/// [`super::iirtf::forward_lobe_min_sharpness`]. The sharpness is a ratio of the two, so they
-/// may be sums or means alike.
+/// Whether a cell at SH order `order` folds its lobes into its matrix, from its forward (0)
+/// coefficient and forward cosine as a `CellTransfer` or the basis holds them (f32): the
+/// bake's rule, [`super::iirtf::folds_lobes`].
 #[must_use]
 pub fn forward_lobe_folds(order: usize, forward0: [f32; 3], forward_cosine: [f32; 3]) -> bool {
     let rgb = |v: [f32; 3]| glam::Vec3::from(v).as_dvec3();
-    let lambda = crate::shading::multiple::forward_sharpness(rgb(forward0), rgb(forward_cosine));
-    lambda < super::iirtf::forward_lobe_min_sharpness(order)
+    super::iirtf::folds_lobes(order, rgb(forward0), rgb(forward_cosine))
 }
 
 /// The pole ρ of a curve (module docs) from its value I and slope I' at a = 1:
@@ -834,7 +831,7 @@ fn same_paths_cell(
     let mut shapes = [vec![0.0_f64; LOBE_SHAPE_LEN], vec![0.0_f64; LOBE_SHAPE_LEN]];
     // The path's light-side sums (Σ factor · Y_j(ω0)).
     let mut light = vec![[0.0_f64; 3]; n];
-    let (mut y0, mut y1, mut y_lobe) = (vec![0.0; n], vec![0.0; n], vec![0.0; lobe_n]);
+    let (mut y0, mut y1) = (ConnectionSh::new(order, lobes), vec![0.0; n]);
     let mut sample = ColourFreeSample::default();
     for p in 0..paths {
         if p % CHECK_EVERY == CHECK_EVERY - 1 && !tick(CHECK_EVERY) {
@@ -853,16 +850,15 @@ fn same_paths_cell(
                     factor[ch] *= tau[ch].powi(k) * (1.0 + (c_r[ch] - COLOUR_FREE_C_R) * r_log[s]);
                 }
             }
-            sh_eval(order, to_light, &mut y0);
-            for (x, y) in light.iter_mut().zip(&y0) {
+            y0.eval(to_light);
+            for (x, y) in light.iter_mut().zip(y0.matrix()) {
                 for ch in 0..3 {
                     x[ch] += factor[ch] * y;
                 }
             }
             if lobes {
                 let lobe = usize::from(!sample.forward[l]);
-                sh_eval(LOBE_SH_ORDER, to_light, &mut y_lobe);
-                for (x, y) in strengths[lobe].iter_mut().zip(&y_lobe) {
+                for (x, y) in strengths[lobe].iter_mut().zip(y0.lobe()) {
                     for ch in 0..3 {
                         x[ch] += factor[ch] * y;
                     }
@@ -994,8 +990,7 @@ fn bake_cell_basis(
     // The path's transfer at a0: the matrix's light-side sums and the lobes' entries.
     let mut light_a0 = vec![0.0_f64; n];
     let mut lobes_a0 = vec![0.0_f64; entries - n2];
-    let (mut y0, mut y1) = (vec![0.0; n], vec![0.0; n]);
-    let mut y_lobe = vec![0.0; if lobes { LOBE_N } else { 0 }];
+    let (mut y0, mut y1) = (ConnectionSh::new(order, lobes), vec![0.0; n]);
     let mut terms = [0.0_f64; LOBE_SHAPE_LEN];
     let mut sample = ColourFreeSample::default();
     let a0 = EXPANSION_ALBEDO;
@@ -1016,7 +1011,7 @@ fn bake_cell_basis(
             let k_i32 = k.min(i32::MAX as u32) as i32;
             let counts = &sample.tt_events[l * slots..(l + 1) * slots];
             let r_log = &sample.r_log_derivative[l * slots..(l + 1) * slots];
-            sh_eval(order, to_light, &mut y0);
+            y0.eval(to_light);
             // The connection's lobe: its strength's and shape's entries, and a forward chain's
             // cosine (relative to the lobes' first entry).
             let (strength, shape_at, cosine) = if !lobes {
@@ -1027,7 +1022,6 @@ fn bake_cell_basis(
                 (layout.reflected(), layout.reflected_shape(), None)
             };
             if lobes {
-                sh_eval(LOBE_SH_ORDER, to_light, &mut y_lobe);
                 terms.fill(0.0);
                 FiberOffset::new(tangent, to_light, sample.view).accumulate(1.0, &mut terms);
             }
@@ -1037,12 +1031,12 @@ fn bake_cell_basis(
                     return;
                 }
                 touched[row] = true;
-                for (x, y) in light[row * n..(row + 1) * n].iter_mut().zip(&y0) {
+                for (x, y) in light[row * n..(row + 1) * n].iter_mut().zip(y0.matrix()) {
                     *x += c * y;
                 }
                 if lobe && lobes {
                     let out = &mut sum[row * entries..(row + 1) * entries];
-                    for (x, y) in out[strength.clone()].iter_mut().zip(&y_lobe) {
+                    for (x, y) in out[strength.clone()].iter_mut().zip(y0.lobe()) {
                         *x += c * y;
                     }
                     for (x, t) in out[shape_at.clone()].iter_mut().zip(&terms) {
@@ -1085,11 +1079,11 @@ fn bake_cell_basis(
                     add(rows.mixed_r_gradient(class - slots, s), at_a0 * r_log[s], false);
                 }
             }
-            for (t, y) in light_a0.iter_mut().zip(&y0) {
+            for (t, y) in light_a0.iter_mut().zip(y0.matrix()) {
                 *t += at_a0 * y;
             }
             if lobes {
-                for (t, y) in lobes_a0[strength.start - n2..strength.end - n2].iter_mut().zip(&y_lobe) {
+                for (t, y) in lobes_a0[strength.start - n2..strength.end - n2].iter_mut().zip(y0.lobe()) {
                     *t += at_a0 * y;
                 }
                 for (t, x) in lobes_a0[shape_at.start - n2..shape_at.end - n2].iter_mut().zip(&terms) {

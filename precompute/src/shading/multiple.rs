@@ -237,15 +237,15 @@ impl FiberLobe {
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
     /// ξ its angles are measured from and their densities ([`LobeAngles`], the longitudinal
     /// series smoothed by [`LobeAngles::from_means`]), or `None` for a lobe without light. The
-    /// shape's means are its sums over `√(4π) Σ strength[0]` (the total weight). The azimuth: a von Mises density of concentration
-    /// `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s estimate from the mean resultant
-    /// r = |mean cos Δφ|, clamped to [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth,
-    /// or about the opposite one (ξ mirrored across the fiber axis) where the mean is
-    /// negative: reflected light arrives mostly from the far side. κ is scaled by
-    /// `1 − (ξ·t)²`: a light along the fiber has no azimuth about it, and the model stays
-    /// continuous where φ' stops being defined. An SG light of sharpness
-    /// λ widens both densities: its own longitudinal spread (variance 1/λ) multiplies the
-    /// Fourier terms by `exp(−k²/2λ)`, and its azimuthal concentration about t,
+    /// shape's means are its sums over `√(4π) Σ strength[0]` (the total weight). The azimuth:
+    /// a von Mises density of concentration `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s
+    /// estimate from the mean resultant r = |mean cos Δφ|, clamped to
+    /// [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth, or about the opposite one (ξ
+    /// mirrored across the fiber axis) where the mean is negative: reflected light arrives
+    /// mostly from the far side. κ is scaled by `1 − (ξ·t)²`: a light along the fiber has no
+    /// azimuth about it, and the model stays continuous where φ' stops being defined. An SG
+    /// light of sharpness λ widens both densities: its own longitudinal spread (variance 1/λ)
+    /// multiplies the Fourier terms by `exp(−k²/2λ)`, and its azimuthal concentration about t,
     /// `κ_l = λ (1 − (ξ·t)²)`, combines as `κ κ_l / (κ + κ_l)` (von Mises convolution's usual
     /// approximation).
     #[must_use]
@@ -256,9 +256,6 @@ impl FiberLobe {
         }
         let mean_cos = (self.shape[0] / total).clamp(-MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
         let r = mean_cos.abs();
-        let mut kappa = r * (2.0 - r * r) / (1.0 - r * r);
-        let means: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
-        let LobeAngles { mut fourier, .. } = LobeAngles::from_means(&means, 0.0);
         let (axis, sharpness) = match *light {
             Light::Directional { to_light, .. } => (to_light, None),
             Light::Sg { axis, sharpness, .. } => (axis, Some(sharpness)),
@@ -266,21 +263,18 @@ impl FiberLobe {
         // A light along the fiber has no azimuth about it: the concentration fades with the
         // axis's distance from t (continuous where φ' stops being defined).
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
-        kappa *= across;
-        let axis = match sharpness {
-            None => axis,
-            Some(sharpness) => {
-                let kappa_light = sharpness * across;
-                kappa =
-                    if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
-                for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
-                    let damping = (-((k + 1) as f64).powi(2) / (2.0 * sharpness)).exp();
-                    term[0] *= damping;
-                    term[1] *= damping;
-                }
-                axis
+        let mut kappa = r * (2.0 - r * r) / (1.0 - r * r) * across;
+        let means: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
+        let LobeAngles { mut fourier, .. } = LobeAngles::from_means(&means, 0.0);
+        if let Some(sharpness) = sharpness {
+            let kappa_light = sharpness * across;
+            kappa = if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
+            for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
+                let damping = (-((k + 1) as f64).powi(2) / (2.0 * sharpness)).exp();
+                term[0] *= damping;
+                term[1] *= damping;
             }
-        };
+        }
         let axis = if mean_cos < 0.0 { 2.0 * axis.dot(t) * t - axis } else { axis };
         debug_assert_eq!(fourier.len(), 2 * LOBE_FOURIER_TERMS);
         Some((axis, LobeAngles { fourier, kappa }))
