@@ -112,6 +112,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     // The shaded point in the exemplar's coordinates (as the G-buffer pass found it).
     let z = fabric.z_range.x + clamp(uvw.z, 0.0, 1.0) * (fabric.z_range.y - fabric.z_range.x);
     let p = vec3<f32>(uvw.xy, z);
+    // The visibility image of the point along the segment nearest p.
+    let image = visibility_image(e, segment, p);
 
     var radiance = vec3<f32>(0.0);
     // Zero, as every WGSL var starts (no loop: unused when the frame's cell transfer is read).
@@ -136,14 +138,14 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             var single = vec3<f32>(0.0);
             if (light.kind == LIGHT_DIRECTIONAL) {
                 if (ENABLE_SSDF_SIGN) {
-                    single = shade_single_directional(e, segment, wo, dir);
+                    single = shade_single_directional(e, segment, image, wo, dir);
                 }
             } else {
                 if (ENABLE_SUM_OF_SG && light.w_sum_of_sg > 0.0) {
-                    single += light.w_sum_of_sg * shade_single_sg_sum_of_sg(e, segment, wo, dir, light.sharpness);
+                    single += light.w_sum_of_sg * shade_single_sg_sum_of_sg(e, segment, image, wo, dir, light.sharpness);
                 }
                 if (ENABLE_SSDF_ERF && light.w_ssdf_erf > 0.0) {
-                    single += light.w_ssdf_erf * shade_single_sg_ssdf_erf(e, segment, wo, dir, light.sharpness);
+                    single += light.w_ssdf_erf * shade_single_sg_ssdf_erf(e, segment, image, wo, dir, light.sharpness);
                 }
             }
             radiance += v_sharp * light.color * single;

@@ -218,7 +218,7 @@ fn diagnose_directional_single_scattering_visibility() {
     let fibers = &scene.path_scene.fibers;
     let segments = fibers.segments();
     let n = baked.settings.svf_resolution;
-    let images = render_exemplar(&scene.exemplar, n, &Cancel::new(), &|_| {}).unwrap();
+    let images = render_exemplar(&scene.exemplar, n, 1, &Cancel::new(), &|_| {}).unwrap();
     let ssdf = ssdf_all(&images, &Cancel::new()).unwrap();
     let exact_ssdf = compress(&ssdf, n * n, n * n, 1, &Cancel::new()).unwrap();
     let variants: Vec<(&str, Box<VisibilityTest>)> = vec![

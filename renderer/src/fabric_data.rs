@@ -67,7 +67,10 @@ pub struct FabricHeaderGpu {
     /// transfer's `sh_order`, or [`LOBE_SH_ORDER`] when the bake has fiber lobes
     /// (`BakeSettings::light_sh_order`).
     pub cg_order: u32,
-    pub pad: [u32; 3],
+    /// Visibility points per segment (`VisibilityData::points`): `pca_coefficients` and
+    /// `sos_weights` hold that many images per segment.
+    pub visibility_points: u32,
+    pub pad: [u32; 2],
 }
 const _: () = assert!(size_of::<FabricHeaderGpu>() == 80);
 
@@ -106,11 +109,16 @@ const _: () = assert!(size_of::<ExemplarGpu>() == 112);
 pub struct SegmentGpu {
     pub direction: [f32; 3],
     pub material: u32,
+    /// Midpoint (exemplar coordinates, cm) and half length: where along the segment a shaded
+    /// point lies, to pick its visibility image (`VisibilityData::segment_axes`).
+    pub midpoint: [f32; 3],
+    pub half_length: f32,
     pub cell: u32,
+    /// The sum-of-SGs rotation, shared by the segment's visibility points.
     pub sos_rotation: f32,
     pub pad: [u32; 2],
 }
-const _: () = assert!(size_of::<SegmentGpu>() == 32);
+const _: () = assert!(size_of::<SegmentGpu>() == 48);
 
 /// Twin of `MaterialGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
@@ -222,6 +230,7 @@ impl FabricArrays {
         let sh_count = (sh_order + 1) * (sh_order + 1);
         let dims = first.visibility.ssdf.dims;
         let components = first.visibility.ssdf.component_count;
+        let visibility_points = first.visibility.points;
         let sos_count = first.visibility.sum_of_sg.count;
         let theta_count = settings.cs_theta_count;
         let mut out = Self {
@@ -259,7 +268,9 @@ impl FabricArrays {
                 && baked.visibility.ssdf.dims == dims
                 && baked.visibility.ssdf.component_count == components
                 && baked.visibility.sum_of_sg.count == sos_count
-                && baked.settings.cs_theta_count == theta_count;
+                && baked.settings.cs_theta_count == theta_count
+                && baked.visibility.points == visibility_points
+                && baked.visibility.segment_axes.len() == baked.volume.segments.len();
             if !same {
                 return Err(FabricDataError::Inconsistent(format!(
                     "exemplar {e} was baked with different settings from exemplar 0"
@@ -322,11 +333,14 @@ impl FabricArrays {
                 baked.settings.fiber_lobes || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
+                let [x, y, z, half_length] = baked.visibility.segment_axes[k];
                 out.segments.push(SegmentGpu {
                     direction: baked.volume.segments.direction[k],
                     material: to_u32(material_offset, "material")? + baked.volume.segments.material[k],
+                    midpoint: [x, y, z],
+                    half_length,
                     cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
-                    sos_rotation: baked.visibility.sum_of_sg.rotation(k),
+                    sos_rotation: baked.visibility.sum_of_sg.rotation(k * visibility_points),
                     pad: [0; 2],
                 });
             }
@@ -406,7 +420,8 @@ impl FabricArrays {
             block_size,
             z_range,
             cg_order: to_u32(cg_order, "C_G order")?,
-            pad: [0; 3],
+            visibility_points: to_u32(visibility_points, "visibility points")?,
+            pad: [0; 2],
         };
         out.lobe_cells = out.count_lobe_cells();
         Ok(out)

@@ -153,6 +153,12 @@ fn multiple_case(input: vec4<f32>) -> vec4<f32> {
     light_sh_accumulate(fabric.sh_order, case_axis(input), input.y, vec3<f32>(1.0), &c);
     return vec4<f32>(shade_multiple(0u, u32(input.x), case_point(input), case_wo(input), &c), 0.0);
 }
+// The visibility image a case shades with: one of its segment's points, picked from the id
+// (twin: case_image in Rust).
+fn case_image(input: vec4<f32>) -> u32 {
+    let segment = u32(input.x);
+    return segment * fabric.visibility_points + segment % fabric.visibility_points;
+}
 // A point of the cell lattice picked from the segment id (twin: case_point in Rust).
 fn case_point(input: vec4<f32>) -> vec3<f32> {
     let ex = exemplars[0];
@@ -171,6 +177,13 @@ fn case_point(baked: &Baked, segment: u32) -> DVec3 {
     let u = DVec3::new(fract(x * 0.618_034), fract(x * 0.414_214), fract(x * 0.732_051));
     let lattice = DVec3::from(grid.lattice_dims().map(f64::from));
     grid.origin_cm() + u * lattice * grid.cell_size_cm()
+}
+
+/// Twin of the WGSL `case_image`: one of the segment's visibility points, picked from its id,
+/// so every point's image is compared.
+fn case_image(baked: &Baked, segment: u32) -> usize {
+    let points = baked.visibility.points;
+    segment as usize * points + segment as usize % points
 }
 
 #[derive(Clone)]
@@ -260,6 +273,71 @@ fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) ->
     failures
 }
 
+/// `visibility_image` (WGSL) against `Baked::visibility_image` at points along the grid's
+/// segments: fractions of the way from one end to the other away from the pieces' borders,
+/// the caps beyond both ends, and (periodic exemplars) the same points a period away in x and
+/// y. Positions are rounded to f32 first, as the shader gets them.
+fn compare_visibility_images(
+    label: &str,
+    baked: &Baked,
+    run: &dyn Fn(&str, &[[f32; 4]]) -> Vec<[f32; 4]>,
+) -> Vec<String> {
+    let points = baked.visibility.points;
+    let volume = &baked.volume.volume;
+    let period = DVec3::new(
+        f64::from(volume.voxel_size.x) * f64::from(volume.dims[0]),
+        f64::from(volume.voxel_size.y) * f64::from(volume.dims[1]),
+        0.0,
+    );
+    let shifts: Vec<DVec3> = if volume.periodic {
+        vec![DVec3::ZERO, DVec3::new(period.x, 0.0, 0.0), DVec3::new(0.0, -period.y, 0.0)]
+    } else {
+        vec![DVec3::ZERO]
+    };
+    let mut inputs = Vec::new();
+    for segment in grid_segments(baked) {
+        let [x, y, z, half] = baked.visibility.segment_axes[segment as usize];
+        let t = Vec3::from(baked.volume.segments.direction[segment as usize]).as_dvec3().normalize();
+        let mid = DVec3::new(f64::from(x), f64::from(y), f64::from(z));
+        for j in 0..points {
+            for inside in [-0.3, 0.0, 0.3] {
+                let u = (j as f64 + 0.5 + inside) / points as f64;
+                for &shift in &shifts {
+                    let p = mid + t * (2.0 * u - 1.0) * f64::from(half) + shift;
+                    inputs.push([segment as f32, p.x as f32, p.y as f32, p.z as f32]);
+                }
+            }
+        }
+        for beyond in [-1.2, 1.2] {
+            let p = mid + t * beyond * f64::from(half);
+            inputs.push([segment as f32, p.x as f32, p.y as f32, p.z as f32]);
+        }
+    }
+    let gpu = run("vec4<f32>(f32(visibility_image(0u, u32(input.x), input.yzw)), 0.0, 0.0, 0.0)", &inputs);
+    let mut failures = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for (input, g) in inputs.iter().zip(&gpu) {
+        let segment = input[0] as u32;
+        let t = Vec3::from(baked.volume.segments.direction[segment as usize]).as_dvec3().normalize();
+        let p = Vec3::new(input[1], input[2], input[3]).as_dvec3();
+        let cpu = baked.visibility_image(segment as usize, t, Some(p));
+        seen.insert(cpu % points);
+        if g[0] != cpu as f32 {
+            failures.push(format!(
+                "{label}, visibility image: segment {segment} at {p}: GPU {} vs CPU {cpu}",
+                g[0]
+            ));
+        }
+    }
+    eprintln!(
+        "{label}, visibility image: {} points, {points} per segment, {} failures",
+        inputs.len(),
+        failures.len()
+    );
+    assert_eq!(seen.len(), points, "{label}: every visibility point must be compared");
+    failures
+}
+
 #[test]
 fn shading_functions_match_their_rust_twins() {
     let Some(gpu) = Gpu::for_test("shading_functions_match_their_rust_twins") else { return };
@@ -307,10 +385,15 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
         .collect();
     failures.extend(compare(&format!("{label}, gamma"), &gamma_cases, &gpu_gamma, &cpu_gamma));
 
+    // The visibility image of points along segments, beyond their ends and a period away.
+    failures.extend(compare_visibility_images(label, baked, &|exp, inputs| {
+        gpu.evaluate_with_fabric(&library, exp, inputs, Some(&fabric)).expect("GPU evaluation")
+    }));
+
     // Directional single scattering (unit irradiance): compared where the SSDF is clearly signed.
     let dir_cases = cases(baked, &[0.0]);
     let gpu_dir = run(
-        "vec4<f32>(shade_single_directional(0u, u32(input.x), case_wo(input), case_axis(input)), 0.0)",
+        "vec4<f32>(shade_single_directional(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input)), 0.0)",
         &dir_cases,
     );
     let cpu_dir: Vec<Option<Rgb>> = dir_cases
@@ -318,13 +401,13 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
         .map(|c| {
             let s = seg(c);
             let wd = c.axis(s.tangent);
-            let d = shading::ssdf_lookup(&baked.visibility.ssdf, c.segment as usize, wd);
+            let d = shading::ssdf_lookup(&baked.visibility.ssdf, case_image(baked, c.segment), wd);
             (d.abs() > 1e-3).then(|| {
                 shading::single_scattering_directional(
                     &s.fiber,
                     &baked.gn,
                     &baked.visibility,
-                    c.segment as usize,
+                    case_image(baked, c.segment),
                     s.tangent,
                     c.wo(s.tangent),
                     wd,
@@ -343,7 +426,7 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
     // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF (≥ 200).
     let sg_cases = cases(baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
     let gpu_sg = run(
-        "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
+        "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
         &sg_cases,
     );
     let cpu_sg: Vec<Option<Rgb>> = sg_cases
@@ -354,7 +437,7 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
                 &s.fiber,
                 &baked.gn,
                 &baked.visibility,
-                c.segment as usize,
+                case_image(baked, c.segment),
                 s.tangent,
                 c.wo(s.tangent),
                 c.axis(s.tangent),

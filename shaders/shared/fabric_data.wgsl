@@ -7,8 +7,9 @@
 //   voxels          [voxel_offset + (k * ny + j) * nx + i] = exemplar-local segment id or EMPTY_VOXEL
 //   segments        [segment_offset + local id]
 //   pca_basis       [pca_offset + p] = mean SSDF at pixel p; [pca_offset + (1 + c) * dims + p] = component c
-//   pca_coefficients[global segment * pca_components + c]
-//   sos_weights     [global segment * sos_count + q]
+//   pca_coefficients[image * pca_components + c]
+//   sos_weights     [image * sos_count + q]
+//                   image = global segment * visibility_points + point (visibility_image)
 //   iirtf           f16 pairs: entry e = ((global cell * 3 + channel) * sh_count + j1) * sh_count + j0,
 //                   the value a_C[j0, j1] (light coefficient j0 -> incoming-radiance coefficient j1)
 //                   is unpack2x16float(iirtf[e / 2])[e % 2]
@@ -48,7 +49,9 @@ struct FabricHeader {
     z_range: vec2<f32>,
     // SH order of the C_G table (cg_table's rows hold cg_order + 1 values).
     cg_order: u32,
-    _pad0: u32,
+    // Visibility images per segment (VisibilityData::points): pca_coefficients and sos_weights
+    // hold image segment * visibility_points + point.
+    visibility_points: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -76,7 +79,11 @@ struct ExemplarGpu {
 struct SegmentGpu {
     direction: vec3<f32>,
     material: u32,
+    // Midpoint (exemplar coordinates, cm) and half length, to find a point's visibility image.
+    midpoint: vec3<f32>,
+    half_length: f32,
     cell: u32,
+    // Shared by the segment's visibility points.
     sos_rotation: f32,
     _pad0: u32,
     _pad1: u32,

@@ -213,21 +213,44 @@ fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: 
     return fresnel(f, cos_r) * (r.y * b_r) + (vec3<f32>(1.0) - fresnel(f, cos_tt)) * f.c_tt * (tt.y * b_tt);
 }
 
-// One pixel of a segment's PCA-reconstructed SSDF.
-fn ssdf_pixel(e: u32, segment: u32, pixel: u32) -> f32 {
+// The visibility image that shades `segment` at exemplar-local point p (pipeline.rs
+// VisibilityData::image_at, svf.rs visibility_point_of): that of the visibility point whose
+// piece of the segment holds p's projection on its axis, p taken in the copy of a periodic
+// exemplar nearest the segment.
+fn visibility_image(e: u32, segment: u32, p: vec3<f32>) -> u32 {
+    let points = fabric.visibility_points;
+    if (points <= 1u) {
+        return segment;
+    }
+    let s = segments[segment];
+    let ex = exemplars[e];
+    var offset = p - s.midpoint;
+    if (ex.periodic != 0u) {
+        offset = vec3<f32>(offset.xy - ex.period * round(offset.xy / ex.period), offset.z);
+    }
+    let u = 0.5 + dot(offset, normalize(s.direction)) / (2.0 * s.half_length);
+    var point = points / 2u;
+    if (s.half_length > 0.0 && abs(u) < 1e30) {
+        point = u32(clamp(floor(u * f32(points)), 0.0, f32(points - 1u)));
+    }
+    return segment * points + point;
+}
+
+// One pixel of a visibility image's PCA-reconstructed SSDF.
+fn ssdf_pixel(e: u32, image: u32, pixel: u32) -> f32 {
     let base = exemplars[e].pca_offset;
     let dims = fabric.svf_resolution * fabric.svf_resolution;
     let k = fabric.pca_components;
     var d = pca_basis[base + pixel];
     for (var c = 0u; c < k; c++) {
-        d += pca_coefficients[segment * k + c] * pca_basis[base + (1u + c) * dims + pixel];
+        d += pca_coefficients[image * k + c] * pca_basis[base + (1u + c) * dims + pixel];
     }
     return d;
 }
 
 // The SSDF at a direction: bilinear over pixel centres, phi wrapping, theta clamped
 // (visibility.rs ssdf_lookup).
-fn ssdf_lookup(e: u32, segment: u32, dir: vec3<f32>) -> f32 {
+fn ssdf_lookup(e: u32, image: u32, dir: vec3<f32>) -> f32 {
     let n = fabric.svf_resolution;
     let nf = f32(n);
     let theta = atan2(length(dir.xy), dir.z);
@@ -249,17 +272,17 @@ fn ssdf_lookup(e: u32, segment: u32, dir: vec3<f32>) -> f32 {
     let fv = v - v0;
     let c0 = u32(wrap_i32(i32(v0), i32(n)));
     let c1 = (c0 + 1u) % n;
-    let d00 = ssdf_pixel(e, segment, r0 * n + c0);
-    let d01 = ssdf_pixel(e, segment, r0 * n + c1);
-    let d10 = ssdf_pixel(e, segment, r1 * n + c0);
-    let d11 = ssdf_pixel(e, segment, r1 * n + c1);
+    let d00 = ssdf_pixel(e, image, r0 * n + c0);
+    let d01 = ssdf_pixel(e, image, r0 * n + c1);
+    let d10 = ssdf_pixel(e, image, r1 * n + c0);
+    let d11 = ssdf_pixel(e, image, r1 * n + c1);
     return (1.0 - fu) * ((1.0 - fv) * d00 + fv * d01) + fu * ((1.0 - fv) * d10 + fv * d11);
 }
 
 // Single scattering of a unit-irradiance directional light (single.rs): the SSDF sign times
 // S cos(theta_d).
-fn shade_single_directional(e: u32, segment: u32, wo: vec3<f32>, wd: vec3<f32>) -> vec3<f32> {
-    if (ssdf_lookup(e, segment, wd) <= 0.0) {
+fn shade_single_directional(e: u32, segment: u32, image: u32, wo: vec3<f32>, wd: vec3<f32>) -> vec3<f32> {
+    if (ssdf_lookup(e, image, wd) <= 0.0) {
         return vec3<f32>(0.0);
     }
     let s = segments[segment];
@@ -267,8 +290,8 @@ fn shade_single_directional(e: u32, segment: u32, wo: vec3<f32>, wd: vec3<f32>) 
 }
 
 // Single scattering of a unit-intensity normalized SG light through the erf-smoothed SSDF.
-fn shade_single_sg_ssdf_erf(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
-    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * ssdf_lookup(e, segment, axis));
+fn shade_single_sg_ssdf_erf(e: u32, segment: u32, image: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * ssdf_lookup(e, image, axis));
     if (soft <= 0.0) {
         return vec3<f32>(0.0);
     }
@@ -279,7 +302,7 @@ fn shade_single_sg_ssdf_erf(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32>
 
 // Single scattering of a unit-intensity normalized SG light through the sum-of-SGs visibility
 // (visibility.rs sum_of_sg_path): each visibility SG times the light is one sharper SG.
-fn shade_single_sg_sum_of_sg(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
+fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
     let s = segments[segment];
     let f = fiber_constants(s.material);
     let space = omega_o_space(normalize(s.direction), wo);
@@ -289,7 +312,7 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, wo: vec3<f32>, axis: vec3<f32
     let rot = vec2<f32>(cos(s.sos_rotation), sin(s.sos_rotation));
     var total = vec3<f32>(0.0);
     for (var q = 0u; q < q_count; q++) {
-        let w = sos_weights[segment * q_count + q];
+        let w = sos_weights[image * q_count + q];
         if (w == 0.0) {
             continue;
         }

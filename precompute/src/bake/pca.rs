@@ -811,7 +811,7 @@ mod default_fabric_tests {
         let cancel = Cancel::new();
         let t = Instant::now();
         let images =
-            svf::render_segments(&scene, &ids, settings.svf_resolution, &cancel, &no_progress).unwrap();
+            svf::render_segments(&scene, &ids, settings.svf_resolution, 1, &cancel, &no_progress).unwrap();
         let t_svf = t.elapsed();
         let t = Instant::now();
         let ssdfs = ssdf::ssdf_all(&images, &cancel).unwrap();
@@ -826,6 +826,7 @@ mod default_fabric_tests {
             settings.sos_count,
             settings.sos_sharpness,
             settings.seed,
+            1,
             &cancel,
         )
         .unwrap();

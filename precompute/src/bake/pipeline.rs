@@ -4,7 +4,7 @@
 //! | stage | depends on |
 //! |---|---|
 //! | mean free path | geometry, `mfp_samples`, `seed` |
-//! | visibility (SVF → SSDF → PCA, sum of SGs) | geometry, `svf_resolution`, `pca_components`, `sos_count`, `sos_sharpness`, `seed` |
+//! | visibility (SVF → SSDF → PCA, sum of SGs) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `sos_count`, `sos_sharpness`, `seed` |
 //! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed` |
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
@@ -26,6 +26,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use glam::DVec3;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -36,9 +37,9 @@ use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress_images};
 use super::recolour::{RecolourBasis, RecolourError, SlotColour, bake_recolour_basis};
-use super::settings::BakeSettings;
+use super::settings::{BakeSettings, MAX_VISIBILITY_POINTS};
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
-use super::svf::{SvfError, VisibilityImages, render_exemplar};
+use super::svf::{SvfError, VisibilityImages, render_exemplar, visibility_point_of};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
 use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
 use super::{Cancel, Cancelled};
@@ -89,14 +90,15 @@ impl Stage {
     }
 }
 
-/// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (transfer 5:
-/// the fiber lobes, `CellTransfer::reflected` and the two shapes, and a kept cell's zero
-/// matrix).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 2, 5, 1, 1, 1, 2];
+/// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
+/// 3: images at `visibility_points` points along each segment, and the segments' axes;
+/// transfer 5: the fiber lobes, `CellTransfer::reflected` and the two shapes, and a kept
+/// cell's zero matrix).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 3, 5, 1, 1, 1, 2];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
-/// lobes' fields of `CellTransfer`).
-pub const BAKE_LAYOUT_VERSION: u32 = 4;
+/// lobes' fields of `CellTransfer`; 5: `VisibilityData::points` and `segment_axes`).
+pub const BAKE_LAYOUT_VERSION: u32 = 5;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -115,15 +117,79 @@ pub struct MeanFreePathData {
     pub escaped_fraction: f64,
 }
 
-/// Per-segment visibility: PCA-compressed SSDFs and sum-of-SGs weights.
+/// Per-segment visibility: PCA-compressed SSDFs and sum-of-SGs weights, one of each per
+/// visibility point (`points` per segment; image `k points + j` is point `j` of segment `k`,
+/// [`VisibilityData::image_at`]).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VisibilityData {
     /// Visibility images were `resolution x resolution` (see `svf`).
     pub resolution: usize,
+    /// Visibility points per segment (`BakeSettings::visibility_points`).
+    pub points: usize,
+    /// Per segment: its midpoint (exemplar coordinates, cm) and half its length, to find the
+    /// visibility point a hit lies nearest.
+    pub segment_axes: Vec<[f32; 4]>,
     pub ssdf: PcaBasis,
     pub sum_of_sg: SumOfSgVisibility,
-    /// Mean visible solid angle over segments (steradians), for reports.
+    /// Mean visible solid angle over the images (steradians), for reports.
     pub mean_visible_solid_angle: f64,
+}
+
+impl VisibilityData {
+    /// Each segment's midpoint and half length, as [`VisibilityData::segment_axes`] keeps them.
+    #[must_use]
+    pub fn axes_of(exemplar: &Exemplar) -> Vec<[f32; 4]> {
+        exemplar
+            .segments()
+            .iter()
+            .map(|s| {
+                let m = s.midpoint();
+                [m.x, m.y, m.z, 0.5 * (s.b - s.a).length()]
+            })
+            .collect()
+    }
+
+    /// The image (PCA SSDF and sum-of-SGs row) that shades `segment` (unit tangent `tangent`)
+    /// at `position` (exemplar coordinates; `None`: the midpoint's): that of the visibility
+    /// point whose piece of the segment holds `position`'s projection on its axis
+    /// (`svf::visibility_point_of`). On a periodic exemplar (`period`, cm) the position is
+    /// taken in the copy of the exemplar nearest the segment.
+    #[must_use]
+    pub fn image_at(
+        &self,
+        segment: usize,
+        tangent: DVec3,
+        position: Option<DVec3>,
+        period: Option<[f64; 2]>,
+    ) -> usize {
+        let points = self.points.max(1);
+        let point = match (position, self.segment_axes.get(segment)) {
+            (Some(p), Some(&[x, y, z, half_length])) if points > 1 => {
+                let mut offset = p - DVec3::new(f64::from(x), f64::from(y), f64::from(z));
+                if let Some([px, py]) = period {
+                    offset.x -= px * (offset.x / px).round();
+                    offset.y -= py * (offset.y / py).round();
+                }
+                visibility_point_of(offset.dot(tangent), f64::from(half_length), points)
+            }
+            _ => points / 2,
+        };
+        segment * points + point
+    }
+}
+
+impl Baked {
+    /// [`VisibilityData::image_at`] with this bake's period (its voxel volume's, which spans
+    /// exactly one period of a periodic exemplar).
+    #[must_use]
+    pub fn visibility_image(&self, segment: usize, tangent: DVec3, position: Option<DVec3>) -> usize {
+        let volume = &self.volume.volume;
+        let period = volume.periodic.then(|| {
+            let size = volume.voxel_size.as_dvec3();
+            [size.x * f64::from(volume.dims[0]), size.y * f64::from(volume.dims[1])]
+        });
+        self.visibility.image_at(segment, tangent, position, period)
+    }
 }
 
 /// IIRTF cells and their transfer matrices.
@@ -166,15 +232,23 @@ impl Baked {
             if got == expected { Ok(()) } else { Err(format!("{what} is {got}, expected {expected}")) }
         };
         expect("segment directions", self.volume.segments.direction.len(), segments)?;
+        let points = self.visibility.points;
+        if !(1..=MAX_VISIBILITY_POINTS).contains(&points) {
+            return Err(format!(
+                "visibility points per segment is {points}, expected 1 to {MAX_VISIBILITY_POINTS}"
+            ));
+        }
+        expect("visibility segment axes", self.visibility.segment_axes.len(), segments)?;
+        let images = segments * points;
         let ssdf = &self.visibility.ssdf;
-        expect("visibility (PCA SSDF) segments", ssdf.segment_count, segments)?;
+        expect("visibility (PCA SSDF) images", ssdf.segment_count, images)?;
         expect("PCA mean values", ssdf.mean().len(), ssdf.dims)?;
         expect("PCA component values", ssdf.components().len(), ssdf.component_count * ssdf.dims)?;
-        expect("PCA coefficients", ssdf.all_coefficients().len(), segments * ssdf.component_count)?;
+        expect("PCA coefficients", ssdf.all_coefficients().len(), images * ssdf.component_count)?;
         let sos = &self.visibility.sum_of_sg;
-        expect("visibility (sum of SGs) segments", sos.segment_count, segments)?;
-        expect("sum-of-SG weights", sos.all_weights().len(), segments * sos.count)?;
-        expect("sum-of-SG rotations", sos.rotations().len(), segments)?;
+        expect("visibility (sum of SGs) images", sos.segment_count, images)?;
+        expect("sum-of-SG weights", sos.all_weights().len(), images * sos.count)?;
+        expect("sum-of-SG rotations", sos.rotations().len(), images)?;
         expect("transfer (IIRTF cells) segments", self.transfer.cells.segment_count(), segments)?;
         expect("IIRTF matrices", self.transfer.iirtf.cells.len(), self.transfer.cells.cell_count())?;
         let order = self.transfer.iirtf.sh_order;
@@ -441,9 +515,10 @@ pub fn bake_precomputed(
     cancel: &Cancel,
     progress: BakeProgress<'_>,
 ) -> Result<BakeOutcome, BakeError> {
-    if precomputed.images.segment_count() != inputs.exemplar.segment_count() {
+    let points = inputs.settings.visibility_points;
+    if precomputed.images.segment_count() != inputs.exemplar.segment_count() * points {
         return Err(BakeError::Fabric(format!(
-            "{} precomputed visibility images for {} segments",
+            "{} precomputed visibility images for {} segments at {points} points each",
             precomputed.images.segment_count(),
             inputs.exemplar.segment_count()
         )));
@@ -503,17 +578,27 @@ fn bake_stages(
         let report = |f: f64| progress(Stage::Visibility, f);
         let images = match precomputed_images {
             Some(images) => images,
-            None => render_exemplar(inputs.exemplar, s.svf_resolution, cancel, &|f| report(0.7 * f))?,
+            None => render_exemplar(inputs.exemplar, s.svf_resolution, s.visibility_points, cancel, &|f| {
+                report(0.7 * f);
+            })?,
         };
         // The SSDFs are computed block by block as PCA reads them, never all held.
         let ssdf = compress_images(&images, s.pca_components, s.seed, cancel)?;
         report(0.95);
-        let sum_of_sg = fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, cancel)?;
+        let sum_of_sg =
+            fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, s.visibility_points, cancel)?;
         let n = images.segment_count().max(1);
         let mean_visible_solid_angle =
             (0..images.segment_count()).map(|k| images.visible_solid_angle(k)).sum::<f64>() / n as f64;
         report(1.0);
-        Ok(VisibilityData { resolution: s.svf_resolution, ssdf, sum_of_sg, mean_visible_solid_angle })
+        Ok(VisibilityData {
+            resolution: s.svf_resolution,
+            points: s.visibility_points,
+            segment_axes: VisibilityData::axes_of(inputs.exemplar),
+            ssdf,
+            sum_of_sg,
+            mean_visible_solid_angle,
+        })
     })?;
 
     let transfer_key = keys.transfer(&mfp);
@@ -1005,6 +1090,7 @@ impl StageKeys {
         let visibility = key(Stage::Visibility)
             .hash(&geometry)
             .usize(s.svf_resolution)
+            .usize(s.visibility_points)
             .usize(s.pca_components)
             .usize(s.sos_count)
             .f64(s.sos_sharpness)
@@ -1072,6 +1158,7 @@ pub(crate) mod tests {
     fn test_settings() -> BakeSettings {
         BakeSettings {
             svf_resolution: 8,
+            visibility_points: 2,
             pca_components: 4,
             sos_count: 8,
             sos_sharpness: 128.0,

@@ -12,6 +12,14 @@
 
 use crate::params::{ParamError, check_count, check_range};
 
+/// The most visibility points per segment a bake takes ([`BakeSettings::visibility_points`]).
+pub const MAX_VISIBILITY_POINTS: usize = 8;
+
+/// Serde's default for knobs added after bakes were written: 1.
+fn one() -> usize {
+    1
+}
+
 /// The named quality presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -27,6 +35,12 @@ pub enum Quality {
 pub struct BakeSettings {
     /// Visibility images are `svf_resolution` rows (θ) by `svf_resolution` columns (φ).
     pub svf_resolution: usize,
+    /// Visibility is precomputed at this many points along each segment, the centres of equal
+    /// pieces of it (`bake::svf`); a hit takes the image of the piece it lies on. 1: at the
+    /// midpoint alone, as the paper. A long segment seen in part (the rest hidden under a
+    /// crossing yarn) is lit as its visible part is, not as its midpoint is.
+    #[serde(default = "one")]
+    pub visibility_points: usize,
     /// PCA components kept for the SSDFs.
     pub pca_components: usize,
     /// Number Q of SGs in the sum-of-SGs visibility.
@@ -79,6 +93,7 @@ impl Quality {
         match self {
             Self::Draft => BakeSettings {
                 svf_resolution: 16,
+                visibility_points: 2,
                 pca_components: 8,
                 sos_count: 32,
                 sos_sharpness: 128.0,
@@ -94,6 +109,7 @@ impl Quality {
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
+                visibility_points: 4,
                 pca_components: 24,
                 sos_count: 64,
                 sos_sharpness: 128.0,
@@ -109,6 +125,7 @@ impl Quality {
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
+                visibility_points: 1,
                 pca_components: 48,
                 sos_count: 48,
                 sos_sharpness: 128.0,
@@ -137,6 +154,7 @@ impl BakeSettings {
     /// Rejects values outside the ranges the stages support, naming the knob and the range.
     pub fn validate(&self) -> Result<(), ParamError> {
         check_count("svf_resolution", self.svf_resolution, 4, 512)?;
+        check_count("visibility_points", self.visibility_points, 1, MAX_VISIBILITY_POINTS)?;
         check_count("pca_components", self.pca_components, 1, 256)?;
         check_count("sos_count", self.sos_count, 1, 1024)?;
         check_range("sos_sharpness", self.sos_sharpness, 1.0, 1e4)?;

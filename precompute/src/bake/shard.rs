@@ -36,6 +36,7 @@ use super::pattern::PatternMap;
 use super::pipeline::{
     BakeError, BakeInputs, BakeProgress, BakeSet, Precomputed, Stage, bake_precomputed, yarn_materials,
 };
+use super::settings::MAX_VISIBILITY_POINTS;
 use super::svf::{VisibilityImages, render_segments};
 use crate::raycast::{Extent, FiberScene, mean_free_path};
 use crate::sh::sh_count;
@@ -46,8 +47,9 @@ pub const MAX_SHARDS: usize = 4096;
 /// Version of the part file's layout: in its header (`layout`, absent in version 1) and in
 /// [`inputs_key`], so a part of another layout is refused (2: the fiber lobes, each kept
 /// cell's forward and reflected strength, forward cosine and two shapes, where version 1 held
-/// a forward lobe of n coefficients and a cosine).
-pub const PART_LAYOUT_VERSION: u32 = 2;
+/// a forward lobe of n coefficients and a cosine; 3: `e{i}.resolution` also holds the
+/// visibility points per segment, and `e{i}.images` that many images per segment).
+pub const PART_LAYOUT_VERSION: u32 = 3;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -191,8 +193,9 @@ pub fn bake_part(
         progress(Stage::MeanFreePath, 1.0);
         let segments = shard.slice(input.exemplar.segment_count());
         let ids: Vec<u32> = segments.clone().map(|k| k as u32).collect();
-        let images =
-            render_segments(&scene, &ids, s.svf_resolution, cancel, &|f| progress(Stage::Visibility, f))?;
+        let images = render_segments(&scene, &ids, s.svf_resolution, s.visibility_points, cancel, &|f| {
+            progress(Stage::Visibility, f);
+        })?;
         let grid = CellGrid::new(input.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
         // Balanced by work: a cell with segments costs its paths, an empty one nothing.
         let weights: Vec<u64> =
@@ -260,7 +263,8 @@ pub fn merge_parts(
             let part =
                 p.exemplars.get_mut(e).ok_or_else(|| set(format!("shard {shard} has no exemplar {e}")))?;
             let expected = shard.slice(input.exemplar.segment_count());
-            if part.segments != expected || part.images.segment_count() != expected.len() {
+            let images_expected = expected.len() * input.settings.visibility_points;
+            if part.segments != expected || part.images.segment_count() != images_expected {
                 return Err(set(format!(
                     "shard {shard}, exemplar {e}: segments {:?}, expected {expected:?}",
                     part.segments
@@ -288,8 +292,9 @@ pub fn merge_parts(
 /// Writes `part` atomically, with `record`: what the caller needs to rebuild the inputs.
 ///
 /// Sections: `part` (the header: shard, exemplar count, [`PART_LAYOUT_VERSION`]) and
-/// `record`, then per exemplar `e{i}.`: `segments`, `resolution` and `images` (the visibility
-/// images' bits), `cells`, `paths` (per cell), `entries` (n² of a nonempty cell), `matrix` and
+/// `record`, then per exemplar `e{i}.`: `segments`, `resolution` (the visibility images'
+/// resolution and points per segment) and `images` (their bits, point after point of each
+/// segment), `cells`, `paths` (per cell), `entries` (n² of a nonempty cell), `matrix` and
 /// `std_error` (RGB f32 per entry of every nonempty cell), `lobes` (per nonempty cell, 1 where
 /// it keeps its fiber lobes), and for each cell that does: `forward` (its forward strength,
 /// RGB per coefficient at `LOBE_SH_ORDER`, then its forward cosine), `reflected` (its
@@ -328,9 +333,10 @@ pub fn write_part(path: &Path, part: &BakePart, record: &str) -> Result<(), Shar
         let entries = x.transfer.iter().find(|c| !c.is_empty()).map_or(0, |c| c.matrix.len()) as u32;
         let words: Vec<u8> = x.images.words().iter().flat_map(|w| w.to_le_bytes()).collect();
         let resolution = x.images.resolution as u32;
+        let points = x.images.segment_count().checked_div(x.segments.len()).unwrap_or(1).max(1) as u32;
         writer = writer
             .section(&format!("e{e}.segments"), key, range(&x.segments))
-            .section(&format!("e{e}.resolution"), key, u32s(vec![resolution]))
+            .section(&format!("e{e}.resolution"), key, u32s(vec![resolution, points]))
             .section(&format!("e{e}.images"), key, bytes(words))
             .section(&format!("e{e}.cells"), key, range(&x.cells))
             .section(&format!("e{e}.paths"), key, u32s(x.transfer.iter().map(|c| c.paths as u32).collect()))
@@ -391,9 +397,15 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
     let mut exemplars = Vec::with_capacity(count);
     for e in 0..count {
         let segments = range(&format!("e{e}.segments"))?;
-        let resolution = match u32s(&format!("e{e}.resolution"))?[..] {
-            [r] if (1..=4096).contains(&r) => r as usize,
-            ref v => return Err(bad(format!("e{e}.resolution: {v:?} is not in 1..=4096"))),
+        let (resolution, points) = match u32s(&format!("e{e}.resolution"))?[..] {
+            [r, p] if (1..=4096).contains(&r) && (1..=MAX_VISIBILITY_POINTS as u32).contains(&p) => {
+                (r as usize, p as usize)
+            }
+            ref v => {
+                return Err(bad(format!(
+                    "e{e}.resolution: {v:?} is not a resolution in 1..=4096 and points per segment in 1..={MAX_VISIBILITY_POINTS}"
+                )));
+            }
         };
         let bytes = section(&format!("e{e}.images"))?
             .array
@@ -401,8 +413,9 @@ pub fn read_part(path: &Path) -> Result<(BakePart, String), ShardError> {
             .ok_or_else(|| bad(format!("e{e}.images is not bytes")))?;
         let words: Vec<u64> =
             bytes.chunks_exact(8).map(|w| u64::from_le_bytes(w.try_into().expect("8 bytes"))).collect();
-        let images = VisibilityImages::from_words(resolution, segments.len(), words).ok_or_else(|| {
-            bad(format!("e{e}.images: not {} images of {resolution}x{resolution} bits", segments.len()))
+        let image_count = segments.len() * points;
+        let images = VisibilityImages::from_words(resolution, image_count, words).ok_or_else(|| {
+            bad(format!("e{e}.images: not {image_count} images of {resolution}x{resolution} bits"))
         })?;
         let cells = range(&format!("e{e}.cells"))?;
         let paths = u32s(&format!("e{e}.paths"))?;
@@ -495,6 +508,7 @@ mod tests {
     fn settings() -> BakeSettings {
         BakeSettings {
             svf_resolution: 8,
+            visibility_points: 2,
             pca_components: 4,
             sos_count: 8,
             sos_sharpness: 128.0,

@@ -142,18 +142,22 @@ pub fn segment_weights(images: &VisibilityImages, segment: usize, axes: &[DVec3]
     weights
 }
 
-/// Sum-of-SGs weights of every segment, in parallel (checks `cancel` before each segment).
+/// Sum-of-SGs weights of every image, in parallel (checks `cancel` before each image). The
+/// images come `points` to a segment (`svf::render_segments`), and a segment's points share
+/// its rotation (so a renderer keeps one angle per segment).
 pub fn fit_weights(
     images: &VisibilityImages,
     count: usize,
     sharpness: f64,
     seed: u64,
+    points: usize,
     cancel: &Cancel,
 ) -> Result<SumOfSgVisibility, SumOfSgError> {
     check_count("sos_count", count, 1, 1 << 16)?;
     check_range("sos_sharpness", sharpness, 0.0, 1e6)?;
     let segments = images.segment_count();
-    let rotations: Vec<f32> = (0..segments).map(|k| rotation_angle(seed, k) as f32).collect();
+    let points = points.max(1);
+    let rotations: Vec<f32> = (0..segments).map(|k| rotation_angle(seed, k / points) as f32).collect();
     let mut weights = vec![0.0_f32; segments * count];
     weights.par_chunks_mut(count).enumerate().try_for_each(|(k, out)| {
         cancel.check()?;
@@ -215,7 +219,7 @@ mod tests {
     fn fully_visible_segment_has_nearly_equal_weights_and_reconstructs_one() {
         let (n, q) = (64, 32);
         let images = full_images(n, 3);
-        let sos = fit_weights(&images, q, 128.0, 1, &Cancel::new()).unwrap();
+        let sos = fit_weights(&images, q, 128.0, 1, 1, &Cancel::new()).unwrap();
         let share = 4.0 * PI / q as f64;
         let mut worst_weight = 0.0_f64;
         for k in 0..3 {
@@ -247,9 +251,9 @@ mod tests {
         let scene = FiberScene::new(&default_exemplar(), Extent::Unbounded).unwrap();
         let ids: Vec<u32> = (0..scene.segments().len() as u32).step_by(60).collect();
         let n = 32;
-        let images = render_segments(&scene, &ids, n, &Cancel::new(), &no_progress).unwrap();
+        let images = render_segments(&scene, &ids, n, 1, &Cancel::new(), &no_progress).unwrap();
         let (q, lam) = (32, 128.0);
-        let sos = fit_weights(&images, q, lam, 1, &Cancel::new()).unwrap();
+        let sos = fit_weights(&images, q, lam, 1, 1, &Cancel::new()).unwrap();
         let mass = sg_mass(lam);
         let lights = spherical_fibonacci(24);
         let (mut pointwise, mut shaded, mut shaded_norm) = (0.0, 0.0_f64, 0.0_f64);
@@ -304,10 +308,13 @@ mod tests {
     #[test]
     fn bad_settings_and_cancellation_are_errors() {
         let images = full_images(4, 2);
-        assert!(matches!(fit_weights(&images, 0, 128.0, 1, &Cancel::new()), Err(SumOfSgError::Param(_))));
-        assert!(matches!(fit_weights(&images, 8, f64::NAN, 1, &Cancel::new()), Err(SumOfSgError::Param(_))));
+        assert!(matches!(fit_weights(&images, 0, 128.0, 1, 1, &Cancel::new()), Err(SumOfSgError::Param(_))));
+        assert!(matches!(
+            fit_weights(&images, 8, f64::NAN, 1, 1, &Cancel::new()),
+            Err(SumOfSgError::Param(_))
+        ));
         let cancel = Cancel::new();
         cancel.cancel();
-        assert_eq!(fit_weights(&images, 8, 128.0, 1, &cancel), Err(SumOfSgError::Cancelled(Cancelled)));
+        assert_eq!(fit_weights(&images, 8, 128.0, 1, 1, &cancel), Err(SumOfSgError::Cancelled(Cancelled)));
     }
 }

@@ -13,8 +13,11 @@
 //! 1. shadow rays from the hit point: exactly what the path tracer does (checks the
 //!    decomposition and the light and scattering conventions);
 //! 2. shadow rays from the segment midpoint, on the fiber axis (the paper's V_k);
-//! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k);
-//! 4. the binary visibility image of the bake's resolution (nearest pixel);
+//! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k
+//!    at one visibility point);
+//!    3′. (when the bake has more than one visibility point per segment) from the lit side of
+//!    the point whose piece of the segment the hit lies on (twill's V_k);
+//! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
 //! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
 //! 6. the method on the GPU's primary hits: the first occupied voxel of the bake's volume along
 //!    the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
@@ -57,7 +60,9 @@ use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
-use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar};
+use crate::bake::svf::{
+    VisibilityImages, lit_side_origin, render_exemplar, visibility_point_fraction, visibility_point_of,
+};
 use crate::image::{Estimate, Film, Image, compare};
 use crate::pathtrace::integrator::{below_ground, occluded, radiance_from, russian_roulette, trace};
 use crate::pathtrace::{Component, Light, RenderSettings, render};
@@ -163,7 +168,8 @@ impl Budget {
 enum ShadowOrigin {
     HitPoint,
     Midpoint,
-    LitSide,
+    /// The lit side of the hit's visibility point, of this many per segment.
+    LitSide(usize),
 }
 
 /// Runs the ladder on `scene` (a flat swatch) with `baked`, a bake of its fabric; see the
@@ -206,23 +212,31 @@ pub fn error_budget(
     };
 
     // Single scattering.
-    for (name, origin) in [
-        ("1 shadow rays from the hit point (exact)", ShadowOrigin::HitPoint),
-        ("2 shadow rays from the segment midpoint (paper)", ShadowOrigin::Midpoint),
-        ("3 shadow rays from the lit side of the segment", ShadowOrigin::LitSide),
-    ] {
+    let points = baked.settings.visibility_points;
+    let mut origins = vec![
+        ("1 shadow rays from the hit point (exact)".to_string(), ShadowOrigin::HitPoint),
+        ("2 shadow rays from the segment midpoint (paper)".to_string(), ShadowOrigin::Midpoint),
+        ("3 shadow rays from the lit side of the segment".to_string(), ShadowOrigin::LitSide(1)),
+    ];
+    if points > 1 {
+        let name =
+            format!("3' shadow rays from the lit side of the nearest of {points} points along the segment");
+        origins.push((name, ShadowOrigin::LitSide(points)));
+    }
+    for (name, origin) in origins {
         let t = Instant::now();
         let film = single_by_light_sampling(scene, settings, |hit, dir| {
             shadow_ray_visible(scene, hit, dir, origin)
         })?;
-        push(Component::Single, name.to_string(), &film, t.elapsed().as_secs_f64());
+        push(Component::Single, name, &film, t.elapsed().as_secs_f64());
     }
     let n = baked.settings.svf_resolution;
     let t = Instant::now();
-    let images: VisibilityImages = render_exemplar(&scene.exemplar, n, &Cancel::new(), &|_| {})
+    let images: VisibilityImages = render_exemplar(&scene.exemplar, n, points, &Cancel::new(), &|_| {})
         .map_err(|e| ShadingError::Budget(e.to_string()))?;
-    let film =
-        single_by_light_sampling(scene, settings, |hit, dir| images.lookup(hit.segment as usize, dir))?;
+    let film = single_by_light_sampling(scene, settings, |hit, dir| {
+        images.lookup(visibility_image_of(scene, hit, points), dir)
+    })?;
     push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
     let t = Instant::now();
     let film = render_flat_with(
@@ -404,6 +418,16 @@ fn single_by_light_sampling(
     })
 }
 
+/// The visibility image (`segment points + point`) of `hit`: the point whose piece of the
+/// segment holds the hit (`svf::visibility_point_of`, as the method's shading finds it).
+fn visibility_image_of(scene: &Scene, hit: &Hit, points: usize) -> usize {
+    let segment = &scene.path_scene.fibers.segments()[hit.segment as usize];
+    let midpoint = segment.midpoint().as_dvec3();
+    let axial = (hit.local_position.as_dvec3() - midpoint).dot(segment.tangent().as_dvec3());
+    let half_length = 0.5 * f64::from((segment.b - segment.a).length());
+    hit.segment as usize * points + visibility_point_of(axial, half_length, points)
+}
+
 /// Whether `dir` is unoccluded from `origin`'s choice of point for `hit` (the hit's own fiber
 /// never occludes, as in the path tracer and the bake).
 fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin) -> bool {
@@ -413,8 +437,11 @@ fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin
     let start = match origin {
         ShadowOrigin::HitPoint => fibers.world_position_f64(hit),
         ShadowOrigin::Midpoint => midpoint,
-        ShadowOrigin::LitSide => {
-            lit_side_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
+        ShadowOrigin::LitSide(points) => {
+            let (a, b) = (segment.a.as_dvec3(), segment.b.as_dvec3());
+            let along = visibility_point_fraction(visibility_image_of(scene, hit, points) % points, points);
+            let point = a + (b - a) * along + fibers.tile_offset(hit.tile);
+            lit_side_origin(point, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
         }
     };
     !below_ground(&scene.path_scene, start, dir)

@@ -42,13 +42,17 @@ pub fn shade(
     lights: &[(Light, f64, f64)],
     component: Component,
 ) -> Result<Rgb, ShadingError> {
-    shade_segment(baked, segment, position, wo, lights, component, true)
+    shade_segment(baked, segment, position, position, wo, lights, component, true)
 }
 
-/// [`shade`], with the clamp of the shaded radiance at zero optional (`clamp_at_zero`).
+/// [`shade`], with the clamp of the shaded radiance at zero optional (`clamp_at_zero`) and
+/// the position that picks the segment's visibility image (`visibility_at`) apart from the
+/// one that interpolates the transfer (`position`).
+#[allow(clippy::too_many_arguments)]
 fn shade_segment(
     baked: &Baked,
     segment: u32,
+    visibility_at: Option<DVec3>,
     position: Option<DVec3>,
     wo: DVec3,
     lights: &[(Light, f64, f64)],
@@ -58,7 +62,7 @@ fn shade_segment(
     let mut total = Rgb::ZERO;
     if component != Component::Multiple {
         for (light, v_glo, _) in lights {
-            total += single_scattering(baked, segment, wo, light, *v_glo)?;
+            total += single_scattering(baked, segment, visibility_at, wo, light, *v_glo)?;
         }
     }
     if component != Component::Single {
@@ -148,7 +152,7 @@ pub fn render_flat_with(
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     let shade_at = |segment: u32, local: DVec3, wo: DVec3| {
         let position = options.interpolate_transfer.then_some(local);
-        shade_segment(baked, segment, position, wo, &lights, component, options.clamp_at_zero)
+        shade_segment(baked, segment, Some(local), position, wo, &lights, component, options.clamp_at_zero)
     };
     match options.primary {
         PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {

@@ -1,5 +1,8 @@
 //! Single scattering per light (paper 5.2), for one segment seen from ωo.
 //!
+//! Local visibility is that of the visibility image of the point along the segment whose piece
+//! holds the shaded position (`Baked::visibility_image`; the midpoint's without a position).
+//!
 //! - Directional light (to-light ω_d, irradiance E):
 //!   `V_glo · H(d_k(ω_d)) · S(ω_d, ωo) cos θ_d · E`, H the hard SSDF step.
 //! - Normalized SG light (axis ξ, sharpness λ, intensity I; radiance `I G(ω; ξ, λ)/M(λ)`):
@@ -24,33 +27,35 @@ use crate::bake::tables::GnTable;
 use crate::pathtrace::Light;
 use crate::sg::sg_mass;
 
-/// Directional-light single scattering of `segment` (unit tangent `t`), see the module docs.
+/// Directional-light single scattering of a segment (unit tangent `t`) with visibility image
+/// `image` (`VisibilityData::image_at`), see the module docs.
 #[must_use]
 pub fn single_scattering_directional(
     fiber: &FiberConstants,
     gn: &GnTable,
     visibility: &VisibilityData,
-    segment: usize,
+    image: usize,
     t: DVec3,
     wo: DVec3,
     to_light: DVec3,
     irradiance: Rgb,
     v_glo: f64,
 ) -> Rgb {
-    let local = ssdf_step_visibility(ssdf_lookup(&visibility.ssdf, segment, to_light));
+    let local = ssdf_step_visibility(ssdf_lookup(&visibility.ssdf, image, to_light));
     if local == 0.0 || v_glo == 0.0 {
         return Rgb::ZERO;
     }
     fiber_eval_cos(fiber, gn, t, to_light, wo) * irradiance * (v_glo * local)
 }
 
-/// SG-light single scattering of `segment` (unit tangent `t`), see the module docs.
+/// SG-light single scattering of a segment (unit tangent `t`) with visibility image `image`
+/// (`VisibilityData::image_at`), see the module docs.
 #[must_use]
 pub fn single_scattering_sg(
     fiber: &FiberConstants,
     gn: &GnTable,
     visibility: &VisibilityData,
-    segment: usize,
+    image: usize,
     t: DVec3,
     wo: DVec3,
     axis: DVec3,
@@ -70,8 +75,8 @@ pub fn single_scattering_sg(
             gn,
             t,
             wo,
-            &sos.axes(segment),
-            sos.weights(segment),
+            &sos.axes(image),
+            sos.weights(image),
             sos.sharpness,
             axis,
             sharpness,
@@ -79,7 +84,7 @@ pub fn single_scattering_sg(
         integral += path * w_sos;
     }
     if w_ssdf > 0.0 {
-        let soft = erf_soft_visibility(ssdf_lookup(&visibility.ssdf, segment, axis), sharpness);
+        let soft = erf_soft_visibility(ssdf_lookup(&visibility.ssdf, image, axis), sharpness);
         if soft > 0.0 {
             integral += gamma(fiber, gn, t, axis, sharpness, wo) * (w_ssdf * soft);
         }
@@ -87,11 +92,13 @@ pub fn single_scattering_sg(
     integral * intensity * (v_glo / sg_mass(sharpness))
 }
 
-/// Single scattering of `light` at `segment` of `baked`, seen from unit `wo` (fabric space),
-/// with the light's global visibility `v_glo`. Zero-length segments give zero.
+/// Single scattering of `light` at `segment` of `baked` at `position` (exemplar coordinates;
+/// `None`: with the midpoint's visibility), seen from unit `wo` (fabric space), with the
+/// light's global visibility `v_glo`. Zero-length segments give zero.
 pub fn single_scattering(
     baked: &Baked,
     segment: u32,
+    position: Option<DVec3>,
     wo: DVec3,
     light: &Light,
     v_glo: f64,
@@ -99,7 +106,7 @@ pub fn single_scattering(
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
-    let k = segment as usize;
+    let k = baked.visibility_image(segment as usize, seg.tangent, position);
     let (vis, gn, t) = (&baked.visibility, &baked.gn, seg.tangent);
     Ok(match *light {
         Light::Directional { to_light, irradiance } => {

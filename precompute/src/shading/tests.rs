@@ -902,6 +902,7 @@ fn tiny_baked() -> &'static Baked {
         let materials = [preset.warp_material, preset.weft_material];
         let settings = BakeSettings {
             svf_resolution: 8,
+            visibility_points: 1,
             pca_components: 4,
             sos_count: 8,
             sos_sharpness: 128.0,
@@ -924,9 +925,9 @@ fn tiny_baked() -> &'static Baked {
 fn with_uniform_visibility(baked: &Baked, visible: bool) -> Baked {
     let mut out = baked.clone();
     let n = baked.settings.svf_resolution;
-    let segments = baked.volume.segments.len();
-    let mut images = VisibilityImages::new(n, segments);
-    for k in 0..segments {
+    let images_count = baked.volume.segments.len() * baked.visibility.points;
+    let mut images = VisibilityImages::new(n, images_count);
+    for k in 0..images_count {
         for p in 0..n * n {
             images.set(k, p / n, p % n, visible);
         }
@@ -935,7 +936,8 @@ fn with_uniform_visibility(baked: &Baked, visible: bool) -> Baked {
     out.visibility.ssdf = compress(&ssdf, n * n, baked.settings.pca_components, 1, &Cancel::new()).unwrap();
     let s = &baked.settings;
     out.visibility.sum_of_sg =
-        fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, &Cancel::new()).unwrap();
+        fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, baked.visibility.points, &Cancel::new())
+            .unwrap();
     out
 }
 
@@ -979,11 +981,11 @@ fn shading_hard_cases_are_finite_and_single_scattering_is_non_negative() {
             let c_light = light_sh(&light, order, &baked.cg);
             assert!(c_light.iter().all(|c| c.is_finite()), "{light:?}");
             for wo in hard_directions(t) {
-                let single = single_scattering(baked, k, wo, &light, 1.0).unwrap();
+                let single = single_scattering(baked, k, None, wo, &light, 1.0).unwrap();
                 assert!(single.is_finite() && single.min_element() >= 0.0, "{light:?} ωo {wo}: {single}");
                 let multiple = multiple_scattering(baked, k, None, wo, &c_light).unwrap();
                 assert!(multiple.is_finite(), "{light:?} ωo {wo}: {multiple}");
-                assert_eq!(single_scattering(baked, k, wo, &light, 0.0).unwrap(), Rgb::ZERO);
+                assert_eq!(single_scattering(baked, k, None, wo, &light, 0.0).unwrap(), Rgb::ZERO);
             }
         }
     }
@@ -996,11 +998,11 @@ fn shading_fully_occluded_segments_get_no_single_scattering() {
         let t = SegmentShading::of(&baked, k).unwrap().unwrap().tangent;
         for light in hard_lights(t) {
             for wo in hard_directions(t) {
-                let single = single_scattering(&baked, k, wo, &light, 1.0).unwrap();
+                let single = single_scattering(&baked, k, None, wo, &light, 1.0).unwrap();
                 match light {
                     // ½ erfc(sqrt(λ/2) π) is below 1e-215 but not 0 for 100 < λ < 142.
                     Light::Sg { sharpness, .. } if sharpness > 100.0 && sharpness < 142.0 => {
-                        let open = single_scattering(tiny_baked(), k, wo, &light, 1.0).unwrap();
+                        let open = single_scattering(tiny_baked(), k, None, wo, &light, 1.0).unwrap();
                         assert!(single.max_element() <= 1e-200 * open.max_element().max(1.0), "{single}");
                     }
                     _ => assert_eq!(single, Rgb::ZERO, "{light:?} ωo {wo}"),
@@ -1021,14 +1023,14 @@ fn shading_fully_visible_segments_get_the_unshadowed_formulas() {
                 let e = Rgb::new(1.0, 2.0, 3.0);
                 let light = Light::directional(d, e).unwrap();
                 let Light::Directional { to_light, .. } = light else { unreachable!() };
-                let single = single_scattering(&baked, k, wo, &light, 0.7).unwrap();
+                let single = single_scattering(&baked, k, None, wo, &light, 0.7).unwrap();
                 let unshadowed = fiber_eval_cos(&seg.fiber, &baked.gn, t, to_light, wo) * e * 0.7;
                 assert!(rel_err(single, unshadowed) < 1e-15 || single == unshadowed, "{single} {unshadowed}");
                 for lambda in [200.0, 1e5] {
                     let i = Rgb::new(3.0, 2.0, 1.0);
                     let light = Light::sg(d, lambda, i).unwrap();
                     let Light::Sg { axis, .. } = light else { unreachable!() };
-                    let single = single_scattering(&baked, k, wo, &light, 1.0).unwrap();
+                    let single = single_scattering(&baked, k, None, wo, &light, 1.0).unwrap();
                     let unshadowed = gamma(&seg.fiber, &baked.gn, t, axis, lambda, wo) * i / sg_mass(lambda);
                     assert!(
                         rel_err(single, unshadowed) < 1e-14 || single == unshadowed,
@@ -1050,14 +1052,14 @@ fn shading_shade_adds_its_components_and_reports_bad_input() {
     ];
     // A segment that the directional light reaches.
     let k = (0..baked.volume.segments.len() as u32)
-        .find(|&k| single_scattering(baked, k, wo, &lights[0].0, 1.0).unwrap().max_element() > 0.0)
+        .find(|&k| single_scattering(baked, k, None, wo, &lights[0].0, 1.0).unwrap().max_element() > 0.0)
         .unwrap();
     let all = shade(baked, k, None, wo, &lights, Component::All).unwrap();
     let single = shade(baked, k, None, wo, &lights, Component::Single).unwrap();
     let multiple = shade(baked, k, None, wo, &lights, Component::Multiple).unwrap();
     assert!(rel_err(all, single + multiple) < 1e-14, "{all} vs {single} + {multiple}");
     let expected_single: Rgb =
-        lights.iter().map(|(l, v, _)| single_scattering(baked, k, wo, l, *v).unwrap()).sum();
+        lights.iter().map(|(l, v, _)| single_scattering(baked, k, None, wo, l, *v).unwrap()).sum();
     assert!(rel_err(single, expected_single) < 1e-14);
     assert!(single.max_element() > 0.0 && multiple.max_element() != 0.0, "{single} {multiple}");
 

@@ -156,6 +156,7 @@ pub enum Knob {
     ShOrder,
     PcaComponents,
     SvfResolution,
+    VisibilityPoints,
     SosCount,
     SosSharpness,
     IirtfPaths,
@@ -167,10 +168,11 @@ pub enum Knob {
 }
 
 impl Knob {
-    pub const ALL: [Knob; 11] = [
+    pub const ALL: [Knob; 12] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::SvfResolution,
+        Knob::VisibilityPoints,
         Knob::SosCount,
         Knob::SosSharpness,
         Knob::IirtfPaths,
@@ -188,6 +190,7 @@ impl Knob {
             Self::ShOrder => "sh_order",
             Self::PcaComponents => "pca_components",
             Self::SvfResolution => "svf_resolution",
+            Self::VisibilityPoints => "visibility_points",
             Self::SosCount => "sos_count",
             Self::SosSharpness => "sos_sharpness",
             Self::IirtfPaths => "iirtf_paths_per_cell",
@@ -220,6 +223,7 @@ impl Knob {
             Self::ShOrder => vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
             Self::PcaComponents => vec![2.0, 4.0, 8.0, 16.0],
             Self::SvfResolution => vec![8.0, 12.0, 16.0, 24.0, 32.0],
+            Self::VisibilityPoints => vec![1.0, 2.0, 3.0, 4.0, 6.0],
             Self::SosCount => vec![4.0, 8.0, 16.0, 32.0],
             Self::SosSharpness => vec![16.0, 32.0, 64.0, 256.0],
             Self::IirtfPaths => vec![24.0, 48.0, 96.0, 192.0, 384.0],
@@ -237,6 +241,7 @@ impl Knob {
             Self::ShOrder => bake.sh_order = count,
             Self::PcaComponents => bake.pca_components = count,
             Self::SvfResolution => bake.svf_resolution = count,
+            Self::VisibilityPoints => bake.visibility_points = count,
             Self::SosCount => bake.sos_count = count,
             Self::SosSharpness => bake.sos_sharpness = value,
             Self::IirtfPaths => bake.iirtf_paths_per_cell = count,
@@ -255,6 +260,7 @@ impl Knob {
             Self::ShOrder => bake.sh_order as f64,
             Self::PcaComponents => bake.pca_components as f64,
             Self::SvfResolution => bake.svf_resolution as f64,
+            Self::VisibilityPoints => bake.visibility_points as f64,
             Self::SosCount => bake.sos_count as f64,
             Self::SosSharpness => bake.sos_sharpness,
             Self::IirtfPaths => bake.iirtf_paths_per_cell as f64,
@@ -1129,7 +1135,7 @@ impl Sweep {
     #[must_use]
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,sigma_glo_cm,sh_order,pca_components,svf_resolution,sos_count,sos_sharpness,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
+            "fabric,point,method,knob,value,preset,pareto,bake_s,frame_ms,gpu_resident_mb,spp,sigma_glo_cm,sh_order,pca_components,svf_resolution,visibility_points,sos_count,sos_sharpness,iirtf_paths_per_cell,cell_size_mfp,cell_depth_mfp",
         );
         for stage in Stage::ALL {
             let _ = write!(out, ",stage_{}_s", stage.name());
@@ -1158,7 +1164,7 @@ impl Sweep {
                 let b = &point.bake;
                 let _ = write!(
                     out,
-                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{}",
+                    "{},{},{method},{knob},{value},{preset},{on_front},{:.3},{:.2},{:.2},{},{},{},{},{},{},{},{},{},{},{}",
                     fabric.name,
                     point.label.replace(',', ";"),
                     result.bake_seconds(),
@@ -1169,6 +1175,7 @@ impl Sweep {
                     b.sh_order,
                     b.pca_components,
                     b.svf_resolution,
+                    b.visibility_points,
                     b.sos_count,
                     b.sos_sharpness,
                     b.iirtf_paths_per_cell,

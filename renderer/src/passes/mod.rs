@@ -461,7 +461,7 @@ mod tests {
                 &shared,
                 rust_struct!(FabricHeaderGpu; exemplar_count, sh_order, sh_count, svf_resolution,
                     pca_components, sos_count, sos_sharpness, cs_theta_count, cg_points, gn_intervals,
-                    pattern_width, pattern_height, block_size, z_range, cg_order),
+                    pattern_width, pattern_height, block_size, z_range, cg_order, visibility_points),
             ),
             (
                 "ExemplarGpu",
@@ -470,7 +470,11 @@ mod tests {
                     segment_offset, period, pca_offset, segment_count, cell_origin, cell_offset, cell_size,
                     cell_blocks_x, cell_dims, cell_blocks_y),
             ),
-            ("SegmentGpu", &shared, rust_struct!(SegmentGpu; direction, material, cell, sos_rotation)),
+            (
+                "SegmentGpu",
+                &shared,
+                rust_struct!(SegmentGpu; direction, material, midpoint, half_length, cell, sos_rotation),
+            ),
             (
                 "MaterialGpu",
                 &shared,
