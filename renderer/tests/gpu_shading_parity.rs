@@ -57,8 +57,9 @@ fn draft_bake(file: &SceneFile) -> Baked {
     let inputs = BakeInputs {
         exemplar: &scene.exemplar,
         materials: &scene.material_descs,
-        // The SH transfer alone: the fiber lobes have their own bake (`lobe_bake`).
-        settings: BakeSettings { fiber_lobes: false, ..Quality::Draft.settings() },
+        // The SH transfer alone: the fiber lobes have their own bake (`lobe_bake`). Three
+        // visibility points per segment, so every function reads images past the first.
+        settings: BakeSettings { fiber_lobes: false, visibility_points: 3, ..Quality::Draft.settings() },
     };
     bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
 }
@@ -541,7 +542,9 @@ fn lobe_bake() -> &'static Baked {
     static BAKE: std::sync::OnceLock<Baked> = std::sync::OnceLock::new();
     BAKE.get_or_init(|| {
         let scene = silk_scene(&[sun_toml()]);
-        let settings = BakeSettings { fiber_lobes: true, ..Quality::Draft.settings() };
+        // Two visibility points per segment, as the interactive preset: the whole-frame
+        // parity then also checks which image each pixel's hit takes.
+        let settings = BakeSettings { fiber_lobes: true, visibility_points: 2, ..Quality::Draft.settings() };
         let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
         let started = std::time::Instant::now();
         let baked =

@@ -93,7 +93,7 @@ impl Quality {
         match self {
             Self::Draft => BakeSettings {
                 svf_resolution: 16,
-                visibility_points: 2,
+                visibility_points: 1,
                 pca_components: 8,
                 sos_count: 32,
                 sos_sharpness: 128.0,
@@ -109,7 +109,7 @@ impl Quality {
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
-                visibility_points: 4,
+                visibility_points: 2,
                 pca_components: 24,
                 sos_count: 64,
                 sos_sharpness: 128.0,

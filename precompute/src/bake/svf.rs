@@ -397,10 +397,11 @@ pub(crate) mod tests {
     #[test]
     fn each_visibility_point_sees_past_what_covers_only_the_rest_of_its_segment() {
         // A fiber along x from -1 to 1, and a thick fiber across it above its left half
-        // (x from -0.8 to -0.2): at two points the left one (x = -0.5) is shadowed from
-        // straight above and the right one is not (the midpoint alone would see the sky too).
+        // (x from -0.7 to -0.3, z from 0.3 to 0.7): at two points the left one (x = -0.5) is
+        // shadowed from straight above and the right one is not (the midpoint alone would see
+        // the sky too).
         let host = fiber(Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), 0.01);
-        let cover = fiber(Vec3::new(-0.5, -1.0, 0.2), Vec3::new(-0.5, 1.0, 0.2), 0.3);
+        let cover = fiber(Vec3::new(-0.5, -1.0, 0.5), Vec3::new(-0.5, 1.0, 0.5), 0.2);
         let scene = FiberScene::new(&exemplar(vec![host, cover], Tiling::AsIs), Extent::Unbounded).unwrap();
         let k = scene.segments().iter().position(|s| s.fiber == 0).unwrap();
         let images = render_segments(&scene, &[k as u32], 8, 2, &Cancel::new(), &no_progress).unwrap();
