@@ -312,6 +312,10 @@ const SEGMENT_WGSL: &str = "
 fn seg_t(k: u32) -> vec3<f32> {
     return normalize(segments[k].direction);
 }
+// The segment's midpoint visibility image (twin: midpoint_image).
+fn seg_image(k: u32) -> u32 {
+    return k * fabric.visibility_points + fabric.visibility_points / 2u;
+}
 fn multiple_at(k: u32, p: vec3<f32>, wo: vec3<f32>, axis: vec3<f32>) -> vec3<f32> {
     var c: array<vec3<f32>, 49>;
     for (var j = 0u; j < 49u; j++) { c[j] = vec3<f32>(0.0); }
@@ -332,6 +336,12 @@ fn evaluate_on_bake(baked: &Baked, expression: &str, inputs: &[[f32; 4]]) -> Opt
         assert!(v.iter().all(|c| c.is_finite()), "{expression}: input {:?} gave {v:?}", inputs[i]);
     }
     Some(out)
+}
+
+/// The visibility image of segment `k`'s midpoint (`VisibilityData::image_at` without a
+/// position; twin of the WGSL `seg_image`).
+fn midpoint_image(baked: &Baked, k: u32) -> usize {
+    baked.visibility.image_at(k as usize, DVec3::Z, None, None)
 }
 
 /// Every segment of a bake with a non-zero direction, with its shading data.
@@ -820,7 +830,7 @@ fn hard_light_exactly_along_a_fiber_and_theta_at_plus_minus_half_pi() {
                     &s.fiber,
                     &b.gn,
                     &b.visibility,
-                    k as usize,
+                    midpoint_image(b, k),
                     t,
                     wo_vec,
                     t,
@@ -835,7 +845,7 @@ fn hard_light_exactly_along_a_fiber_and_theta_at_plus_minus_half_pi() {
                     &s.fiber,
                     &b.gn,
                     &b.visibility,
-                    k as usize,
+                    midpoint_image(b, k),
                     t,
                     wo_vec,
                     -t,
@@ -849,7 +859,7 @@ fn hard_light_exactly_along_a_fiber_and_theta_at_plus_minus_half_pi() {
                 inputs.push([k as f32, code as f32, 0.0, 0.0]);
             }
         }
-        let expr = "vec4<f32>(shade_single_directional(0u, u32(input.x), select(select(normalize(vec3<f32>(0.3, -0.4, 0.866)), -seg_t(u32(input.x)), input.y == 1.0), seg_t(u32(input.x)), input.y == 0.0), seg_t(u32(input.x))), 0.0)";
+        let expr = "vec4<f32>(shade_single_directional(0u, u32(input.x), seg_image(u32(input.x)), select(select(normalize(vec3<f32>(0.3, -0.4, 0.866)), -seg_t(u32(input.x)), input.y == 1.0), seg_t(u32(input.x)), input.y == 0.0), seg_t(u32(input.x))), 0.0)";
         if let Some(out) = evaluate_on_bake(b, expr, &inputs) {
             let worst = out.iter().flat_map(|v| v[..3].iter().copied()).fold(0.0_f32, |m, v| m.max(v.abs()));
             eprintln!(
@@ -879,12 +889,12 @@ fn hard_fully_visible_and_fully_occluded_segments() {
     let mut inputs = Vec::new();
     let mut expected = Vec::new();
     for &(k, s) in &segs {
-        let d = shading::ssdf_lookup(&b.visibility.ssdf, k as usize, wd);
+        let d = shading::ssdf_lookup(&b.visibility.ssdf, midpoint_image(b, k), wd);
         let v = shading::single_scattering_directional(
             &s.fiber,
             &b.gn,
             &b.visibility,
-            k as usize,
+            midpoint_image(b, k),
             s.tangent,
             wo,
             wd,
@@ -895,7 +905,7 @@ fn hard_fully_visible_and_fully_occluded_segments() {
             &s.fiber,
             &b.gn,
             &b.visibility,
-            k as usize,
+            midpoint_image(b, k),
             s.tangent,
             wo,
             wd,
@@ -922,7 +932,7 @@ fn hard_fully_visible_and_fully_occluded_segments() {
     eprintln!("{occluded} occluded and {visible} visible segments of {}", segs.len());
     assert!(occluded > 100 && visible > 100, "{occluded} occluded, {visible} visible");
     let expr = format!(
-        "vec4<f32>(shade_single_directional(0u, u32(input.x), normalize(vec3<f32>({}, {}, {})), normalize(vec3<f32>({}, {}, {}))), 0.0)",
+        "vec4<f32>(shade_single_directional(0u, u32(input.x), seg_image(u32(input.x)), normalize(vec3<f32>({}, {}, {})), normalize(vec3<f32>({}, {}, {}))), 0.0)",
         wo.x as f32, wo.y as f32, wo.z as f32, wd.x as f32, wd.y as f32, wd.z as f32
     );
     if let Some(out) = evaluate_on_bake(b, &expr, &inputs) {
