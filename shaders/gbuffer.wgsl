@@ -3,9 +3,10 @@
 // from tetrahedron to tetrahedron across shared faces (TetraGpu.neighbors) until it hits or
 // leaves the shell. Inside a tetrahedron the world -> (u, v, w) map is affine, so the ray is a
 // straight line in flat-fabric space, where it steps voxel by voxel (a 3D DDA,
-// shared/fabric_data.wgsl first_occupied_voxel) and stops at the first voxel that holds a
-// segment: the exact first hit on the voxel grid, whatever the view angle or the size of the
-// tetrahedra, found by one fragment per shell layer instead of one per tetrahedron crossed.
+// shared/fabric_data.wgsl first_fiber_hit) and at each occupied voxel intersects the capsules
+// of it and its face neighbours: the first fiber the ray enters, at its true surface, whatever
+// the view angle or the size of the tetrahedra, found by one fragment per shell layer instead
+// of one per tetrahedron crossed.
 // The fragment writes the hit's world position and ids to the G-buffer and its true depth, so
 // the depth test keeps the nearest hit where the ray enters the shell more than once (folded
 // cloth).
@@ -95,6 +96,9 @@ fn fs_main(in: VertexOut) -> GBufferOut {
     var t = 0.0;
     var budget = 0u;
     var stalls = 0u;
+    var best: VoxelHit;
+    best.t = NO_HIT;
+    best.segment = EMPTY_VOXEL;
     for (var walked = 0u; walked < MAX_RAY_TETRAS; walked++) {
         let tetra = tetras[tetra_id];
         // The face the ray came in through: the one shared with the previous tetrahedron.
@@ -140,14 +144,16 @@ fn fs_main(in: VertexOut) -> GBufferOut {
             // The ray in flat-fabric space (u, v, z in cm; w in [0, 1] spans the fabric slab).
             let fabric_start = vec3<f32>(start.xy, frame.fabric_z.x + start.z * frame.fabric_z.y);
             let fabric_dir = vec3<f32>(step_dir.xy, step_dir.z * frame.fabric_z.y);
-            let voxel = first_occupied_voxel(fabric_start, fabric_dir, t_from, t_exit, &budget);
-            if (voxel.segment != EMPTY_VOXEL) {
-                let hit = entry + voxel.t * dir;
+            first_fiber_hit(fabric_start, fabric_dir, t_film, t_from, t_exit, &budget, &best);
+            // A fiber entered within this tetrahedron's piece of the ray is the first; one
+            // entered further on waits for the pieces before it.
+            if (best.segment != EMPTY_VOXEL && best.t <= t_exit) {
+                let hit = entry + best.t * dir;
                 let clip = frame.clip_from_world * vec4<f32>(hit, 1.0);
                 var out: GBufferOut;
                 out.depth = clamp(clip.z / clip.w, 0.0, 1.0);
                 out.position = vec4<f32>(hit, 1.0);
-                out.ids = vec4<u32>(voxel.segment, tetra_id, voxel.exemplar, 1u);
+                out.ids = vec4<u32>(best.segment, tetra_id, best.exemplar, 1u);
                 return out;
             }
         }

@@ -338,10 +338,10 @@ fn evaluate_on_bake(baked: &Baked, expression: &str, inputs: &[[f32; 4]]) -> Opt
     Some(out)
 }
 
-/// The visibility image of segment `k`'s midpoint (`VisibilityData::image_at` without a
+/// The visibility image of segment `k`'s midpoint (`Baked::visibility_image` without a
 /// position; twin of the WGSL `seg_image`).
 fn midpoint_image(baked: &Baked, k: u32) -> usize {
-    baked.visibility.image_at(k as usize, DVec3::Z, None, None)
+    baked.visibility_image(k as usize, DVec3::Z, None)
 }
 
 /// Every segment of a bake with a non-zero direction, with its shading data.

@@ -109,14 +109,17 @@ const _: () = assert!(size_of::<ExemplarGpu>() == 112);
 pub struct SegmentGpu {
     pub direction: [f32; 3],
     pub material: u32,
-    /// Midpoint (exemplar coordinates, cm) and half length: where along the segment a shaded
-    /// point lies, to pick its visibility image (`VisibilityData::segment_axes`).
+    /// Midpoint (exemplar coordinates, cm) and half length (`SegmentTable::axis`): the
+    /// capsule eye rays test, and where along the segment a shaded point lies, to pick its
+    /// visibility image.
     pub midpoint: [f32; 3],
     pub half_length: f32,
     pub cell: u32,
     /// The sum-of-SGs rotation, shared by the segment's visibility points.
     pub sos_rotation: f32,
-    pub pad: [u32; 2],
+    /// Fiber radius (cm): the capsule eye rays test.
+    pub radius: f32,
+    pub pad: u32,
 }
 const _: () = assert!(size_of::<SegmentGpu>() == 48);
 
@@ -270,7 +273,8 @@ impl FabricArrays {
                 && baked.visibility.sum_of_sg.count == sos_count
                 && baked.settings.cs_theta_count == theta_count
                 && baked.visibility.points == visibility_points
-                && baked.visibility.segment_axes.len() == baked.volume.segments.len();
+                && baked.volume.segments.axis.len() == baked.volume.segments.len()
+                && baked.volume.segments.radius.len() == baked.volume.segments.len();
             if !same {
                 return Err(FabricDataError::Inconsistent(format!(
                     "exemplar {e} was baked with different settings from exemplar 0"
@@ -333,7 +337,7 @@ impl FabricArrays {
                 baked.settings.fiber_lobes || baked.transfer.iirtf.cells.iter().any(CellTransfer::has_lobes);
             out.voxels.extend_from_slice(&volume.ids);
             for k in 0..segment_count {
-                let [x, y, z, half_length] = baked.visibility.segment_axes[k];
+                let [x, y, z, half_length] = baked.volume.segments.axis[k];
                 out.segments.push(SegmentGpu {
                     direction: baked.volume.segments.direction[k],
                     material: to_u32(material_offset, "material")? + baked.volume.segments.material[k],
@@ -341,7 +345,8 @@ impl FabricArrays {
                     half_length,
                     cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
                     sos_rotation: baked.visibility.sum_of_sg.rotation(k * visibility_points),
-                    pad: [0; 2],
+                    radius: baked.volume.segments.radius[k],
+                    pad: 0,
                 });
             }
             if let Some(slot) = baked.materials.iter().position(|m| matches!(m, MaterialDesc::Lambert { .. }))

@@ -322,7 +322,7 @@ impl fmt::Display for FramePlan {
                 }
                 Pass::Visibility { lights } => writeln!(f, "  {} ({lights} light layer(s))", pass.name())?,
                 Pass::Blur { sigma_glo_cm } => writeln!(f, "  {} ({sigma_glo_cm} cm)", pass.name())?,
-                Pass::GBuffer => writeln!(f, "  {} (to the first occupied voxel; per sample)", pass.name())?,
+                Pass::GBuffer => writeln!(f, "  {} (to the first fiber entered; per sample)", pass.name())?,
                 Pass::CellTransfer => {
                     writeln!(f, "  {} (once per frame: one fabric frame, no shadows)", pass.name())?;
                 }

@@ -296,7 +296,7 @@ fn compare_visibility_images(label: &str, baked: &Baked, run: &GpuEvaluation<'_>
     };
     let mut inputs = Vec::new();
     for segment in grid_segments(baked) {
-        let [x, y, z, half] = baked.visibility.segment_axes[segment as usize];
+        let [x, y, z, half] = baked.volume.segments.axis[segment as usize];
         let t = Vec3::from(baked.volume.segments.direction[segment as usize]).as_dvec3().normalize();
         let mid = DVec3::new(f64::from(x), f64::from(y), f64::from(z));
         for j in 0..points {
@@ -963,9 +963,9 @@ fn without_lobes(baked: &Baked) -> Baked {
 }
 
 /// The CPU method's image of `scene` at the GPU's primary hits of a one-sample frame: per
-/// pixel the ray through its centre (the GPU's sample 0), the first voxel of the bake's volume
-/// it crosses that holds a segment (`VoxelVolume::first_occupied`, what the G-buffer pass
-/// marches to), shaded where the ray enters it by `shading::shade` (`component`; multiple
+/// pixel the ray through its centre (the GPU's sample 0), the first fiber it enters among the
+/// voxels of the bake's volume it crosses (`VoxelVolume::first_fiber_hit`, what the G-buffer
+/// pass finds), shaded where the ray enters it by `shading::shade` (`component`; multiple
 /// scattering with the fiber lobes, clamped at zero with the rest, transfer and lobes
 /// interpolated between cells) with V_glo = V̄_glo = 1 (a flat swatch lit from above).
 /// Row-major, y down, as the GPU's frame.
@@ -979,7 +979,9 @@ fn cpu_at_voxel_hits(scene: &Scene, baked: &Baked, component: Component) -> Vec<
     for y in 0..LOBE_FRAME_SIZE {
         for x in 0..LOBE_FRAME_SIZE {
             let (origin, dir) = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
-            let Some((segment, t)) = volume.first_occupied(origin, dir, 0.0, f64::INFINITY) else {
+            let Some((segment, t)) =
+                volume.first_fiber_hit(&baked.volume.segments, origin, dir, 0.0, f64::INFINITY)
+            else {
                 out.push(Rgb::ZERO);
                 continue;
             };

@@ -85,8 +85,9 @@ struct SegmentGpu {
     cell: u32,
     // Shared by the segment's visibility points.
     sos_rotation: f32,
+    // Fiber radius (cm): the capsule eye rays test.
+    radius: f32,
     _pad0: u32,
-    _pad1: u32,
 }
 
 struct MaterialGpu {
@@ -142,11 +143,109 @@ const MAX_RAY_VOXELS: u32 = 8192u;
 // point this fraction of the smallest voxel side past its start.
 const NO_HIT: f32 = 3.0e38;
 
+// The nearest fiber an eye ray has been found to enter so far (t = NO_HIT and segment =
+// EMPTY_VOXEL while none).
 struct VoxelHit {
-    // Where the ray enters the voxel (NO_HIT when none is occupied).
     t: f32,
     segment: u32,
     exemplar: u32,
+}
+
+// Where the ray p0 + t d enters the capsule of (global) segment k moved by `shift`, t in units
+// of d; NO_HIT if it misses. Twin of precompute's volume::ray_capsule_entry: from the ray's
+// closest approach to the midpoint, so f32 works with offsets of the capsule's own size.
+fn capsule_entry(k: u32, shift: vec3<f32>, p0: vec3<f32>, d: vec3<f32>) -> f32 {
+    let s = segments[k];
+    let len = length(d);
+    if (!(len > 0.0)) {
+        return NO_HIT;
+    }
+    let dn = d / len;
+    let u = normalize(s.direction);
+    let mid = s.midpoint + shift;
+    let t_closest = dot(mid - p0, dn);
+    let p = p0 + t_closest * dn - mid;
+    let r2 = s.radius * s.radius;
+    // The infinite cylinder; its entry counts where it lies on the body.
+    let pu = dot(p, u);
+    let du = dot(dn, u);
+    let p_perp = p - pu * u;
+    let d_perp = dn - du * u;
+    let qa = dot(d_perp, d_perp);
+    let qb = dot(p_perp, d_perp);
+    let qc = dot(p_perp, p_perp) - r2;
+    if (qa > 1e-12) {
+        let disc = qb * qb - qa * qc;
+        if (disc < 0.0) {
+            return NO_HIT;
+        }
+        let sc = (-qb - sqrt(disc)) / qa;
+        if (abs(pu + sc * du) <= s.half_length) {
+            return (t_closest + sc) / len;
+        }
+    }
+    // Otherwise through a cap (or along the axis): the nearer sphere.
+    var entry = NO_HIT;
+    for (var end = 0u; end < 2u; end++) {
+        let q = p - select(-s.half_length, s.half_length, end == 1u) * u;
+        let b = dot(q, dn);
+        let disc = b * b - (dot(q, q) - r2);
+        if (disc >= 0.0) {
+            entry = min(entry, -b - sqrt(disc));
+        }
+    }
+    if (entry == NO_HIT) {
+        return NO_HIT;
+    }
+    return (t_closest + entry) / len;
+}
+
+// Tests the capsules of voxel c (wrapped; `cell` unwrapped) of exemplar e and of its six face
+// neighbours, in the order itself, -x, +x, -y, +y, -z, +z (VoxelVolume::face_neighbourhood),
+// each the copy nearest the voxel on a periodic volume, and keeps in `best` the nearest entry
+// at t >= t_min. Twin of the loop body of VoxelVolume::first_fiber_hit.
+fn test_voxel_fibers(e: u32, c: vec3<i32>, cell: vec3<i32>, p0: vec3<f32>, d: vec3<f32>, t_min: f32, best: ptr<function, VoxelHit>) {
+    let ex = exemplars[e];
+    let dims = vec3<i32>(ex.volume_dims);
+    let periodic = ex.periodic != 0u;
+    let plane = u32(dims.x * dims.y);
+    let centre = ex.volume_origin + (vec3<f32>(cell) + vec3<f32>(0.5)) * ex.voxel_size;
+    var steps = array<vec3<i32>, 7>(
+        vec3<i32>(0, 0, 0), vec3<i32>(-1, 0, 0), vec3<i32>(1, 0, 0), vec3<i32>(0, -1, 0),
+        vec3<i32>(0, 1, 0), vec3<i32>(0, 0, -1), vec3<i32>(0, 0, 1),
+    );
+    var seen = array<u32, 7>(EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL);
+    for (var q = 0u; q < 7u; q++) {
+        var n = c + steps[q];
+        if (periodic) {
+            n = vec3<i32>(select(select(n.xy, vec2<i32>(0), n.xy >= dims.xy), dims.xy - vec2<i32>(1), n.xy < vec2<i32>(0)), n.z);
+        }
+        if (any(n < vec3<i32>(0)) || any(n >= dims)) {
+            continue;
+        }
+        let local = voxels[ex.voxel_offset + u32(n.z) * plane + u32(n.y * dims.x + n.x)];
+        // An id met before in this neighbourhood gives the same entry: skip it.
+        var repeat = local == EMPTY_VOXEL;
+        for (var j = 0u; j < q; j++) {
+            repeat = repeat || seen[j] == local;
+        }
+        seen[q] = local;
+        if (repeat) {
+            continue;
+        }
+        let k = ex.segment_offset + local;
+        var shift = vec3<f32>(0.0);
+        if (periodic) {
+            let mid = segments[k].midpoint;
+            shift = vec3<f32>(ex.period * round((centre.xy - mid.xy) / ex.period), 0.0);
+        }
+        let t = capsule_entry(k, shift, p0, d);
+        if (t >= t_min && t < (*best).t) {
+            (*best).t = t;
+            (*best).segment = k;
+            (*best).exemplar = e;
+        }
+    }
 }
 
 // Where the ray p0 + t d (flat-fabric cm) leaves the pattern block it is in at t.
@@ -166,15 +265,14 @@ fn block_exit(p0: vec3<f32>, d: vec3<f32>, t: f32) -> f32 {
     return max(t_exit, t);
 }
 
-// The first voxel of exemplar e's volume that the ray p0 + t d crosses for t in [t0, t1] and
-// that holds a segment: a 3D DDA (Amanatides & Woo), visiting every voxel the ray crosses in
-// order. Twin of precompute's VoxelVolume::first_occupied. `budget` counts the voxels visited.
+// Walks the voxels of exemplar e's volume that the ray p0 + t d crosses for t in
+// [t_from, t_to], in order (a 3D DDA, Amanatides & Woo), and at every occupied one tests the
+// capsules of it and its face neighbours (test_voxel_fibers), keeping the nearest entry at
+// t >= t_min in `best`; it stops at the first occupied voxel that starts past `best`. Twin of
+// precompute's VoxelVolume::first_fiber_hit. `budget` counts the voxels visited.
 // Written with whole-vector selects rather than indexing a vector by a variable axis, which
 // llvmpipe runs several times slower.
-fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, budget: ptr<function, u32>) -> VoxelHit {
-    var none: VoxelHit;
-    none.t = NO_HIT;
-    none.segment = EMPTY_VOXEL;
+fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_min: f32, t_from: f32, t_to: f32, budget: ptr<function, u32>, best: ptr<function, VoxelHit>) {
     let ex = exemplars[e];
     let lo = ex.volume_origin;
     let size = ex.voxel_size;
@@ -186,7 +284,7 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, b
     let moving = d != vec3<f32>(0.0);
     // A clipped axis the ray runs level along must start inside the grid.
     if (any(clipped & !moving & ((p0 < lo) | (p0 >= hi)))) {
-        return none;
+        return;
     }
     let safe_d = select(vec3<f32>(1.0), d, moving);
     let ta = (lo - p0) / safe_d;
@@ -197,7 +295,7 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, b
     let t0 = max(t_from, max(t_enter.x, max(t_enter.y, t_enter.z)));
     let t1 = min(t_to, min(t_leave.x, min(t_leave.y, t_leave.z)));
     if (!(t0 < t1)) {
-        return none;
+        return;
     }
     let nudge = VOXEL_START_NUDGE * min(size.x, min(size.y, size.z)) / length(d);
     let start = p0 + (t0 + min(nudge, 0.5 * (t1 - t0))) * d;
@@ -219,16 +317,16 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, b
     var t = t0;
     loop {
         if (*budget >= MAX_RAY_VOXELS) {
-            return none;
+            return;
         }
         *budget += 1u;
         let local = voxels[ex.voxel_offset + u32(c.z) * plane + u32(c.y * dims.x + c.x)];
         if (local != EMPTY_VOXEL) {
-            var hit: VoxelHit;
-            hit.t = t;
-            hit.segment = ex.segment_offset + local;
-            hit.exemplar = e;
-            return hit;
+            // A fiber entered before this voxel starts is the nearest there is.
+            if ((*best).t <= t) {
+                return;
+            }
+            test_voxel_fibers(e, c, cell, p0, d, t_min, best);
         }
         // Step along the axis whose next face is nearest.
         let is_x = t_next.x <= t_next.y && t_next.x <= t_next.z;
@@ -236,12 +334,12 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, b
         let axis = vec3<bool>(is_x, is_y, !is_x && !is_y);
         t = min(t_next.x, min(t_next.y, t_next.z));
         if (t >= t1) {
-            return none;
+            return;
         }
         let moved = select(vec3<i32>(0), step, axis);
         cell += moved;
         if (any(clipped & ((cell < vec3<i32>(0)) | (cell >= dims)))) {
-            return none;
+            return;
         }
         c += moved;
         if (periodic) {
@@ -250,32 +348,26 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_from: f32, t_to: f32, b
         }
         t_next += select(vec3<f32>(0.0), t_delta, axis);
     }
-    return none;
 }
 
-// The first occupied voxel along p0 + t d (flat-fabric cm), t in [t_start, t_end], over the
-// pattern's exemplars: the ray is cut where it crosses from one pattern block to the next, and
-// each piece is marched through its own exemplar's volume. `budget` counts the voxels visited
-// (over every call for one eye ray); past MAX_RAY_VOXELS the ray gives up.
-fn first_occupied_voxel(p0: vec3<f32>, d: vec3<f32>, t_start: f32, t_end: f32, budget: ptr<function, u32>) -> VoxelHit {
+// The first fiber along p0 + t d (flat-fabric cm) entered at t >= t_min, among those of the
+// voxels crossed for t in [t_start, t_end], over the pattern's exemplars: the ray is cut where
+// it crosses from one pattern block to the next, and each piece is marched through its own
+// exemplar's volume. `best` carries the nearest entry found so far (also from earlier calls
+// for the same ray: an entry may lie past the piece whose voxels found it); `budget` counts
+// the voxels visited (over every call for one eye ray); past MAX_RAY_VOXELS the ray gives up.
+fn first_fiber_hit(p0: vec3<f32>, d: vec3<f32>, t_min: f32, t_start: f32, t_end: f32, budget: ptr<function, u32>, best: ptr<function, VoxelHit>) {
     var t = t_start;
-    var hit: VoxelHit;
-    hit.t = NO_HIT;
-    hit.segment = EMPTY_VOXEL;
     for (var piece = 0u; piece < MAX_RAY_VOXELS; piece++) {
-        if (!(t < t_end) || *budget >= MAX_RAY_VOXELS) {
+        if (!(t < t_end) || *budget >= MAX_RAY_VOXELS || (*best).t <= t) {
             break;
         }
         let t_piece = min(block_exit(p0, d, t), t_end);
         let nudge = VOXEL_START_NUDGE * min(fabric.block_size.x, fabric.block_size.y) / length(d);
         let e = exemplar_at((p0 + (t + min(nudge, 0.5 * (t_piece - t))) * d).xy);
-        hit = march_exemplar(e, p0, d, t, t_piece, budget);
-        if (hit.segment != EMPTY_VOXEL) {
-            break;
-        }
+        march_exemplar(e, p0, d, t_min, t, t_piece, budget, best);
         t = t_piece;
     }
-    return hit;
 }
 
 // a_C[j0, j1] of one channel of a global cell.

@@ -214,7 +214,7 @@ fn sg_bcsdf_gamma(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, lambda: 
 }
 
 // The visibility image that shades `segment` at exemplar-local point p (pipeline.rs
-// VisibilityData::image_at, svf.rs visibility_point_of): that of the visibility point whose
+// Baked::visibility_image, svf.rs visibility_point_of): that of the visibility point whose
 // piece of the segment holds p's projection on its axis, p taken in the copy of a periodic
 // exemplar nearest the segment.
 fn visibility_image(e: u32, segment: u32, p: vec3<f32>) -> u32 {

@@ -41,7 +41,9 @@ use super::settings::{BakeSettings, MAX_VISIBILITY_POINTS};
 use super::sum_of_sg::{SumOfSgError, SumOfSgVisibility, fit_weights};
 use super::svf::{SvfError, VisibilityImages, render_exemplar, visibility_point_of};
 use super::tables::{CG_DEFAULT_POINTS, CgTable, GnTable};
-use super::volume::{EMPTY_VOXEL, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize};
+use super::volume::{
+    EMPTY_VOXEL, Occupancy, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize,
+};
 use super::{Cancel, Cancelled};
 use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
@@ -91,13 +93,15 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
-/// 3: images at `visibility_points` points along each segment, and the segments' axes;
+/// 3: images at `visibility_points` points along each segment; volume 3: touching occupancy
+/// and the segments' capsules;
 /// transfer 5: the fiber lobes, `CellTransfer::reflected` and the two shapes, and a kept
 /// cell's zero matrix).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 3, 5, 1, 1, 1, 2];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 3, 5, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
-/// lobes' fields of `CellTransfer`; 5: `VisibilityData::points` and `segment_axes`).
+/// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
+/// `radius`).
 pub const BAKE_LAYOUT_VERSION: u32 = 5;
 
 /// What a bake needs: the fabric, its material slots, the settings.
@@ -126,47 +130,29 @@ pub struct VisibilityData {
     pub resolution: usize,
     /// Visibility points per segment (`BakeSettings::visibility_points`).
     pub points: usize,
-    /// Per segment: its midpoint (exemplar coordinates, cm) and half its length, to find the
-    /// visibility point a hit lies nearest.
-    pub segment_axes: Vec<[f32; 4]>,
     pub ssdf: PcaBasis,
     pub sum_of_sg: SumOfSgVisibility,
     /// Mean visible solid angle over the images (steradians), for reports.
     pub mean_visible_solid_angle: f64,
 }
 
-impl VisibilityData {
-    /// Each segment's midpoint and half length, as [`VisibilityData::segment_axes`] keeps them.
+impl Baked {
+    /// The visibility image (PCA SSDF and sum-of-SGs row) that shades `segment` (unit tangent
+    /// `tangent`) at `position` (exemplar coordinates; `None`: the midpoint's): that of the
+    /// visibility point whose piece of the segment holds `position`'s projection on its axis
+    /// (`svf::visibility_point_of`), taken in the copy of a periodic exemplar nearest the
+    /// segment (the voxel volume spans exactly one period). Twin: `visibility_image` in
+    /// shaders/shared/shading.wgsl.
     #[must_use]
-    pub fn axes_of(exemplar: &Exemplar) -> Vec<[f32; 4]> {
-        exemplar
-            .segments()
-            .iter()
-            .map(|s| {
-                let m = s.midpoint();
-                [m.x, m.y, m.z, 0.5 * (s.b - s.a).length()]
-            })
-            .collect()
-    }
-
-    /// The image (PCA SSDF and sum-of-SGs row) that shades `segment` (unit tangent `tangent`)
-    /// at `position` (exemplar coordinates; `None`: the midpoint's): that of the visibility
-    /// point whose piece of the segment holds `position`'s projection on its axis
-    /// (`svf::visibility_point_of`). On a periodic exemplar (`period`, cm) the position is
-    /// taken in the copy of the exemplar nearest the segment.
-    #[must_use]
-    pub fn image_at(
-        &self,
-        segment: usize,
-        tangent: DVec3,
-        position: Option<DVec3>,
-        period: Option<[f64; 2]>,
-    ) -> usize {
-        let points = self.points.max(1);
-        let point = match (position, self.segment_axes.get(segment)) {
+    pub fn visibility_image(&self, segment: usize, tangent: DVec3, position: Option<DVec3>) -> usize {
+        let points = self.visibility.points.max(1);
+        let point = match (position, self.volume.segments.axis.get(segment)) {
             (Some(p), Some(&[x, y, z, half_length])) if points > 1 => {
                 let mut offset = p - DVec3::new(f64::from(x), f64::from(y), f64::from(z));
-                if let Some([px, py]) = period {
+                let volume = &self.volume.volume;
+                if volume.periodic {
+                    let size = volume.voxel_size.as_dvec3();
+                    let (px, py) = (size.x * f64::from(volume.dims[0]), size.y * f64::from(volume.dims[1]));
                     offset.x -= px * (offset.x / px).round();
                     offset.y -= py * (offset.y / py).round();
                 }
@@ -175,20 +161,6 @@ impl VisibilityData {
             _ => points / 2,
         };
         segment * points + point
-    }
-}
-
-impl Baked {
-    /// [`VisibilityData::image_at`] with this bake's period (its voxel volume's, which spans
-    /// exactly one period of a periodic exemplar).
-    #[must_use]
-    pub fn visibility_image(&self, segment: usize, tangent: DVec3, position: Option<DVec3>) -> usize {
-        let volume = &self.volume.volume;
-        let period = volume.periodic.then(|| {
-            let size = volume.voxel_size.as_dvec3();
-            [size.x * f64::from(volume.dims[0]), size.y * f64::from(volume.dims[1])]
-        });
-        self.visibility.image_at(segment, tangent, position, period)
     }
 }
 
@@ -238,7 +210,8 @@ impl Baked {
                 "visibility points per segment is {points}, expected 1 to {MAX_VISIBILITY_POINTS}"
             ));
         }
-        expect("visibility segment axes", self.visibility.segment_axes.len(), segments)?;
+        expect("segment axes", self.volume.segments.axis.len(), segments)?;
+        expect("segment radii", self.volume.segments.radius.len(), segments)?;
         let images = segments * points;
         let ssdf = &self.visibility.ssdf;
         expect("visibility (PCA SSDF) images", ssdf.segment_count, images)?;
@@ -594,7 +567,6 @@ fn bake_stages(
         Ok(VisibilityData {
             resolution: s.svf_resolution,
             points: s.visibility_points,
-            segment_axes: VisibilityData::axes_of(inputs.exemplar),
             ssdf,
             sum_of_sg,
             mean_visible_solid_angle,
@@ -669,8 +641,9 @@ fn bake_stages(
         .run(Stage::CgTable, keys.cg, || Ok(CgTable::new(s.light_sh_order(), CG_DEFAULT_POINTS)?))?;
 
     let volume = stage_runner.run(Stage::Volume, keys.volume, || {
-        let (vpd, occupancy) = fit_resolution(inputs.exemplar, s.voxels_per_fiber_diameter)?;
-        let volume = rasterize(inputs.exemplar, vpd, occupancy, cancel, &|f| progress(Stage::Volume, f))?;
+        let vpd = fit_resolution(inputs.exemplar, s.voxels_per_fiber_diameter)?;
+        let volume =
+            rasterize(inputs.exemplar, vpd, Occupancy::Touches, cancel, &|f| progress(Stage::Volume, f))?;
         Ok(VolumeData { volume, segments: SegmentTable::new(inputs.exemplar) })
     })?;
 

@@ -19,7 +19,8 @@
 //!    the point whose piece of the segment the hit lies on (twill's V_k);
 //! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
 //! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
-//! 6. the method on the GPU's primary hits: the first occupied voxel of the bake's volume along
+//! 6. the method on the GPU's primary hits: the first fiber entered among the voxels of the
+//!    bake's volume along
 //!    the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
 //! Multiple scattering (indirect light through the exact fiber scattering function, one path
@@ -257,7 +258,7 @@ pub fn error_budget(
         t.elapsed().as_secs_f64(),
     );
     let voxel_hits = PrimaryHits::Voxels;
-    let voxels = "the GPU's primary hits (first occupied voxel)";
+    let voxels = "the GPU's primary hits (fibers of the voxels walked)";
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, options)?;

@@ -22,7 +22,7 @@ use super::multiple::{light_sh, lobe_scattering, multiple_scattering};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
-use crate::bake::volume::VoxelVolume;
+use crate::bake::volume::{SegmentTable, VoxelVolume};
 use crate::image::{Film, PixelRow};
 use crate::pathtrace::integrator::pixel_rng;
 use crate::pathtrace::{Component, Light};
@@ -161,7 +161,7 @@ pub fn render_flat_with(
         PrimaryHits::Voxels => {
             let volume = &baked.volume.volume;
             render_camera_rays(scene, spp, seed, |origin, dir, t_max, _| {
-                match voxel_hit(volume, origin, dir, t_max) {
+                match voxel_hit(volume, &baked.volume.segments, origin, dir, t_max) {
                     Some((segment, local)) => shade_at(segment, local, -dir),
                     None => Ok(Rgb::ZERO),
                 }
@@ -170,11 +170,17 @@ pub fn render_flat_with(
     }
 }
 
-/// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first voxel the ray
-/// crosses that holds a segment ([`VoxelVolume::first_occupied`]), as (segment, exemplar-local
-/// position of the point where the ray enters it).
-fn voxel_hit(volume: &VoxelVolume, origin: DVec3, dir: DVec3, t_max: f64) -> Option<(u32, DVec3)> {
-    let (segment, t) = volume.first_occupied(origin, dir, 0.0, t_max)?;
+/// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first fiber the ray
+/// crosses among the capsules of the voxels it walks ([`VoxelVolume::first_fiber_hit`]), as
+/// (segment, exemplar-local position of the point where the ray enters it).
+fn voxel_hit(
+    volume: &VoxelVolume,
+    segments: &SegmentTable,
+    origin: DVec3,
+    dir: DVec3,
+    t_max: f64,
+) -> Option<(u32, DVec3)> {
+    let (segment, t) = volume.first_fiber_hit(segments, origin, dir, 0.0, t_max)?;
     let mut p = origin + t * dir;
     if volume.periodic {
         let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
@@ -256,7 +262,7 @@ mod tests {
     use glam::{DVec3, Vec3};
 
     use super::voxel_hit;
-    use crate::bake::volume::{EMPTY_VOXEL, Occupancy, VoxelVolume};
+    use crate::bake::volume::{EMPTY_VOXEL, Occupancy, SegmentTable, VoxelVolume};
 
     /// A 4 x 4 x 4 grid of 1 cm voxels from the origin, empty but for voxel `(i, j, k)` = 7.
     fn one_voxel(periodic: bool, [i, j, k]: [usize; 3]) -> VoxelVolume {
@@ -267,35 +273,56 @@ mod tests {
             origin: Vec3::ZERO,
             voxel_size: Vec3::ONE,
             periodic,
-            occupancy: Occupancy::CentreInside,
+            occupancy: Occupancy::Touches,
             ids,
         }
     }
 
+    /// Segment 7 (of 8): a capsule along x through the centre of voxel `(i, j, k)`, 0.6 cm long
+    /// and 0.4 cm in radius; the others far away.
+    fn one_capsule([i, j, k]: [usize; 3]) -> SegmentTable {
+        let centre = [i as f32 + 0.5, j as f32 + 0.5, k as f32 + 0.5];
+        let mut table = SegmentTable {
+            direction: vec![[1.0, 0.0, 0.0]; 8],
+            material: vec![0; 8],
+            axis: vec![[100.0, 100.0, 100.0, 0.3]; 8],
+            radius: vec![0.4; 8],
+        };
+        table.axis[7] = [centre[0], centre[1], centre[2], 0.3];
+        table
+    }
+
     #[test]
-    fn voxel_hits_stop_where_the_ray_enters_the_first_occupied_voxel() {
-        let volume = one_voxel(false, [1, 2, 1]);
-        // Straight down through x = 1.5, y = 2.5: the ray enters voxel k = 1 at its top, z = 2.
-        let (id, p) = voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY).unwrap();
+    fn voxel_hits_stop_where_the_ray_enters_the_fiber_of_the_voxels_it_crosses() {
+        let (volume, segments) = (one_voxel(false, [1, 2, 1]), one_capsule([1, 2, 1]));
+        // Straight down through x = 1.5, y = 2.5: the capsule's top, z = 1.5 + 0.4.
+        let down = |x: f64, y: f64, t_max: f64| {
+            voxel_hit(&volume, &segments, DVec3::new(x, y, 10.0), -DVec3::Z, t_max)
+        };
+        let (id, p) = down(1.5, 2.5, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
-        assert!((p - DVec3::new(1.5, 2.5, 2.0)).length() < 1e-12, "{p}");
-        // Beside the voxel, or cut short by the ground above it: none.
-        assert!(voxel_hit(&volume, DVec3::new(0.5, 2.5, 10.0), -DVec3::Z, f64::INFINITY).is_none());
-        assert!(voxel_hit(&volume, DVec3::new(1.5, 2.5, 10.0), -DVec3::Z, 7.9).is_none());
-        // Level with the slab, through the voxel's row: it enters at x = 1.
-        let (_, p) = voxel_hit(&volume, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY).unwrap();
-        assert!((p - DVec3::new(1.0, 2.5, 1.5)).length() < 1e-12, "{p}");
+        assert!((p - DVec3::new(1.5, 2.5, 1.9)).length() < 1e-12, "{p}");
+        // Through the voxel beside the capsule, beside the voxel, or cut short by the ground
+        // above the capsule: none.
+        assert!(down(1.5, 2.95, f64::INFINITY).is_none());
+        assert!(down(0.5, 2.5, f64::INFINITY).is_none());
+        assert!(down(1.5, 2.5, 8.0).is_none());
+        // Level with the slab along the capsule's axis: it enters the near cap at x = 0.8.
+        let (_, p) =
+            voxel_hit(&volume, &segments, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY).unwrap();
+        assert!((p - DVec3::new(0.8, 2.5, 1.5)).length() < 1e-12, "{p}");
     }
 
     #[test]
     fn periodic_voxel_hits_wrap_across_the_fabric() {
-        let volume = one_voxel(true, [3, 0, 2]);
+        let (volume, segments) = (one_voxel(true, [3, 0, 2]), one_capsule([3, 0, 2]));
         // Three periods over and one back: x = 15.5 wraps to 3.5, y = -3.5 to 0.5; the ray
-        // enters voxel k = 2 at z = 3.
-        let (id, p) = voxel_hit(&volume, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY).unwrap();
+        // enters that copy of the capsule at its top, z = 2.5 + 0.4.
+        let origin = DVec3::new(15.5, -3.5, 10.0);
+        let (id, p) = voxel_hit(&volume, &segments, origin, -DVec3::Z, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
-        assert!((p - DVec3::new(3.5, 0.5, 3.0)).length() < 1e-12, "exemplar-local position {p}");
+        assert!((p - DVec3::new(3.5, 0.5, 2.9)).length() < 1e-12, "exemplar-local position {p}");
         let not_periodic = one_voxel(false, [3, 0, 2]);
-        assert!(voxel_hit(&not_periodic, DVec3::new(15.5, -3.5, 10.0), -DVec3::Z, f64::INFINITY).is_none());
+        assert!(voxel_hit(&not_periodic, &segments, origin, -DVec3::Z, f64::INFINITY).is_none());
     }
 }

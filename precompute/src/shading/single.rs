@@ -28,7 +28,7 @@ use crate::pathtrace::Light;
 use crate::sg::sg_mass;
 
 /// Directional-light single scattering of a segment (unit tangent `t`) with visibility image
-/// `image` (`VisibilityData::image_at`), see the module docs.
+/// `image` (`Baked::visibility_image`), see the module docs.
 #[must_use]
 pub fn single_scattering_directional(
     fiber: &FiberConstants,
@@ -49,7 +49,7 @@ pub fn single_scattering_directional(
 }
 
 /// SG-light single scattering of a segment (unit tangent `t`) with visibility image `image`
-/// (`VisibilityData::image_at`), see the module docs.
+/// (`Baked::visibility_image`), see the module docs.
 #[must_use]
 pub fn single_scattering_sg(
     fiber: &FiberConstants,

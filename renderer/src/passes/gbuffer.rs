@@ -3,7 +3,7 @@
 //! How it works: the shell's surface faces are rasterized (front faces: where an eye ray
 //! enters the shell) with the camera's clip-from-world matrix, jittered by the sample's
 //! sub-pixel offset. Each fragment walks its ray from tetrahedron to tetrahedron and, inside
-//! each, voxel by voxel to the first occupied voxel (shaders/gbuffer.wgsl); it writes the hit's
+//! each, voxel by voxel to the first fiber they enter (shaders/gbuffer.wgsl); it writes the hit's
 //! world position and ids and its true depth, so the depth test keeps the nearest hit where a
 //! ray enters the shell more than once.
 

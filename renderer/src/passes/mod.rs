@@ -11,7 +11,7 @@
 //! - [`visibility`]: V[u, v] per light, PCF or PCSS lookups of the shadow maps at X;
 //! - [`blur`]: V blurred by σ_glo, separably;
 //! - [`cell_transfer`]: the light arriving in every IIRTF cell, once per frame;
-//! - [`gbuffer`]: eye rays walked through the shell to their first occupied voxel (per sample);
+//! - [`gbuffer`]: eye rays walked through the shell to the first fiber they enter (per sample);
 //! - [`shade`]: single and multiple scattering per pixel, added to the accumulation (per sample);
 //! - [`tone_map`]: the accumulated radiance into an 8-bit sRGB image.
 //!
@@ -473,7 +473,7 @@ mod tests {
             (
                 "SegmentGpu",
                 &shared,
-                rust_struct!(SegmentGpu; direction, material, midpoint, half_length, cell, sos_rotation),
+                rust_struct!(SegmentGpu; direction, material, midpoint, half_length, cell, sos_rotation, radius),
             ),
             (
                 "MaterialGpu",
