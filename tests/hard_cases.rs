@@ -50,10 +50,11 @@ const SEED: u64 = 7;
 
 /// GPU frame against the CPU method, image mean per channel, relative to the CPU's mean
 /// brightness. The two are different discretizations of one method, not twins: the GPU steps
-/// its eye rays through the shell's voxelized segments to the first occupied voxel and blends
-/// SSDF and sum-of-SG visibility per pixel, the CPU casts exact rays against the fibers. On the
+/// its eye rays through the shell's voxelized segments to the fibers of the voxels it crosses
+/// and blends SSDF and sum-of-SG visibility per pixel, the CPU casts exact rays against the
+/// fibers. On the
 /// ordinary configuration of this suite (sun at 40°, camera at 30°) they differ by
-/// [`ORDINARY_GPU_CPU`] (measured 2026-11-25 on lavapipe, asserted in
+/// [`ORDINARY_GPU_CPU`] (measured 2026-11-26 on lavapipe, asserted in
 /// `hard_case_baseline_ordinary_configuration`); the Fig. 13 bands of `gpu_render.rs` put the
 /// GPU at 11% and the CPU at 14% relative RMSE from the path tracer over 50 configurations.
 /// A hard case must not make them disagree by more than 0.25 of the mean: a real failure
@@ -61,10 +62,11 @@ const SEED: u64 = 7;
 /// a factor, not by a quarter.
 const GPU_CPU_MEAN_TOLERANCE: f64 = 0.25;
 /// What the ordinary configuration measured (GPU minus CPU image mean over the CPU mean,
-/// averaged over channels: +0.020, +0.016, +0.010 with eye rays to the first occupied voxel;
+/// averaged over channels: +0.014, +0.009, +0.008 since eye rays stop at the fibers'
+/// capsules, 2026-11-26; +0.020, +0.016, +0.010 with eye rays to the first occupied voxel;
 /// −0.070, −0.064, −0.057 when they took 32 samples per tetrahedron), and the one-sided margin
 /// the baseline test allows around it.
-const ORDINARY_GPU_CPU: f64 = 0.015;
+const ORDINARY_GPU_CPU: f64 = 0.010;
 const ORDINARY_MARGIN: f64 = 0.03;
 
 // ---------------------------------------------------------------------------------------------
