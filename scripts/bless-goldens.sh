@@ -18,6 +18,10 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
   chmod 700 "$XDG_RUNTIME_DIR"
 fi
 rm -rf target/golden-diffs
+# The viewer's golden comes from the `twill` binary beside the tests (tests/lib.rs
+# twill_binary), which `cargo test -p twill-tests` does not rebuild: build it first, or a stale
+# binary blesses the old picture.
+cargo build --locked -p twill-app
 TWILL_BLESS=1 cargo test --locked -p twill-tests --test gpu_render --test viewer_window -- --nocapture "${1:-}" 2>&1 \
   | grep -E "golden (written|blessed)|previous golden|^test result|FAILED|panicked" || true
 echo
