@@ -161,10 +161,15 @@ fn capsule_entry(k: u32, shift: vec3<f32>, p0: vec3<f32>, d: vec3<f32>) -> f32 {
         return NO_HIT;
     }
     let dn = d / len;
-    let u = normalize(s.direction);
     let mid = s.midpoint + shift;
     let t_closest = dot(mid - p0, dn);
     let p = p0 + t_closest * dn - mid;
+    // Past the capsule's bounding sphere: a miss (most neighbours' capsules end here).
+    let reach = s.half_length + s.radius;
+    if (dot(p, p) > reach * reach) {
+        return NO_HIT;
+    }
+    let u = normalize(s.direction);
     let r2 = s.radius * s.radius;
     // The infinite cylinder; its entry counts where it lies on the body.
     let pu = dot(p, u);
@@ -203,20 +208,22 @@ fn capsule_entry(k: u32, shift: vec3<f32>, p0: vec3<f32>, d: vec3<f32>) -> f32 {
 // Tests the capsules of voxel c (wrapped; `cell` unwrapped) of exemplar e and of its six face
 // neighbours, in the order itself, -x, +x, -y, +y, -z, +z (VoxelVolume::face_neighbourhood),
 // each the copy nearest the voxel on a periodic volume, and keeps in `best` the nearest entry
-// at t >= t_min. Twin of the loop body of VoxelVolume::first_fiber_hit.
-fn test_voxel_fibers(e: u32, c: vec3<i32>, cell: vec3<i32>, p0: vec3<f32>, d: vec3<f32>, t_min: f32, best: ptr<function, VoxelHit>) {
+// at t >= t_min. Twin of the loop body of VoxelVolume::first_fiber_hit. `recent` holds the
+// last eight segments tested along this ray: one met again gives the same entry (its copy
+// nearest the voxel is the same while the voxels lie within a capsule of it) and is skipped,
+// which spares most tests, since neighbouring voxels share their fibers.
+fn test_voxel_fibers(e: u32, c: vec3<i32>, cell: vec3<i32>, p0: vec3<f32>, d: vec3<f32>, t_min: f32, recent: ptr<function, array<vec4<u32>, 2>>, best: ptr<function, VoxelHit>) {
     let ex = exemplars[e];
     let dims = vec3<i32>(ex.volume_dims);
     let periodic = ex.periodic != 0u;
     let plane = u32(dims.x * dims.y);
     let centre = ex.volume_origin + (vec3<f32>(cell) + vec3<f32>(0.5)) * ex.voxel_size;
-    var steps = array<vec3<i32>, 7>(
-        vec3<i32>(0, 0, 0), vec3<i32>(-1, 0, 0), vec3<i32>(1, 0, 0), vec3<i32>(0, -1, 0),
-        vec3<i32>(0, 1, 0), vec3<i32>(0, 0, -1), vec3<i32>(0, 0, 1),
-    );
-    var seen = array<u32, 7>(EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL, EMPTY_VOXEL);
     for (var q = 0u; q < 7u; q++) {
-        var n = c + steps[q];
+        // Step q: 0 none, then -x, +x, -y, +y, -z, +z.
+        let axis = (q + 1u) / 2u - 1u;
+        let sign = select(1, -1, (q & 1u) == 1u);
+        let step = select(vec3<i32>(0), vec3<i32>(sign) * vec3<i32>(vec3<u32>(0u, 1u, 2u) == vec3<u32>(axis)), q > 0u);
+        var n = c + step;
         if (periodic) {
             n = vec3<i32>(select(select(n.xy, vec2<i32>(0), n.xy >= dims.xy), dims.xy - vec2<i32>(1), n.xy < vec2<i32>(0)), n.z);
         }
@@ -224,16 +231,15 @@ fn test_voxel_fibers(e: u32, c: vec3<i32>, cell: vec3<i32>, p0: vec3<f32>, d: ve
             continue;
         }
         let local = voxels[ex.voxel_offset + u32(n.z) * plane + u32(n.y * dims.x + n.x)];
-        // An id met before in this neighbourhood gives the same entry: skip it.
-        var repeat = local == EMPTY_VOXEL;
-        for (var j = 0u; j < q; j++) {
-            repeat = repeat || seen[j] == local;
-        }
-        seen[q] = local;
-        if (repeat) {
+        if (local == EMPTY_VOXEL) {
             continue;
         }
         let k = ex.segment_offset + local;
+        if (any((*recent)[0] == vec4<u32>(k)) || any((*recent)[1] == vec4<u32>(k))) {
+            continue;
+        }
+        (*recent)[1] = vec4<u32>((*recent)[0].w, (*recent)[1].xyz);
+        (*recent)[0] = vec4<u32>(k, (*recent)[0].xyz);
         var shift = vec3<f32>(0.0);
         if (periodic) {
             let mid = segments[k].midpoint;
@@ -314,6 +320,7 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_min: f32, t_from: f32, 
     if (periodic) {
         c = vec3<i32>(wrap_i32(cell.x, dims.x), wrap_i32(cell.y, dims.y), cell.z);
     }
+    var recent = array<vec4<u32>, 2>(vec4<u32>(EMPTY_VOXEL), vec4<u32>(EMPTY_VOXEL));
     var t = t0;
     loop {
         if (*budget >= MAX_RAY_VOXELS) {
@@ -326,7 +333,7 @@ fn march_exemplar(e: u32, p0: vec3<f32>, d: vec3<f32>, t_min: f32, t_from: f32, 
             if ((*best).t <= t) {
                 return;
             }
-            test_voxel_fibers(e, c, cell, p0, d, t_min, best);
+            test_voxel_fibers(e, c, cell, p0, d, t_min, &recent, best);
         }
         // Step along the axis whose next face is nearest.
         let is_x = t_next.x <= t_next.y && t_next.x <= t_next.z;

@@ -367,6 +367,11 @@ pub fn ray_capsule_entry(
     let d = dir / length;
     let t_closest = (midpoint - origin).dot(d);
     let p = origin + t_closest * d - midpoint;
+    // Past the capsule's bounding sphere: a miss.
+    let reach = half_length + radius;
+    if p.length_squared() > reach * reach {
+        return None;
+    }
     let r2 = radius * radius;
     // The infinite cylinder: |p⊥ + s d⊥|² = r²; its entry counts where it lies on the body.
     let (pu, du) = (p.dot(tangent), d.dot(tangent));
