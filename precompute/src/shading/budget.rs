@@ -20,8 +20,7 @@
 //! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
 //! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
 //! 6. the method on the GPU's primary hits: the first fiber entered among the voxels of the
-//!    bake's volume along
-//!    the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
+//!    bake's volume along the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
 //! Multiple scattering (indirect light through the exact fiber scattering function, one path
 //! per sample, then the method):
