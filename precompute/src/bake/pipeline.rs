@@ -123,7 +123,7 @@ pub struct MeanFreePathData {
 
 /// Per-segment visibility: PCA-compressed SSDFs and sum-of-SGs weights, one of each per
 /// visibility point (`points` per segment; image `k points + j` is point `j` of segment `k`,
-/// [`VisibilityData::image_at`]).
+/// [`Baked::visibility_image`]).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VisibilityData {
     /// Visibility images were `resolution x resolution` (see `svf`).
