@@ -283,16 +283,9 @@ type GpuEvaluation<'a> = dyn Fn(&str, &[[f32; 4]]) -> Vec<[f32; 4]> + 'a;
 /// y. Positions are rounded to f32 first, as the shader gets them.
 fn compare_visibility_images(label: &str, baked: &Baked, run: &GpuEvaluation<'_>) -> Vec<String> {
     let points = baked.visibility.points;
-    let volume = &baked.volume.volume;
-    let period = DVec3::new(
-        f64::from(volume.voxel_size.x) * f64::from(volume.dims[0]),
-        f64::from(volume.voxel_size.y) * f64::from(volume.dims[1]),
-        0.0,
-    );
-    let shifts: Vec<DVec3> = if volume.periodic {
-        vec![DVec3::ZERO, DVec3::new(period.x, 0.0, 0.0), DVec3::new(0.0, -period.y, 0.0)]
-    } else {
-        vec![DVec3::ZERO]
+    let shifts: Vec<DVec3> = match baked.volume.volume.period() {
+        Some(period) => vec![DVec3::ZERO, DVec3::new(period.x, 0.0, 0.0), DVec3::new(0.0, -period.y, 0.0)],
+        None => vec![DVec3::ZERO],
     };
     let mut inputs = Vec::new();
     for segment in grid_segments(baked) {
@@ -973,8 +966,6 @@ fn cpu_at_voxel_hits(scene: &Scene, baked: &Baked, component: Component) -> Vec<
     let camera = camera_from(&scene.camera, LOBE_FRAME_SIZE, LOBE_FRAME_SIZE).expect("camera");
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     let volume = &baked.volume.volume;
-    let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
-    let extent = size * DVec3::new(f64::from(volume.dims[0]), f64::from(volume.dims[1]), 1.0);
     let mut out = Vec::with_capacity(LOBE_FRAME_SIZE * LOBE_FRAME_SIZE);
     for y in 0..LOBE_FRAME_SIZE {
         for x in 0..LOBE_FRAME_SIZE {
@@ -986,11 +977,7 @@ fn cpu_at_voxel_hits(scene: &Scene, baked: &Baked, component: Component) -> Vec<
                 continue;
             };
             // Wrapped into the exemplar as `shading::render`'s voxel hits are.
-            let mut p = origin + t * dir;
-            if volume.periodic {
-                p.x = grid_origin.x + (p.x - grid_origin.x).rem_euclid(extent.x);
-                p.y = grid_origin.y + (p.y - grid_origin.y).rem_euclid(extent.y);
-            }
+            let p = volume.wrap(origin + t * dir);
             out.push(shading::shade(baked, segment, Some(p), -dir, &lights, component).expect("shade"));
         }
     }

@@ -93,10 +93,9 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
-/// 3: images at `visibility_points` points along each segment; volume 3: touching occupancy
-/// and the segments' capsules;
-/// transfer 5: the fiber lobes, `CellTransfer::reflected` and the two shapes, and a kept
-/// cell's zero matrix).
+/// 3: images at `visibility_points` points along each segment; transfer 5: the fiber lobes,
+/// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix; volume 3:
+/// touching occupancy and the segments' capsules).
 pub const STAGE_VERSIONS: [u32; 7] = [1, 3, 5, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
@@ -136,34 +135,6 @@ pub struct VisibilityData {
     pub mean_visible_solid_angle: f64,
 }
 
-impl Baked {
-    /// The visibility image (PCA SSDF and sum-of-SGs row) that shades `segment` (unit tangent
-    /// `tangent`) at `position` (exemplar coordinates; `None`: the midpoint's): that of the
-    /// visibility point whose piece of the segment holds `position`'s projection on its axis
-    /// (`svf::visibility_point_of`), taken in the copy of a periodic exemplar nearest the
-    /// segment (the voxel volume spans exactly one period). Twin: `visibility_image` in
-    /// shaders/shared/shading.wgsl.
-    #[must_use]
-    pub fn visibility_image(&self, segment: usize, tangent: DVec3, position: Option<DVec3>) -> usize {
-        let points = self.visibility.points.max(1);
-        let point = match (position, self.volume.segments.axis.get(segment)) {
-            (Some(p), Some(&[x, y, z, half_length])) if points > 1 => {
-                let mut offset = p - DVec3::new(f64::from(x), f64::from(y), f64::from(z));
-                let volume = &self.volume.volume;
-                if volume.periodic {
-                    let size = volume.voxel_size.as_dvec3();
-                    let (px, py) = (size.x * f64::from(volume.dims[0]), size.y * f64::from(volume.dims[1]));
-                    offset.x -= px * (offset.x / px).round();
-                    offset.y -= py * (offset.y / py).round();
-                }
-                visibility_point_of(offset.dot(tangent), f64::from(half_length), points)
-            }
-            _ => points / 2,
-        };
-        segment * points + point
-    }
-}
-
 /// IIRTF cells and their transfer matrices.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TransferData {
@@ -194,6 +165,29 @@ pub struct Baked {
 }
 
 impl Baked {
+    /// The visibility image (PCA SSDF and sum-of-SGs row) that shades `segment` (unit tangent
+    /// `tangent`) at `position` (exemplar coordinates; `None`: the midpoint's): that of the
+    /// visibility point whose piece of the segment holds `position`'s projection on its axis
+    /// (`svf::visibility_point_of`), taken in the copy of a periodic exemplar nearest the
+    /// segment (the voxel volume spans exactly one period). Twin: `visibility_image` in
+    /// shaders/shared/shading.wgsl.
+    #[must_use]
+    pub fn visibility_image(&self, segment: usize, tangent: DVec3, position: Option<DVec3>) -> usize {
+        let points = self.visibility.points.max(1);
+        let point = match (position, self.volume.segments.axis.get(segment)) {
+            (Some(p), Some(&[x, y, z, half_length])) if points > 1 => {
+                let mut offset = p - DVec3::new(f64::from(x), f64::from(y), f64::from(z));
+                if let Some(period) = self.volume.volume.period() {
+                    offset.x -= period.x * (offset.x / period.x).round();
+                    offset.y -= period.y * (offset.y / period.y).round();
+                }
+                visibility_point_of(offset.dot(tangent), f64::from(half_length), points)
+            }
+            _ => points / 2,
+        };
+        segment * points + point
+    }
+
     /// Checks that the sections agree with each other (a file can be intact and still hold
     /// sections from different bakes): one segment count everywhere, array sizes that match
     /// their counts, voxel ids and material slots in range, one SH order. Returns what

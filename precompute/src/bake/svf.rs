@@ -16,6 +16,10 @@
 //!   surface, and single scattering of the default scene came out 14% too dark (a shadow ray
 //!   from the lit side: 3.5%, from the exact hit point 2.3%, with 2% noise; measured by
 //!   `tests/shading_vs_reference.rs`, `diagnose_directional_single_scattering_visibility`).
+//!   The midpoint is placed in the copy of the exemplar nearest the centre of
+//!   the scene ([`FiberScene::central_tile`]); with `Extent::Unbounded` on a periodic exemplar
+//!   every copy is interior, so the fabric around the segment is infinite and there are no
+//!   boundary effects. `Tiling::AsIs` exemplars are used as they are.
 //! - **Points along the segment** (`visibility_points` P): a segment is cut into P equal
 //!   pieces and each piece's centre gets its own image, cast from its lit side
 //!   ([`visibility_point_fraction`]); image `k P + j` is point `j` of segment `k`. A hit shades
@@ -24,11 +28,7 @@
 //!   there the light reaches it too (the eye and a light near it see the same points), while its
 //!   midpoint may lie in the shadow: with one image, single scattering of the default cotton
 //!   seen and lit head-on was 15.7% too dark against shadow rays from the hit point, with 4
-//!   points 6.7% (`twill accuracy budget`, rung 3).
-//!   The midpoint is placed in the copy of the exemplar nearest the centre of
-//!   the scene ([`FiberScene::central_tile`]); with `Extent::Unbounded` on a periodic exemplar
-//!   every copy is interior, so the fabric around the segment is infinite and there are no
-//!   boundary effects. `Tiling::AsIs` exemplars are used as they are.
+//!   points 6.7% (`twill accuracy budget`, rungs 3 and 3′).
 //! - **Storage**: one bit per pixel, each image padded to whole `u64` words
 //!   (`ceil(n²/64)` words per segment), bit `p % 64` of word `p / 64`.
 //! - Segments are rendered in parallel with rayon; each image depends only on its segment, so

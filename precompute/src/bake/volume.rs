@@ -35,7 +35,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use glam::{DVec3, Vec3};
+use glam::{DVec2, DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::{Cancel, Cancelled, Progress};
@@ -285,15 +285,34 @@ impl VoxelVolume {
         let k = id as usize;
         let [x, y, z, half_length] = segments.axis[k].map(f64::from);
         let mut midpoint = DVec3::new(x, y, z);
-        if self.periodic {
+        if let Some(period) = self.period() {
             let (lo, size) = (self.origin.as_dvec3(), self.voxel_size.as_dvec3());
             let centre = lo + (DVec3::new(cell[0] as f64, cell[1] as f64, cell[2] as f64) + 0.5) * size;
-            let period = size * DVec3::new(f64::from(self.dims[0]), f64::from(self.dims[1]), 1.0);
             midpoint.x += period.x * ((centre.x - midpoint.x) / period.x).round();
             midpoint.y += period.y * ((centre.y - midpoint.y) / period.y).round();
         }
         let tangent = Vec3::from(segments.direction[k]).as_dvec3();
         ray_capsule_entry(origin, dir, midpoint, tangent, half_length, f64::from(segments.radius[k]))
+    }
+
+    /// The period of a periodic volume in x and y (cm; the grid spans exactly one), `None`
+    /// for an `AsIs` exemplar's.
+    #[must_use]
+    pub fn period(&self) -> Option<DVec2> {
+        let size = self.voxel_size.as_dvec3();
+        self.periodic.then(|| DVec2::new(size.x * f64::from(self.dims[0]), size.y * f64::from(self.dims[1])))
+    }
+
+    /// `p` moved by whole periods into the grid's copy of a periodic exemplar (unchanged
+    /// otherwise): where a hit on the tiled fabric lies in the exemplar.
+    #[must_use]
+    pub fn wrap(&self, mut p: DVec3) -> DVec3 {
+        if let Some(period) = self.period() {
+            let lo = self.origin.as_dvec3();
+            p.x = lo.x + (p.x - lo.x).rem_euclid(period.x);
+            p.y = lo.y + (p.y - lo.y).rem_euclid(period.y);
+        }
+        p
     }
 
     /// Fraction of voxels that are non-empty.

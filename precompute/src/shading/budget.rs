@@ -60,9 +60,7 @@ use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
-use crate::bake::svf::{
-    VisibilityImages, lit_side_origin, render_exemplar, visibility_point_fraction, visibility_point_of,
-};
+use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar, visibility_point_fraction};
 use crate::image::{Estimate, Film, Image, compare};
 use crate::pathtrace::integrator::{below_ground, occluded, radiance_from, russian_roulette, trace};
 use crate::pathtrace::{Component, Light, RenderSettings, render};
@@ -168,8 +166,10 @@ impl Budget {
 enum ShadowOrigin {
     HitPoint,
     Midpoint,
-    /// The lit side of the hit's visibility point, of this many per segment.
-    LitSide(usize),
+    /// The lit side of the segment's midpoint.
+    LitSideOfMidpoint,
+    /// The lit side of the bake's visibility point whose piece holds the hit.
+    LitSideOfHitsPoint,
 }
 
 /// Runs the ladder on `scene` (a flat swatch) with `baked`, a bake of its fabric; see the
@@ -216,17 +216,17 @@ pub fn error_budget(
     let mut origins = vec![
         ("1 shadow rays from the hit point (exact)".to_string(), ShadowOrigin::HitPoint),
         ("2 shadow rays from the segment midpoint (paper)".to_string(), ShadowOrigin::Midpoint),
-        ("3 shadow rays from the lit side of the segment".to_string(), ShadowOrigin::LitSide(1)),
+        ("3 shadow rays from the lit side of the segment".to_string(), ShadowOrigin::LitSideOfMidpoint),
     ];
     if points > 1 {
         let name =
             format!("3' shadow rays from the lit side of the nearest of {points} points along the segment");
-        origins.push((name, ShadowOrigin::LitSide(points)));
+        origins.push((name, ShadowOrigin::LitSideOfHitsPoint));
     }
     for (name, origin) in origins {
         let t = Instant::now();
         let film = single_by_light_sampling(scene, settings, |hit, dir| {
-            shadow_ray_visible(scene, hit, dir, origin)
+            shadow_ray_visible(scene, baked, hit, dir, origin)
         })?;
         push(Component::Single, name, &film, t.elapsed().as_secs_f64());
     }
@@ -235,7 +235,7 @@ pub fn error_budget(
     let images: VisibilityImages = render_exemplar(&scene.exemplar, n, points, &Cancel::new(), &|_| {})
         .map_err(|e| ShadingError::Budget(e.to_string()))?;
     let film = single_by_light_sampling(scene, settings, |hit, dir| {
-        images.lookup(visibility_image_of(scene, hit, points), dir)
+        images.lookup(visibility_image_of(baked, hit), dir)
     })?;
     push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
     let t = Instant::now();
@@ -419,27 +419,27 @@ fn single_by_light_sampling(
 }
 
 /// The visibility image (`segment points + point`) of `hit`: the point whose piece of the
-/// segment holds the hit (`svf::visibility_point_of`, as the method's shading finds it).
-fn visibility_image_of(scene: &Scene, hit: &Hit, points: usize) -> usize {
-    let segment = &scene.path_scene.fibers.segments()[hit.segment as usize];
-    let midpoint = segment.midpoint().as_dvec3();
-    let axial = (hit.local_position.as_dvec3() - midpoint).dot(segment.tangent().as_dvec3());
-    let half_length = 0.5 * f64::from((segment.b - segment.a).length());
-    hit.segment as usize * points + visibility_point_of(axial, half_length, points)
+/// segment holds the hit, as the method's shading finds it ([`Baked::visibility_image`]).
+fn visibility_image_of(baked: &Baked, hit: &Hit) -> usize {
+    baked.visibility_image(hit.segment as usize, hit.tangent.as_dvec3(), Some(hit.local_position.as_dvec3()))
 }
 
 /// Whether `dir` is unoccluded from `origin`'s choice of point for `hit` (the hit's own fiber
 /// never occludes, as in the path tracer and the bake).
-fn shadow_ray_visible(scene: &Scene, hit: &Hit, dir: DVec3, origin: ShadowOrigin) -> bool {
+fn shadow_ray_visible(scene: &Scene, baked: &Baked, hit: &Hit, dir: DVec3, origin: ShadowOrigin) -> bool {
     let fibers = &scene.path_scene.fibers;
     let segment = &fibers.segments()[hit.segment as usize];
     let midpoint = segment.midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
     let start = match origin {
         ShadowOrigin::HitPoint => fibers.world_position_f64(hit),
         ShadowOrigin::Midpoint => midpoint,
-        ShadowOrigin::LitSide(points) => {
+        ShadowOrigin::LitSideOfMidpoint => {
+            lit_side_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
+        }
+        ShadowOrigin::LitSideOfHitsPoint => {
+            let points = baked.visibility.points;
             let (a, b) = (segment.a.as_dvec3(), segment.b.as_dvec3());
-            let along = visibility_point_fraction(visibility_image_of(scene, hit, points) % points, points);
+            let along = visibility_point_fraction(visibility_image_of(baked, hit) % points, points);
             let point = a + (b - a) * along + fibers.tile_offset(hit.tile);
             lit_side_origin(point, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
         }

@@ -181,14 +181,7 @@ fn voxel_hit(
     t_max: f64,
 ) -> Option<(u32, DVec3)> {
     let (segment, t) = volume.first_fiber_hit(segments, origin, dir, 0.0, t_max)?;
-    let mut p = origin + t * dir;
-    if volume.periodic {
-        let (grid_origin, size) = (volume.origin.as_dvec3(), volume.voxel_size.as_dvec3());
-        let extent = size * DVec3::new(f64::from(volume.dims[0]), f64::from(volume.dims[1]), 1.0);
-        p.x = grid_origin.x + (p.x - grid_origin.x).rem_euclid(extent.x);
-        p.y = grid_origin.y + (p.y - grid_origin.y).rem_euclid(extent.y);
-    }
-    Some((segment, p))
+    Some((segment, volume.wrap(origin + t * dir)))
 }
 
 /// Renders `scene`'s camera view (flat swatch) with `shade(hit, ωo, rng)` at every primary
