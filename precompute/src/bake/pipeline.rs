@@ -5,7 +5,7 @@
 //! |---|---|
 //! | mean free path | geometry, `mfp_samples`, `seed` |
 //! | visibility (SVF → SSDF → PCA, sum of SGs) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `sos_count`, `sos_sharpness`, `seed` |
-//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed` |
+//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts` |
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
 //! | C_G table | `sh_order` |
@@ -412,7 +412,8 @@ pub fn recolour_basis(
         .usize(s.sh_order)
         .usize(s.cs_theta_count)
         .u64(s.seed)
-        .bool(s.fiber_lobes);
+        .bool(s.fiber_lobes)
+        .bool(s.exposed_starts);
     let key = h.finish();
     let name = "recolour_basis";
     if let Some(file) = cache.and_then(|c| c.load(key)) {
@@ -1083,7 +1084,8 @@ impl StageKeys {
             .usize(s.iirtf_paths_per_cell)
             .usize(s.sh_order)
             .u64(s.seed)
-            .u32(u32::from(s.fiber_lobes));
+            .u32(u32::from(s.fiber_lobes))
+            .u32(u32::from(s.exposed_starts));
         h.finish()
     }
 }
@@ -1138,6 +1140,7 @@ pub(crate) mod tests {
             mfp_samples: 400,
             seed: 3,
             fiber_lobes: false,
+            exposed_starts: true,
         }
     }
 

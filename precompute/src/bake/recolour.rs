@@ -950,7 +950,9 @@ fn colour_free_sampler(
         settings: *settings,
     })?;
     let light_domain = IirtfOptions::default().light_domain;
-    Ok((TransferSampler::new(exemplar, &yarn_materials, light_domain)?, light_domain))
+    let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?
+        .with_exposed_starts(settings.exposed_starts);
+    Ok((sampler, light_domain))
 }
 
 /// One cell's basis (see the module docs); `None` when `tick` asks to stop.

@@ -74,6 +74,12 @@ pub struct BakeSettings {
     /// holds all of it. (Read as `forward_lobe` too, its name before the ring.)
     #[serde(default, alias = "forward_lobe")]
     pub fiber_lobes: bool,
+    /// IIRTF paths start at points of each cell's fibers that an eye sees (the exposed
+    /// fibers, on the side facing out; `bake::iirtf::TransferSampler::exposed_start`), so a
+    /// cell's transfer is the light the method's hits receive. Off: at segment midpoints, on
+    /// the fiber axis (the paper), which averages in the parts of the cell under other fibers.
+    #[serde(default)]
+    pub exposed_starts: bool,
 }
 
 impl Quality {
@@ -106,6 +112,7 @@ impl Quality {
                 mfp_samples: 4_000,
                 seed: 1,
                 fiber_lobes: false,
+                exposed_starts: true,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
@@ -122,6 +129,7 @@ impl Quality {
                 mfp_samples: 20_000,
                 seed: 1,
                 fiber_lobes: true,
+                exposed_starts: true,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
@@ -138,6 +146,7 @@ impl Quality {
                 mfp_samples: 100_000,
                 seed: 1,
                 fiber_lobes: false,
+                exposed_starts: false,
             },
         }
     }

@@ -521,6 +521,7 @@ mod tests {
             mfp_samples: 400,
             seed: 5,
             fiber_lobes: false,
+            exposed_starts: true,
         }
     }
 

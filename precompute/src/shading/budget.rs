@@ -28,7 +28,8 @@
 //!    multiple is all the light);
 //! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
-//!    and paths per cell;
+//!    and paths per cell, its paths from segment midpoints (the paper) or exposed starts
+//!    (`BakeSettings::exposed_starts`);
 //! 4. the method: the IIRTF interpolated between cells at the hit point;
 //! 5. the method on the GPU's primary hits (as single-scattering rung 6);
 //!
@@ -296,8 +297,9 @@ pub fn error_budget(
     }
     let grid = &baked.transfer.cells;
     let cell = grid.cell_size_cm();
+    let starts = if baked.settings.exposed_starts { "exposed starts" } else { "from midpoints" };
     let cells = format!(
-        "{:.2}x{:.2}x{:.2} ℓ cells, SH order {}, {} paths",
+        "{:.2}x{:.2}x{:.2} ℓ cells, SH order {}, {} paths {starts}",
         cell.x / baked.mean_free_path.mean_cm,
         cell.y / baked.mean_free_path.mean_cm,
         cell.z / baked.mean_free_path.mean_cm,
@@ -305,7 +307,7 @@ pub fn error_budget(
         baked.settings.iirtf_paths_per_cell
     );
     for (name, interpolate_transfer, clamp_at_zero) in [
-        (format!("3 IIRTF per cell (paper): {cells}"), false, true),
+        (format!("3 IIRTF per cell: {cells}"), false, true),
         ("4 the method: IIRTF interpolated between cells".into(), true, true),
         ("4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(), true, false),
     ] {

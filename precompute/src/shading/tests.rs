@@ -915,6 +915,7 @@ fn tiny_baked() -> &'static Baked {
             mfp_samples: 400,
             seed: 3,
             fiber_lobes: false,
+            exposed_starts: false,
         };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
         bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked

@@ -165,10 +165,11 @@ pub enum Knob {
     Spp,
     SigmaGlo,
     FiberLobes,
+    ExposedStarts,
 }
 
 impl Knob {
-    pub const ALL: [Knob; 12] = [
+    pub const ALL: [Knob; 13] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::SvfResolution,
@@ -181,6 +182,7 @@ impl Knob {
         Knob::Spp,
         Knob::SigmaGlo,
         Knob::FiberLobes,
+        Knob::ExposedStarts,
     ];
 
     /// Its name: the bake knob's (`--set`), or the frame setting's.
@@ -199,6 +201,7 @@ impl Knob {
             Self::Spp => "spp",
             Self::SigmaGlo => "sigma_glo_cm",
             Self::FiberLobes => "fiber_lobes",
+            Self::ExposedStarts => "exposed_starts",
         }
     }
 
@@ -231,7 +234,7 @@ impl Knob {
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
-            Self::FiberLobes => vec![0.0, 1.0],
+            Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
         }
     }
 
@@ -250,6 +253,7 @@ impl Knob {
             Self::Spp => frame.spp = count as u32,
             Self::SigmaGlo => frame.gpu.sigma_glo_cm = value,
             Self::FiberLobes => bake.fiber_lobes = value >= 0.5,
+            Self::ExposedStarts => bake.exposed_starts = value >= 0.5,
         }
     }
 
@@ -269,6 +273,7 @@ impl Knob {
             Self::Spp => f64::from(frame.spp),
             Self::SigmaGlo => frame.gpu.sigma_glo_cm,
             Self::FiberLobes => f64::from(u8::from(bake.fiber_lobes)),
+            Self::ExposedStarts => f64::from(u8::from(bake.exposed_starts)),
         }
     }
 }
