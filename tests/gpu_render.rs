@@ -541,6 +541,12 @@ fn sh_orders_above_what_the_shaders_hold_are_refused_naming_the_limit() {
 /// 11.7% / 10.1% / 9.8%, grazing −0.2%, backlit −18.0%. (The CPU method's grazing figure had
 /// moved from −8.3% before this session's changes, none of which touches its exact hits on a
 /// draft bake; not traced.)
+///
+/// Re-measured 2026-11-26 (fifth session), since the IIRTF's paths start where an eye sees the
+/// cell's fibers (`BakeSettings::exposed_starts`): multiple scattering brighter, GPU multiple /
+/// all 8.9% → 7.4% / 7.9% → 7.1%, grazing −24.5% → −18.4%, backlit −7.0% → −1.0%; CPU method
+/// 10.1% → 6.0% / 9.8% → 8.7%, backlit −18.0% → −13.7%, and its grazing case −0.2% → +6.3%
+/// (over-bright now where it had been near zero; the band follows the measurement).
 #[test]
 fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     use twill_renderer::accuracy::sweep::{Fabric, Method, ReferenceCache, SweepSettings, run};
@@ -572,8 +578,8 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     // Per method: (single, multiple, all) image-mean error and per-pixel error; then the
     // grazing (1) and backlit (2) configurations' relative error of all light.
     let measured: [([f64; 3], [f64; 3], [f64; 2]); 2] = [
-        ([0.112, 0.089, 0.079], [0.926, 0.574, 0.606], [-0.245, -0.070]),
-        ([0.117, 0.101, 0.098], [1.025, 0.574, 0.644], [-0.002, -0.180]),
+        ([0.112, 0.074, 0.071], [0.926, 0.546, 0.594], [-0.184, -0.010]),
+        ([0.117, 0.060, 0.087], [1.025, 0.556, 0.629], [0.063, -0.137]),
     ];
     let mut failures = Vec::new();
     for (point, (mean, pixel, cases)) in sweep.points.iter().zip(measured) {
@@ -952,7 +958,10 @@ fn live_recolouring_writes_fiber_lobes_in_place() {
 ///   colourway's means move by a few points with the paths drawn, and over 12 colourways
 ///   (`twill bench recolor --quality draft --colourways 12 --size 96x96 --spp 4`) the worst
 ///   image-mean difference fell from 10.9% to 5.4% and the mean signed one went from −4.5% to
-///   +1.9% with the stratified starts. One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
+///   +1.9% with the stratified starts. Re-measured with exposed path starts
+///   (`BakeSettings::exposed_starts`, 2026-11-26): image mean −3.31% / −2.08% / −0.76%, per-pixel
+///   RMS 26.2% against a seed-to-seed 33.8% (the basis walks the same exposed starts as the
+///   rebake). One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
 ///   also stay within the seed-to-seed difference (the method's own per-pixel noise).
 #[test]
 fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
@@ -1025,7 +1034,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     };
     let (ours, theirs) = (live.mean(), rebaked.mean());
     let mut failures = Vec::new();
-    for (channel, measured) in [(0, 0.0433), (1, 0.0476), (2, 0.0365)] {
+    for (channel, measured) in [(0, -0.0331), (1, -0.0208), (2, -0.0076)] {
         let error = ours[channel] / theirs[channel] - 1.0;
         eprintln!(
             "channel {channel}: live {:.5}, rebake {:.5}, {:+.2}%",
@@ -1041,7 +1050,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     }
     let (live_rms, floor) = (rms(&live, &rebaked), rms(&reseeded, &rebaked));
     eprintln!("per-pixel RMS: live {:.2}%, seed to seed {:.2}%", 100.0 * live_rms, 100.0 * floor);
-    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.240, 0.02) {
+    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.262, 0.02) {
         failures.push(e);
     }
     if live_rms > floor {

@@ -140,7 +140,9 @@ fn directional_light_multiple_scattering() {
         "directional, multiple",
         directional(),
         Component::Multiple,
-        &Measured { mean: 0.0361, pixel: 0.823 },
+        // Exposed IIRTF path starts (2026-11-26): mean +3.6% → +3.3%, per pixel 0.823 → 0.887
+        // (the transfer of the points an eye sees varies more from cell to cell).
+        &Measured { mean: 0.0327, pixel: 0.887 },
     );
 }
 
@@ -149,9 +151,11 @@ fn soft_sg_light_single_scattering() {
     check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.0889, pixel: 0.633 });
 }
 
+// Multiple scattering under SG lights moved with the exposed IIRTF path starts (2026-11-26):
+// λ = 8 −15.1% → −9.5%, λ = 300 −18.1% → −12.1% (per pixel 0.626 → 0.629, 0.699 → 0.715).
 #[test]
 fn soft_sg_light_multiple_scattering() {
-    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, &Measured { mean: -0.1512, pixel: 0.626 });
+    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, &Measured { mean: -0.0945, pixel: 0.629 });
 }
 
 #[test]
@@ -161,7 +165,7 @@ fn sharp_sg_light_single_scattering() {
 
 #[test]
 fn sharp_sg_light_multiple_scattering() {
-    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, &Measured { mean: -0.1812, pixel: 0.699 });
+    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, &Measured { mean: -0.1211, pixel: 0.715 });
 }
 
 // ---------------------------------------------------------------------------------------------

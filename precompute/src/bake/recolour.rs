@@ -2063,7 +2063,9 @@ mod tests {
     ) -> ([f64; 6], [f64; 6]) {
         let inputs = BakeInputs { exemplar, materials, settings: *s };
         let (_, yarns) = yarn_materials(&inputs).unwrap();
-        let sampler = TransferSampler::new(exemplar, &yarns, LightDomain::UpperHemisphere).unwrap();
+        let sampler = TransferSampler::new(exemplar, &yarns, LightDomain::UpperHemisphere)
+            .unwrap()
+            .with_exposed_starts(s.exposed_starts);
         let (mut mean, mut var) = ([0.0; 6], [0.0; 6]);
         let count = s.iirtf_paths_per_cell as f64;
         for c in (0..grid.cell_count()).filter(|&c| kept[c]) {

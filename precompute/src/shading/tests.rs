@@ -819,7 +819,9 @@ fn shading_multiple_scattering_equals_the_iirtf_per_path_estimate() {
     .unwrap();
     let cell = (0..grid.cell_count() as u32).max_by_key(|&c| grid.segments_in_cell(c).len()).unwrap();
     let in_cell = grid.segments_in_cell(cell);
-    let sampler = TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere).unwrap();
+    let sampler = TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere)
+        .unwrap()
+        .with_exposed_starts(settings.exposed_starts);
     let stream = cell_stream(settings.seed, cell);
     let samples: Vec<_> =
         (0..settings.iirtf_paths_per_cell).map(|p| sampler.sample(in_cell, stream, p as u64)).collect();
