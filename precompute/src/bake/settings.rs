@@ -3,7 +3,9 @@
 //! `paper` is the 2017 paper's configuration (128x128 visibility images, 48 PCA components,
 //! Q = 48 SGs of sharpness 128, cells of about one mean free path, 50,000 paths per cell, SH
 //! order 5, 512 θo values); `interactive` is sized to bake the default fabric (~20k segments) in
-//! about ten seconds on two cores; `draft` is the fastest useful bake, for the first picture.
+//! about 25 seconds on two cores (its 480 paths per cell keep the order-4 transfer's noise from
+//! showing as flat patches, one per segment, in multiple scattering); `draft` is the fastest
+//! useful bake, for the first picture.
 //!
 //! The IIRTF dominates the cost (about 20 µs per path, bound by ray casting), so the cheaper
 //! presets use larger cells (the paper finds cells up to 2ℓ lose little; beyond that multiple
@@ -122,7 +124,7 @@ impl Quality {
                 sos_sharpness: 128.0,
                 cell_size_mfp: 2.5,
                 cell_depth_mfp: 0.5,
-                iirtf_paths_per_cell: 160,
+                iirtf_paths_per_cell: 480,
                 sh_order: 4,
                 cs_theta_count: 256,
                 voxels_per_fiber_diameter: 2.0,
