@@ -2,7 +2,7 @@
 // the shading pass): where the lights' SH c_in is the same at every pixel (a shell whose
 // tetrahedra share one flat-fabric frame, lit without shadow maps), every pixel would multiply
 // the same eight transfer matrices by the same vector. One invocation per cell computes c_in
-// (shared/shading.wgsl light_sh_accumulate, as the shading pass does) and A c_in; the shading
+// (shared/shading.wgsl hemisphere_light_sh_accumulate, as the shading pass does) and A c_in; the shading
 // pass then interpolates the results (shade.wgsl frame_transferred_at).
 // Twin structs: renderer/src/passes/cell_transfer.rs (TransferUniformsGpu) and
 // renderer/src/passes/shade.rs (LightGpu).

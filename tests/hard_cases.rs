@@ -321,7 +321,7 @@ fn seg_image(k: u32) -> u32 {
 fn multiple_at(k: u32, p: vec3<f32>, wo: vec3<f32>, axis: vec3<f32>) -> vec3<f32> {
     var c: array<vec3<f32>, 49>;
     for (var j = 0u; j < 49u; j++) { c[j] = vec3<f32>(0.0); }
-    light_sh_accumulate(fabric.sh_order, axis, -1.0, vec3<f32>(1.0), &c);
+    hemisphere_light_sh_accumulate(fabric.sh_order, axis, -1.0, vec3<f32>(1.0), &c);
     return shade_multiple(0u, k, p, wo, &c);
 }
 ";
@@ -974,7 +974,7 @@ fn hard_empty_iirtf_cells() {
     let axis = DVec3::new(-0.3, 0.2, 0.93).normalize();
     let wo = DVec3::new(0.1, -0.4, 0.91).normalize();
     let light = Light::directional(axis, Rgb::ONE).unwrap();
-    let c_light = shading::light_sh(&light, order, &b.cg);
+    let c_light = shading::hemisphere_light_sh(&light, order, &b.cg);
     let lattice = grid.lattice_dims();
     // Centre of an empty cell: search the lattice for cells whose index is empty.
     let mut points = Vec::new();

@@ -199,6 +199,89 @@ pub fn sg_azimuthal_average_f32(theta: f32, theta_xi: f32, lambda: f32) -> f32 {
         * crate::special::i0e_f32(lambda * theta.cos().max(0.0) * theta_xi.cos().max(0.0))
 }
 
+/// Nodes of the midpoint rule over the SG's mass in [`sg_upper_fraction`].
+pub const UPPER_FRACTION_NODES: usize = 32;
+
+/// The share of a normalized SG's power above the plane z = 0 (its axis's z is `axis_z`,
+/// sharpness `lambda`): `∫_{z>0} exp(λ(ω·ξ − 1)) dω / M(λ)`.
+///
+/// How (for `ξ_z ≥ 0`; below, one minus the mirror's share): on the circle of directions at
+/// `t = ω·ξ` about the axis the share above the plane is 1 for `t > |ξ_xy|`, 0 for
+/// `t < −|ξ_xy|`, and `acos(−t ξ_z / (√(1 − t²) |ξ_xy|)) / π` between. The mass with
+/// `t > |ξ_xy|` is closed-form, `F(1 − |ξ_xy|)` with `F(w) = expm1(−λw) / expm1(−2λ)` the
+/// share of the mass within `1 − t ≤ w`; the mass between is cut into [`UPPER_FRACTION_NODES`]
+/// equal slices, each taken at its middle (`1 − t = −ln_1p(u expm1(−2λ)) / λ`, as
+/// [`sample_sg_dir`] draws it). Exact for an axis along z or in the plane. Where the plane lies
+/// more than 20 widths from the axis (`λ(1 − |ξ_xy|) > 20`, the mass beyond below 2e-9) the
+/// share is 1 or 0 outright.
+#[must_use]
+pub fn sg_upper_fraction(axis_z: f64, lambda: f64) -> f64 {
+    let z = axis_z.clamp(-1.0, 1.0);
+    let s = z.abs();
+    let c = (1.0 - s * s).max(0.0).sqrt();
+    // 1 − c without cancellation: s² / (1 + c).
+    let gap = s * s / (1.0 + c);
+    let upper = if lambda * gap > 20.0 {
+        1.0
+    } else {
+        let (mass_within, w_of) = sg_mass_share(lambda);
+        let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
+        let mut between = 0.0;
+        for i in 0..UPPER_FRACTION_NODES {
+            let u = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
+            let w = w_of(u);
+            let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
+            between += (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos() / PI;
+        }
+        top + (bottom - top) * between / UPPER_FRACTION_NODES as f64
+    };
+    if z >= 0.0 { upper } else { 1.0 - upper }
+}
+
+/// A normalized SG's mass share within `1 − t ≤ w` of its axis, and its inverse.
+fn sg_mass_share(lambda: f64) -> (impl Fn(f64) -> f64, impl Fn(f64) -> f64) {
+    let total = (-2.0 * lambda).exp_m1();
+    let share = move |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
+    let inverse = move |u: f64| {
+        if lambda > 0.0 { (-(u * total).ln_1p() / lambda).clamp(0.0, 2.0) } else { (2.0 * u).clamp(0.0, 2.0) }
+    };
+    (share, inverse)
+}
+
+/// f32 twin of [`sg_upper_fraction`] (`shaders/shared/sg.wgsl`), with [`ln_1p_f32`] and
+/// [`crate::special::expm1_f32`].
+///
+/// [`ln_1p_f32`]: crate::special::ln_1p_f32
+#[must_use]
+pub fn sg_upper_fraction_f32(axis_z: f32, lambda: f32) -> f32 {
+    use crate::special::{expm1_f32, ln_1p_f32};
+    let z = axis_z.clamp(-1.0, 1.0);
+    let s = z.abs();
+    let c = (1.0 - s * s).max(0.0).sqrt();
+    let gap = s * s / (1.0 + c);
+    let upper = if lambda * gap > 20.0 {
+        1.0
+    } else {
+        let total = expm1_f32(-2.0 * lambda);
+        let share = |w: f32| if lambda > 0.0 { expm1_f32(-lambda * w) / total } else { 0.5 * w };
+        let (top, bottom) = (share(gap), share(1.0 + c));
+        let mut between = 0.0;
+        for i in 0..UPPER_FRACTION_NODES {
+            let u = top + (bottom - top) * (i as f32 + 0.5) / UPPER_FRACTION_NODES as f32;
+            let w = if lambda > 0.0 {
+                (-ln_1p_f32(u * total) / lambda).clamp(0.0, 2.0)
+            } else {
+                (2.0 * u).clamp(0.0, 2.0)
+            };
+            let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
+            between +=
+                (-t * s / (r * c).max(f32::MIN_POSITIVE)).clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
+        }
+        top + (bottom - top) * between / UPPER_FRACTION_NODES as f32
+    };
+    if z >= 0.0 { upper } else { 1.0 - upper }
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp)] // exact limits are checked bit for bit
 mod tests {
@@ -206,6 +289,56 @@ mod tests {
     use crate::quadrature::gauss_legendre;
     use crate::sh::{ShRotation, sh_index, sh_project};
     use crate::test_support::{gamma_q, random_unit};
+
+    #[test]
+    fn upper_fraction_matches_quadrature_closed_forms_and_its_f32_twin() {
+        use rand::{Rng, SeedableRng};
+        // Closed forms: an axis along ±z leaves (1 − e^{−λ}) / (1 − e^{−2λ}) = 1 / (1 + e^{−λ})
+        // above; an axis in the plane, half.
+        for lambda in [1e-4_f64, 0.5, 3.0, 40.0, 2e3] {
+            let up = 1.0 / (1.0 + (-lambda).exp());
+            assert!((sg_upper_fraction(1.0, lambda) - up).abs() < 1e-12, "λ {lambda}");
+            assert!((sg_upper_fraction(-1.0, lambda) - (1.0 - up)).abs() < 1e-12, "λ {lambda}");
+            assert!((sg_upper_fraction(0.0, lambda) - 0.5).abs() < 1e-12, "λ {lambda}");
+        }
+        // Broad lobes: a product rule over the upper hemisphere (400 × 800 nodes).
+        let (nodes, weights) = gauss_legendre(400);
+        for lambda in [1e-4, 0.5, 2.0, 8.0, 50.0] {
+            for axis_z in [-0.6_f64, -0.1, 0.05, 0.2, 0.7, 0.95] {
+                let axis = DVec3::new((1.0 - axis_z * axis_z).sqrt(), 0.0, axis_z);
+                let mut sum = 0.0;
+                for (x, w) in nodes.iter().zip(&weights) {
+                    let z = 0.5 * (x + 1.0);
+                    let r = (1.0 - z * z).sqrt();
+                    for k in 0..800 {
+                        let phi = 2.0 * PI * (k as f64 + 0.5) / 800.0;
+                        let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                        sum += 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
+                    }
+                }
+                let got = sg_upper_fraction(axis_z, lambda);
+                assert!((got - sum).abs() < 2e-3, "λ {lambda} ξz {axis_z}: {got} vs {sum}");
+                let f32_twin = f64::from(sg_upper_fraction_f32(axis_z as f32, lambda as f32));
+                assert!((f32_twin - got).abs() < 2e-4, "λ {lambda} ξz {axis_z}: f32 {f32_twin} vs {got}");
+            }
+        }
+        // Sharp lobes near the plane: 400,000 samples of the lobe (noise below 8e-4).
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        for (lambda, axis_z) in [(2e3, 0.01_f64), (2e3, -0.02), (300.0, 0.05), (1e5, 0.002)] {
+            let axis = DVec3::new((1.0 - axis_z * axis_z).sqrt(), 0.0, axis_z);
+            let n = 400_000;
+            let above =
+                (0..n).filter(|_| sample_sg_dir(axis, lambda, [rng.random(), rng.random()]).z > 0.0).count();
+            let expected = above as f64 / f64::from(n);
+            let got = sg_upper_fraction(axis_z, lambda);
+            assert!((got - expected).abs() < 4e-3, "λ {lambda} ξz {axis_z}: {got} vs {expected}");
+            let f32_twin = f64::from(sg_upper_fraction_f32(axis_z as f32, lambda as f32));
+            assert!((f32_twin - got).abs() < 2e-3, "λ {lambda} ξz {axis_z}: f32 {f32_twin} vs {got}");
+        }
+        // Far from the plane, whole.
+        assert_eq!(sg_upper_fraction(0.5, 2e3), 1.0);
+        assert_eq!(sg_upper_fraction(-0.5, 2e3), 0.0);
+    }
 
     #[test]
     fn azimuthal_average_matches_quadrature_and_its_f32_twin() {

@@ -286,6 +286,15 @@ pub fn expm1_f32(x: f32) -> f32 {
     }
 }
 
+/// `ln(1 + x)` in f32 without cancellation near 0 (WGSL has no `log1p`): Goldberg's form
+/// `ln(y) x / (y - 1)` with `y = 1 + x` rounded, which cancels the rounding of `y`.
+#[must_use]
+pub fn ln_1p_f32(x: f32) -> f32 {
+    let y = 1.0 + x;
+    let d = y - 1.0;
+    if d == 0.0 { x } else { y.ln() * (x / d) }
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp)] // exact limits and symmetries are checked bit for bit
 mod tests {

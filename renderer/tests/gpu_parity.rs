@@ -6,7 +6,10 @@
 //! they print a loud SKIPPED line: skipping is never silent. `scripts/test.sh` installs
 //! lavapipe, so CI always runs them.
 
-use twill_precompute::sg::{sg_azimuthal_average, sg_azimuthal_average_f32, sg_mass, sg_mass_f32};
+use twill_precompute::sg::{
+    sg_azimuthal_average, sg_azimuthal_average_f32, sg_mass, sg_mass_f32, sg_upper_fraction,
+    sg_upper_fraction_f32,
+};
 use twill_precompute::special::{erf, erf_f32, erfc, erfc_f32, i0e, i0e_f32};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::shaders;
@@ -113,4 +116,42 @@ fn sg_functions_match_their_rust_twins_from_1e_minus_4_to_1e5() {
         "GPU vs f64 reference over {} cases: SG azimuthal average rel {worst_avg:.2e}, SG mass rel {worst_mass:.2e}",
         inputs.len()
     );
+}
+
+/// The share of an SG light above the horizon (the transfer's light, `hemisphere_light_sh`):
+/// the WGSL twin against the f64 function over the sharpness range, axes from below the
+/// horizon to the zenith, on it, and within a lobe's width of it.
+#[test]
+fn sg_upper_fraction_matches_its_rust_twins_from_1e_minus_4_to_1e5() {
+    let Some(gpu) = Gpu::for_test("sg_upper_fraction_matches_its_rust_twins_from_1e_minus_4_to_1e5") else {
+        return;
+    };
+    let lambdas: Vec<f32> = (0..=36).map(|i| 1e-4_f32 * 10f32.powf(i as f32 / 4.0)).collect();
+    let axis_z = [-1.0, -0.5, -0.03, -1e-3, 0.0, 1e-4, 2e-3, 0.02, 0.1, 0.3, 0.8, 1.0];
+    let inputs: Vec<[f32; 4]> =
+        lambdas.iter().flat_map(|&l| axis_z.iter().map(move |&z| [z, l, 0.0, 0.0])).collect();
+    let out = gpu
+        .evaluate(
+            &shaders::shared_library(),
+            "vec4<f32>(sg_upper_fraction_f32(input.x, input.y), 0.0, 0.0, 0.0)",
+            &inputs,
+        )
+        .unwrap();
+    let mut worst = 0.0f64;
+    for (input, r) in inputs.iter().zip(&out) {
+        let [z, lambda, _, _] = *input;
+        assert!(r[0].is_finite() && (0.0..=1.0).contains(&r[0]), "{input:?}: GPU {}", r[0]);
+        let reference = sg_upper_fraction(f64::from(z), f64::from(lambda));
+        let error = (f64::from(r[0]) - reference).abs();
+        // f32 axes and lavapipe's acos/log: the share moves by λ^½ per unit of z near the plane.
+        let tolerance = 2e-4 + 2e-6 * f64::from(lambda).sqrt();
+        assert!(
+            error <= tolerance,
+            "sg_upper_fraction{input:?}: GPU {} CPU twin {} reference {reference}",
+            r[0],
+            sg_upper_fraction_f32(z, lambda)
+        );
+        worst = worst.max(error);
+    }
+    eprintln!("GPU vs f64 reference over {} cases: SG share above the horizon abs {worst:.2e}", inputs.len());
 }

@@ -151,7 +151,7 @@ fn gamma_case(input: vec4<f32>) -> vec4<f32> {
 fn multiple_case(input: vec4<f32>) -> vec4<f32> {
     var c: array<vec3<f32>, 49>;
     for (var j = 0u; j < 49u; j++) { c[j] = vec3<f32>(0.0); }
-    light_sh_accumulate(fabric.sh_order, case_axis(input), input.y, vec3<f32>(1.0), &c);
+    hemisphere_light_sh_accumulate(fabric.sh_order, case_axis(input), input.y, vec3<f32>(1.0), &c);
     return vec4<f32>(shade_multiple(0u, u32(input.x), case_point(input), case_wo(input), &c), 0.0);
 }
 // The visibility image a case shades with: one of its segment's points, picked from the id
@@ -457,7 +457,7 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
             } else {
                 Light::sg(axis, f64::from(c.lambda as f32), Rgb::ONE).expect("light")
             };
-            let c_light = shading::light_sh(&light, order, &baked.cg);
+            let c_light = shading::hemisphere_light_sh(&light, order, &baked.cg);
             assert_eq!(c_light.len(), sh::sh_count(order));
             let point = case_point(baked, c.segment);
             Some(

@@ -357,27 +357,42 @@ fn cg_lookup(lambda: f32, l: u32) -> f32 {
     return a + t * (b - a);
 }
 
-// Adds a light's SH coefficients (multiple.rs light_sh) times `weight` to `c`:
-// directional (sharpness < 0): Y_j(dir); SG: sqrt(4 pi / (2l + 1)) z_l Y_j(dir).
-fn light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+// The share of a light above the fabric's horizon (multiple.rs hemisphere_light_sh):
+// directional (sharpness < 0) 1 above, 0 below; SG sg_upper_fraction_f32.
+fn light_upper_share(dir: vec3<f32>, sharpness: f32) -> f32 {
+    if (sharpness < 0.0) {
+        return select(0.0, 1.0, dir.z > 0.0);
+    }
+    return sg_upper_fraction_f32(dir.z, sharpness);
+}
+
+// Adds a light's SH coefficients as the transfer takes them (multiple.rs hemisphere_light_sh)
+// times `weight` to `c`: 2 p_up times the even coefficients (l + |m| even) of the light's SH,
+// directional (sharpness < 0) Y_j(dir), SG sqrt(4 pi / (2l + 1)) z_l Y_j(dir); none of the odd.
+fn hemisphere_light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+    let upper = light_upper_share(dir, sharpness);
+    if (!(upper > 0.0)) {
+        return;
+    }
     var y: array<f32, 49>;
     sh_eval_f32(order, dir, &y);
     for (var l = 0u; l <= order; l++) {
-        var scale = 1.0;
+        var scale = 2.0 * upper;
         if (sharpness >= 0.0) {
-            scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+            scale *= cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
         }
-        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+        // Band l's even coefficients: m = -l, -l + 2, ..., l (l + |m| even).
+        for (var j = l * l; j < (l + 1u) * (l + 1u); j += 2u) {
             (*c)[j] += weight * (scale * y[j]);
         }
     }
 }
 
 // Adds `light`'s SH coefficients from direction `dir` (flat-fabric frame) times `weight` to `c`
-// (light_sh_accumulate for its kind).
+// (hemisphere_light_sh_accumulate for its kind).
 fn light_sh_add(light: LightGpu, dir: vec3<f32>, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
     let sharpness = select(-1.0, light.sharpness, light.kind == LIGHT_SG);
-    light_sh_accumulate(fabric.sh_order, dir, sharpness, weight, c);
+    hemisphere_light_sh_accumulate(fabric.sh_order, dir, sharpness, weight, c);
 }
 
 // Adds weight * (A_cell c_in), channel by channel, to c_t (multiple.rs add_transferred).
@@ -610,18 +625,22 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
     return any;
 }
 
-// A light's SH at LOBE_SH_ORDER for unit colour (multiple.rs light_sh at LOBE_SH_ORDER over
-// the light's colour): Y_j(dir) for a directional light (sharpness < 0), sqrt(4 pi / (2l + 1))
-// z_l(lambda) Y_j(dir) for an SG light of sharpness lambda (z_l from the C_G table, whose order
-// the packing checks is at least LOBE_SH_ORDER for a bake with lobes).
+// A light's SH at LOBE_SH_ORDER for unit colour as the lobes' strengths take it (multiple.rs
+// hemisphere_light_sh at LOBE_SH_ORDER over the light's colour): 2 p_up times the even
+// coefficients of Y_j(dir) for a directional light (sharpness < 0), of sqrt(4 pi / (2l + 1))
+// z_l(lambda) Y_j(dir) for an SG light of sharpness lambda (z_l from the C_G table, whose
+// order the packing checks is at least LOBE_SH_ORDER for a bake with lobes); the odd ones 0.
 fn lobe_light_sh(dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>>) {
     sh_eval_f32(LOBE_SH_ORDER, dir, c);
-    if (sharpness >= 0.0) {
-        for (var l = 0u; l <= LOBE_SH_ORDER; l++) {
-            let scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
-            for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
-                (*c)[j] *= scale;
-            }
+    let upper = light_upper_share(dir, sharpness);
+    for (var l = 0u; l <= LOBE_SH_ORDER; l++) {
+        var scale = 2.0 * upper;
+        if (sharpness >= 0.0) {
+            scale *= cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+        }
+        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+            // l + |m| = l + |j - l (l + 1)| is even exactly when j - l * l is.
+            (*c)[j] *= select(0.0, scale, (j - l * l) % 2u == 0u);
         }
     }
 }

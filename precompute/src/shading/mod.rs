@@ -14,7 +14,8 @@
 //!   between the two for SG lights ([`sg_path_weights`]).
 //! - [`single`]: single scattering per light (directional: hard SSDF step; SG: the blend).
 //! - [`multiple`]: multiple scattering, `C_S[θo] · (R_ωo · A_cell · c_light)` per channel, with
-//!   the lights projected to SH by [`light_sh`].
+//!   the lights projected to SH by [`hemisphere_light_sh`] (the light above the horizon and its
+//!   mirror image, so the transfer's cut at the horizon does not ring).
 //! - [`render`]: [`shade`] (both components, several lights) and [`render_flat`], the CPU
 //!   version of the method for flat swatches, comparable pixel for pixel with the reference
 //!   path tracer.
@@ -38,7 +39,7 @@ mod tests;
 
 pub use bcsdf::{FiberConstants, fiber_eval_cos};
 pub use gamma::gamma;
-pub use multiple::{light_sh, multiple_scattering, multiple_scattering_in_cell};
+pub use multiple::{hemisphere_light_sh, light_sh, multiple_scattering, multiple_scattering_in_cell};
 pub use render::{MethodOptions, render_flat, render_flat_with, render_primary_hits, shade};
 pub use single::{single_scattering, single_scattering_directional, single_scattering_sg};
 pub use visibility::{

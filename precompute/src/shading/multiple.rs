@@ -8,8 +8,20 @@
 //!   the normalized SG from `CgTable::lookup` (linear in ln λ between its samples, limits
 //!   outside): the addition theorem rotates the zonal vector about +z to ξ exactly (equal to
 //!   `ShRotation` of the zonal vector, tested).
-//! - The renderer sums `V̄_glo · light_sh(light)` over lights (V̄_glo the light's blurred global
-//!   visibility) into one `c_light` per segment.
+//! - [`hemisphere_light_sh`]: the light as the transfer takes it. The IIRTF counts light from
+//!   the upper hemisphere only (`bake::iirtf::LightDomain`), so as a function of the light's
+//!   direction it jumps to zero at the horizon, and its order-L SH ring there: a raking light
+//!   met a transfer that rang far below zero (order 4, a light 11° above the horizon: −90% of
+//!   the path tracer before the clamp at zero, docs/BENCHMARKS.md). Light from below never
+//!   reaches it, so the transfer may be taken as anything below the horizon; taken as its own
+//!   mirror image it is even in z and continuous there, and its SH are exactly twice the even
+//!   coefficients (`l + |m|` even) of the matrix as baked. Dotting them with the light needs
+//!   only the light's even coefficients, of its part above the horizon: for a directional light
+//!   above it `2 E Y_j(ω_d)` for even j and 0 for odd j, for one below nothing. An SG's part
+//!   above the horizon is taken as the whole SG scaled by its share above
+//!   ([`sg_upper_fraction`]): exact in power, approximate in where the cut part lies.
+//! - The renderer sums `V̄_glo · hemisphere_light_sh(light)` over lights (V̄_glo the light's
+//!   blurred global visibility) into one `c_light` per segment.
 //! - [`multiple_scattering_in_cell`]: `c_T = A_C c_light` **per channel**:
 //!   `c_T[j1].ch = Σ_j0 A[j1·n + j0].ch · c_light[j0].ch` (the IIRTF's RGB entry multiplies the
 //!   same channel of the light; `bake::iirtf` stores `matrix[j1 · n + j0] = a_C[j0, j1]`). Then
@@ -43,7 +55,8 @@ use crate::bake::iirtf::{CellTransfer, LOBE_FOURIER_TERMS, LOBE_SH_ORDER, LOBE_S
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
-use crate::sh::{ShEulerRotation, sh_count, sh_eval};
+use crate::sg::sg_upper_fraction;
+use crate::sh::{ShEulerRotation, sh_count, sh_eval, sh_index};
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
 /// docs.
@@ -73,6 +86,36 @@ pub fn light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
             out
         }
     }
+}
+
+/// The light's SH as the transfer takes it ([`multiple_scattering`], [`lobe_scattering`]):
+/// the light above the fabric's horizon and its mirror image below, `2 p_up` times the even
+/// coefficients of [`light_sh`] (those with `l + |m|` even) and none of the odd ones; see the
+/// module docs. `p_up` is the share of the light above the horizon: 1 or 0 for a directional
+/// light, [`sg_upper_fraction`] for an SG.
+///
+/// # Panics
+/// As [`light_sh`].
+#[must_use]
+pub fn hemisphere_light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
+    let upper = match *light {
+        Light::Directional { to_light, .. } => {
+            if to_light.z > 0.0 {
+                1.0
+            } else {
+                0.0
+            }
+        }
+        Light::Sg { axis, sharpness, .. } => sg_upper_fraction(axis.z, sharpness),
+    };
+    let mut c = light_sh(light, order, cg);
+    for l in 0..=order {
+        for m in -(l as isize)..=(l as isize) {
+            let j = sh_index(l, m);
+            c[j] = if (l + m.unsigned_abs()) % 2 == 0 { c[j] * (2.0 * upper) } else { Rgb::ZERO };
+        }
+    }
+    c
 }
 
 /// `C_S[θo] · (R_ωo · A_C · c_light)` per channel for a segment of unit tangent `t` in the
@@ -318,7 +361,7 @@ pub fn lobe_scattering(
         if *v_blurred == 0.0 {
             continue;
         }
-        let c = light_sh(light, LOBE_SH_ORDER, &baked.cg);
+        let c = hemisphere_light_sh(light, LOBE_SH_ORDER, &baked.cg);
         for lobe in [&forward, &reflected] {
             let strength = lobe.strength_for(&c);
             if strength == Rgb::ZERO {

@@ -18,7 +18,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use super::ShadingError;
-use super::multiple::{light_sh, lobe_scattering, multiple_scattering};
+use super::multiple::{hemisphere_light_sh, lobe_scattering, multiple_scattering};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
@@ -70,7 +70,7 @@ fn shade_segment(
         let mut c_light = vec![Rgb::ZERO; sh_count(order)];
         for (light, _, v_blurred) in lights {
             if *v_blurred != 0.0 {
-                for (sum, c) in c_light.iter_mut().zip(light_sh(light, order, &baked.cg)) {
+                for (sum, c) in c_light.iter_mut().zip(hemisphere_light_sh(light, order, &baked.cg)) {
                     *sum += c * *v_blurred;
                 }
             }
