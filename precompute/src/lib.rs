@@ -29,6 +29,7 @@ pub mod shading;
 pub mod special;
 #[cfg(test)]
 mod test_support;
+pub mod upper_fit;
 
 /// Linear RGB triple (radiance, albedo or colour), one `f64` per channel.
 pub type Rgb = glam::DVec3;

@@ -209,6 +209,18 @@ fn material_gpu(desc: &MaterialDesc) -> MaterialGpu {
     }
 }
 
+/// The C_G table's values, then the upper-hemisphere fits (`twill_precompute::upper_fit`) of
+/// every SH order up to the table's, each as `UpperHemisphereFit::packed` in f32
+/// (`shaders/shared/shading.wgsl` `upper_fit_offset`).
+fn cg_table_with_fits(cg: &twill_precompute::bake::tables::CgTable) -> Vec<f32> {
+    let mut values = cg.values().to_vec();
+    for order in 0..=cg.order() {
+        let fit = twill_precompute::upper_fit::UpperHemisphereFit::of_order(order);
+        values.extend(fit.packed().iter().map(|&v| v as f32));
+    }
+    values
+}
+
 fn to_u32(n: usize, what: &str) -> Result<u32, FabricDataError> {
     u32::try_from(n)
         .map_err(|_| FabricDataError::Inconsistent(format!("{what} = {n} does not fit in 32 bits")))
@@ -251,7 +263,7 @@ impl FabricArrays {
             lobes: Vec::new(),
             lobe_cells: 0,
             cs_table: Vec::new(),
-            cg_table: first.cg.values().to_vec(),
+            cg_table: cg_table_with_fits(&first.cg),
             gn_table: Vec::new(),
             iirtf_f16_max_rel_error: 0.0,
         };

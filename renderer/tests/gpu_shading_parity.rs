@@ -1158,7 +1158,13 @@ fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
         // The C_G table at the lights' order: the lobes' with them.
         let cg_order = arrays.header.cg_order as usize;
         assert_eq!(cg_order, baked.settings.light_sh_order(), "{label}");
-        assert_eq!(arrays.cg_table.len(), arrays.header.cg_points as usize * (cg_order + 1), "{label}");
+        let fits: usize =
+            (0..=cg_order).map(twill_precompute::upper_fit::UpperHemisphereFit::packed_len).sum();
+        assert_eq!(
+            arrays.cg_table.len(),
+            arrays.header.cg_points as usize * (cg_order + 1) + fits,
+            "{label}"
+        );
         for (flat, uniform) in [(Some(glam::Vec3::Z), true), (None, false)] {
             let plan = plan_frame(&scene.path_scene.lights, &settings, flat, uniform, arrays.has_lobes());
             let variant = plan.passes().iter().find_map(ShadeVariant::of).expect("a shading pass");

@@ -15,7 +15,8 @@
 //                   is unpack2x16float(iirtf[e / 2])[e % 2]
 //   cs_table        [((global material * cs_theta_count + row) * sh_count + j) * 3 + channel]
 //   cg_table        [point * (cg_order + 1) + l], at the table's own order (cg_order >= sh_order;
-//                   LOBE_SH_ORDER when the bake has fiber lobes)
+//                   LOBE_SH_ORDER when the bake has fiber lobes); then the upper-hemisphere
+//                   fits of orders 0..=cg_order (shading.wgsl upper_fit_offset)
 //   gn_table        [(((global material * 2 + lobe) * (gn_intervals + 1) + node) * 2 + {0: Gn, 1: dGn/dmu}]
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
 //   cell_flags      [global cell] = 1 if the cell holds segments (has a transfer matrix), else 0

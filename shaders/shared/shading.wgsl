@@ -357,34 +357,95 @@ fn cg_lookup(lambda: f32, l: u32) -> f32 {
     return a + t * (b - a);
 }
 
-// The share of a light above the fabric's horizon (multiple.rs hemisphere_light_sh):
-// directional (sharpness < 0) 1 above, 0 below; SG sg_upper_fraction_f32.
-fn light_upper_share(dir: vec3<f32>, sharpness: f32) -> f32 {
+// How much of a light takes the transfer's upper-hemisphere fit (multiple.rs upper_fit_share
+// and hemisphere_light_sh): a directional light (sharpness < 0) all of it; an SG light none
+// below lambda = 4, all above 40, a smoothstep in ln lambda between.
+fn upper_fit_share(sharpness: f32) -> f32 {
     if (sharpness < 0.0) {
-        return select(0.0, 1.0, dir.z > 0.0);
+        return 1.0;
     }
-    return sg_upper_fraction_f32(dir.z, sharpness);
+    let t = clamp(log(max(sharpness, 1e-30) / 4.0) / log(10.0), 0.0, 1.0);
+    return t * t * (3.0 - 2.0 * t);
 }
 
-// Adds a light's SH coefficients as the transfer takes them (multiple.rs hemisphere_light_sh)
-// times `weight` to `c`: 2 p_up times the even coefficients (l + |m| even) of the light's SH,
-// directional (sharpness < 0) Y_j(dir), SG sqrt(4 pi / (2l + 1)) z_l Y_j(dir); none of the odd.
-fn hemisphere_light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
-    let upper = light_upper_share(dir, sharpness);
-    if (!(upper > 0.0)) {
+// Sum of the sizes of the upper-hemisphere fits of orders 0..order in cg_table (after the C_G
+// rows): (L + 1)(L + 2)(2L + 3) / 6 each (upper_fit.rs UpperHemisphereFit::packed_len).
+fn upper_fit_offset(order: u32) -> u32 {
+    var offset = fabric.cg_points * (fabric.cg_order + 1u);
+    for (var l = 0u; l < order; l++) {
+        offset += (l + 1u) * (l + 2u) * (2u * l + 3u) / 6u;
+    }
+    return offset;
+}
+
+// c <- (G + eps I)^-1 c over the upper hemisphere at `order` (upper_fit.rs
+// UpperHemisphereFit::apply): block m, row-major over l = m..=order, for the coefficients
+// (l, m) and again for (l, -m).
+fn upper_fit_apply(order: u32, c: ptr<function, array<f32, 49>>) {
+    var base = upper_fit_offset(order);
+    for (var m = 0u; m <= order; m++) {
+        let size = order + 1u - m;
+        let kinds = select(2u, 1u, m == 0u);
+        for (var kind = 0u; kind < kinds; kind++) {
+            var v: array<f32, 7>;
+            for (var a = 0u; a < size; a++) {
+                let l = m + a;
+                v[a] = (*c)[select(l * (l + 1u) - m, l * (l + 1u) + m, kind == 0u)];
+            }
+            for (var a = 0u; a < size; a++) {
+                var sum = 0.0;
+                for (var b = 0u; b < size; b++) {
+                    sum += cg_table[base + a * size + b] * v[b];
+                }
+                let l = m + a;
+                (*c)[select(l * (l + 1u) - m, l * (l + 1u) + m, kind == 0u)] = sum;
+            }
+        }
+        base += size * size;
+    }
+}
+
+// A light's SH for unit colour as the transfer takes it (multiple.rs hemisphere_light_sh over
+// the light's colour): directional (sharpness < 0) Y_j(dir), nothing from below the horizon; SG
+// sqrt(4 pi / (2l + 1)) z_l Y_j(dir); blended by upper_fit_share toward the upper-hemisphere
+// fit scaled by the light's share above the horizon (1, or sg_upper_fraction_f32).
+fn hemisphere_light_sh(order: u32, dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>>) {
+    sh_eval_f32(order, dir, c);
+    if (sharpness < 0.0 && !(dir.z > 0.0)) {
+        for (var j = 0u; j < 49u; j++) {
+            (*c)[j] = 0.0;
+        }
         return;
     }
-    var y: array<f32, 49>;
-    sh_eval_f32(order, dir, &y);
-    for (var l = 0u; l <= order; l++) {
-        var scale = 2.0 * upper;
+    if (sharpness >= 0.0) {
+        for (var l = 0u; l <= order; l++) {
+            let scale = cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+            for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
+                (*c)[j] *= scale;
+            }
+        }
+    }
+    let share = upper_fit_share(sharpness);
+    if (share > 0.0) {
+        var upper = 1.0;
         if (sharpness >= 0.0) {
-            scale *= cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
+            upper = sg_upper_fraction_f32(dir.z, sharpness);
         }
-        // Band l's even coefficients: m = -l, -l + 2, ..., l (l + |m| even).
-        for (var j = l * l; j < (l + 1u) * (l + 1u); j += 2u) {
-            (*c)[j] += weight * (scale * y[j]);
+        var fitted = *c;
+        upper_fit_apply(order, &fitted);
+        for (var j = 0u; j < (order + 1u) * (order + 1u); j++) {
+            (*c)[j] += share * (upper * fitted[j] - (*c)[j]);
         }
+    }
+}
+
+// Adds a light's SH coefficients as the transfer takes them (hemisphere_light_sh) times
+// `weight` to `c`.
+fn hemisphere_light_sh_accumulate(order: u32, dir: vec3<f32>, sharpness: f32, weight: vec3<f32>, c: ptr<function, array<vec3<f32>, 49>>) {
+    var y: array<f32, 49>;
+    hemisphere_light_sh(order, dir, sharpness, &y);
+    for (var j = 0u; j < (order + 1u) * (order + 1u); j++) {
+        (*c)[j] += weight * y[j];
     }
 }
 
@@ -626,23 +687,10 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
 }
 
 // A light's SH at LOBE_SH_ORDER for unit colour as the lobes' strengths take it (multiple.rs
-// hemisphere_light_sh at LOBE_SH_ORDER over the light's colour): 2 p_up times the even
-// coefficients of Y_j(dir) for a directional light (sharpness < 0), of sqrt(4 pi / (2l + 1))
-// z_l(lambda) Y_j(dir) for an SG light of sharpness lambda (z_l from the C_G table, whose
-// order the packing checks is at least LOBE_SH_ORDER for a bake with lobes); the odd ones 0.
+// hemisphere_light_sh at LOBE_SH_ORDER over the light's colour; the C_G table's order, which
+// the packing checks is at least LOBE_SH_ORDER for a bake with lobes, and its fits cover it).
 fn lobe_light_sh(dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>>) {
-    sh_eval_f32(LOBE_SH_ORDER, dir, c);
-    let upper = light_upper_share(dir, sharpness);
-    for (var l = 0u; l <= LOBE_SH_ORDER; l++) {
-        var scale = 2.0 * upper;
-        if (sharpness >= 0.0) {
-            scale *= cg_lookup(sharpness, l) * sqrt(4.0 * PI / f32(2u * l + 1u));
-        }
-        for (var j = l * l; j < (l + 1u) * (l + 1u); j++) {
-            // l + |m| = l + |j - l (l + 1)| is even exactly when j - l * l is.
-            (*c)[j] *= select(0.0, scale, (j - l * l) % 2u == 0u);
-        }
-    }
+    hemisphere_light_sh(LOBE_SH_ORDER, dir, sharpness, c);
 }
 
 // Both lobes' strength for the light of SH `c` (FiberLobe::strength_for of the interpolated

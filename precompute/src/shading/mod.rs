@@ -14,8 +14,9 @@
 //!   between the two for SG lights ([`sg_path_weights`]).
 //! - [`single`]: single scattering per light (directional: hard SSDF step; SG: the blend).
 //! - [`multiple`]: multiple scattering, `C_S[θo] · (R_ωo · A_cell · c_light)` per channel, with
-//!   the lights projected to SH by [`hemisphere_light_sh`] (the light above the horizon and its
-//!   mirror image, so the transfer's cut at the horizon does not ring).
+//!   the lights projected to SH by [`hemisphere_light_sh`] (the light above the horizon, taken
+//!   through the transfer's least-squares fit over the upper hemisphere, so the transfer's cut
+//!   at the horizon does not ring).
 //! - [`render`]: [`shade`] (both components, several lights) and [`render_flat`], the CPU
 //!   version of the method for flat swatches, comparable pixel for pixel with the reference
 //!   path tracer.

@@ -10,16 +10,16 @@
 //!   `ShRotation` of the zonal vector, tested).
 //! - [`hemisphere_light_sh`]: the light as the transfer takes it. The IIRTF counts light from
 //!   the upper hemisphere only (`bake::iirtf::LightDomain`), so as a function of the light's
-//!   direction it jumps to zero at the horizon, and its order-L SH ring there: a raking light
-//!   met a transfer that rang far below zero (order 4, a light 11° above the horizon: −90% of
-//!   the path tracer before the clamp at zero, docs/BENCHMARKS.md). Light from below never
-//!   reaches it, so the transfer may be taken as anything below the horizon; taken as its own
-//!   mirror image it is even in z and continuous there, and its SH are exactly twice the even
-//!   coefficients (`l + |m|` even) of the matrix as baked. Dotting them with the light needs
-//!   only the light's even coefficients, of its part above the horizon: for a directional light
-//!   above it `2 E Y_j(ω_d)` for even j and 0 for odd j, for one below nothing. An SG's part
-//!   above the horizon is taken as the whole SG scaled by its share above
-//!   ([`sg_upper_fraction`]): exact in power, approximate in where the cut part lies.
+//!   direction its matrix is the projection of a function cut to zero at the horizon, and
+//!   evaluated at a light's direction that truncated projection rings there: a raking light
+//!   met a transfer far below zero (order 4, a light 11° above the horizon: −90% of the path
+//!   tracer before the clamp at zero, docs/BENCHMARKS.md). Light from below never reaches it,
+//!   so what counts is the expansion's values above the horizon: the light's SH of its part
+//!   above the horizon are turned by [`UpperHemisphereFit`] into the weights that evaluate the
+//!   least-squares fit of the transfer over the upper hemisphere (`crate::upper_fit`), exact
+//!   for polynomial transfers of the order, scaled by the light's share above the horizon
+//!   ([`sg_upper_fraction`] for an SG). Broad SG lobes (λ < 4) keep their plain SH, which
+//!   average the ringing away ([`upper_fit_share`] blends the two up to λ = 40).
 //! - The renderer sums `V̄_glo · hemisphere_light_sh(light)` over lights (V̄_glo the light's
 //!   blurred global visibility) into one `c_light` per segment.
 //! - [`multiple_scattering_in_cell`]: `c_T = A_C c_light` **per channel**:
@@ -56,7 +56,8 @@ use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
 use crate::sg::sg_upper_fraction;
-use crate::sh::{ShEulerRotation, sh_count, sh_eval, sh_index};
+use crate::sh::{ShEulerRotation, sh_count, sh_eval};
+use crate::upper_fit::UpperHemisphereFit;
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
 /// docs.
@@ -88,34 +89,46 @@ pub fn light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
     }
 }
 
-/// The light's SH as the transfer takes it ([`multiple_scattering`], [`lobe_scattering`]):
-/// the light above the fabric's horizon and its mirror image below, `2 p_up` times the even
-/// coefficients of [`light_sh`] (those with `l + |m|` even) and none of the odd ones; see the
-/// module docs. `p_up` is the share of the light above the horizon: 1 or 0 for a directional
-/// light, [`sg_upper_fraction`] for an SG.
+/// The light's SH as the transfer takes it ([`multiple_scattering`], [`lobe_scattering`]): the
+/// light's SH ([`light_sh`]) turned by [`UpperHemisphereFit`] into the weights that evaluate
+/// the transfer's least-squares fit over the upper hemisphere, scaled by the light's share
+/// above the horizon (1 or 0 for a directional light, [`sg_upper_fraction`] for an SG), and
+/// blended with the plain SH by [`upper_fit_share`]: broad SG lobes average the plain
+/// projection's ringing away, and their part below the horizon, which the transfer drops,
+/// would meet the fit's polynomial continued below it.
 ///
 /// # Panics
-/// As [`light_sh`].
+/// As [`light_sh`], and for an order above `upper_fit::UPPER_FIT_MAX_ORDER`.
 #[must_use]
 pub fn hemisphere_light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
-    let upper = match *light {
+    let (share, upper) = match *light {
         Light::Directional { to_light, .. } => {
-            if to_light.z > 0.0 {
-                1.0
-            } else {
-                0.0
+            if to_light.z <= 0.0 {
+                return vec![Rgb::ZERO; sh_count(order)];
             }
+            (1.0, 1.0)
         }
-        Light::Sg { axis, sharpness, .. } => sg_upper_fraction(axis.z, sharpness),
+        Light::Sg { axis, sharpness, .. } => {
+            (upper_fit_share(sharpness), sg_upper_fraction(axis.z, sharpness))
+        }
     };
     let mut c = light_sh(light, order, cg);
-    for l in 0..=order {
-        for m in -(l as isize)..=(l as isize) {
-            let j = sh_index(l, m);
-            c[j] = if (l + m.unsigned_abs()) % 2 == 0 { c[j] * (2.0 * upper) } else { Rgb::ZERO };
+    if share > 0.0 {
+        let mut fitted = c.clone();
+        UpperHemisphereFit::of_order(order).apply(&mut fitted);
+        for (c, f) in c.iter_mut().zip(fitted) {
+            *c += (f * upper - *c) * share;
         }
     }
     c
+}
+
+/// How much of an SG light of sharpness λ takes the upper-hemisphere fit in
+/// [`hemisphere_light_sh`]: none below λ = 4, all above λ = 40, a smoothstep in ln λ between.
+#[must_use]
+pub fn upper_fit_share(sharpness: f64) -> f64 {
+    let t = ((sharpness.max(1e-30) / 4.0).ln() / 10f64.ln()).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
 }
 
 /// `C_S[θo] · (R_ωo · A_C · c_light)` per channel for a segment of unit tangent `t` in the

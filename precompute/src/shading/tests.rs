@@ -749,9 +749,9 @@ fn shading_light_sh_matches_projection_of_the_radiance() {
 }
 
 /// The IIRTF counts light from above the horizon only, so over the light's direction it jumps
-/// to zero there and its SH ring. Taken through [`hemisphere_light_sh`] (the transfer's mirror
-/// image below the horizon, the light's part above it) a raking light sees the function the
-/// transfer was projected from: directional lights at 2–85° above the horizon, SG lights of
+/// to zero there and its SH ring. Taken through [`hemisphere_light_sh`] (the transfer's
+/// least-squares fit over the upper hemisphere, the light's part above the horizon) a raking
+/// light sees the function the transfer was projected from: directional lights at 2–85° above the horizon, SG lights of
 /// λ 2–2000 at 3–45°, against the exact integral over the upper hemisphere.
 #[test]
 fn shading_hemisphere_light_sh_follows_a_transfer_cut_at_the_horizon() {
@@ -765,28 +765,27 @@ fn shading_hemisphere_light_sh_follows_a_transfer_cut_at_the_horizon() {
         let (e, phi) = (elevation_deg.to_radians(), azimuth);
         DVec3::new(e.cos() * phi.cos(), e.cos() * phi.sin(), e.sin())
     };
-    let (mut worst_mirrored, mut worst_cut) = (0.0_f64, 0.0_f64);
+    let (mut worst_fit, mut worst_cut) = (0.0_f64, 0.0_f64);
     for elevation in [2.0, 5.0, 11.0, 20.0, 35.0, 60.0, 85.0] {
         for azimuth in [0.0, 1.3, 2.9, 4.4] {
             let d = at(elevation, azimuth);
             let light = Light::directional(d, Rgb::ONE).unwrap();
-            let mirrored = apply(&hemisphere_light_sh(&light, order, &cg));
+            let fitted = apply(&hemisphere_light_sh(&light, order, &cg));
             let cut = apply(&light_sh(&light, order, &cg));
             let exact = f(d);
-            worst_mirrored = worst_mirrored.max((mirrored / exact - 1.0).abs());
+            worst_fit = worst_fit.max((fitted / exact - 1.0).abs());
             worst_cut = worst_cut.max((cut / exact - 1.0).abs());
         }
     }
-    eprintln!(
-        "directional: worst relative error, mirrored {worst_mirrored:.4}, cut (plain SH) {worst_cut:.4}"
-    );
-    // Measured 7.4% (2° above the horizon, where the value is smallest), the plain SH 43%.
-    assert!(worst_mirrored < 0.08, "mirrored transfer: {worst_mirrored}");
-    assert!(worst_cut > 5.0 * worst_mirrored, "the plain SH ring: {worst_cut} vs {worst_mirrored}");
+    eprintln!("directional: worst relative error, fitted {worst_fit:.4}, cut (plain SH) {worst_cut:.4}");
+    // The transfer is a polynomial of degree 1 above the horizon: the fit holds it but for its
+    // ridge. The plain SH: 43% (2° above the horizon).
+    assert!(worst_fit < 0.005, "fitted transfer: {worst_fit}");
+    assert!(worst_cut > 0.4, "the plain SH ring: {worst_cut}");
     // Below the horizon nothing arrives.
     let below = Light::directional(at(-10.0, 0.7), Rgb::ONE).unwrap();
     assert!(hemisphere_light_sh(&below, order, &cg).iter().all(|c| *c == Rgb::ZERO));
-    // SG lights: the share above the horizon carries the power, the even coefficients its shape.
+    // SG lights: the share above the horizon carries the power, the whole lobe its shape.
     let (nodes, weights) = crate::quadrature::gauss_legendre(300);
     let mut worst_sg = 0.0_f64;
     for lambda in [2.0, 20.0, 200.0, 2000.0] {
@@ -809,8 +808,8 @@ fn shading_hemisphere_light_sh_follows_a_transfer_cut_at_the_horizon() {
         }
     }
     eprintln!("SG: worst relative error {worst_sg:.4}");
-    // Measured 2.5% (λ 2000 at 3°: the cut part's shape).
-    assert!(worst_sg < 0.03, "SG lights: {worst_sg}");
+    // Measured 6.1% (λ 20 at 3°, where the plain SH and the fit blend).
+    assert!(worst_sg < 0.065, "SG lights: {worst_sg}");
 }
 
 #[test]
