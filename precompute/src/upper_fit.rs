@@ -20,11 +20,12 @@
 //! product rule exact for these polynomials (Gauss–Legendre in `z ∈ [0, 1]`, uniform in φ). The
 //! hemisphere's functions of high l and m are nearly those of lower l (G's condition number is
 //! 2.5e2 at order 2, 1.5e5 at order 4, 1.2e8 at order 6), so the inverse taken is of
-//! `G + ε I` with ε = [`UPPER_FIT_RIDGE`] (1e-4 of G's largest eigenvalue, 1): its entries
-//! stay below 5e3, so f32 rounding of a light's SH is not blown up on the GPU, and a polynomial
-//! transfer still comes out within 0.5% (docs/MATH.md). The fit's noise: a transfer's sampling
-//! noise reaches a light's value about 1.3 times as strongly as through the plain projection at
-//! mid elevations, 2–3 times at the horizon.
+//! `G + ε I` with ε = [`UPPER_FIT_RIDGE`] (3e-4 of G's largest eigenvalue, 1): its entries
+//! stay below 1.6e3, so f32 rounding of a light's SH reaches a value as about 1e-4 of the
+//! transfer's scale on the GPU (2e-5 at ε = 1e-3, 5e-4 at 1e-4), and a polynomial transfer
+//! still comes out within about 1% (2% at 1e-3, 0.5% at 1e-4; docs/MATH.md). The fit's noise:
+//! a transfer's sampling noise reaches a light's value about 1.3 times as strongly as through
+//! the plain projection at mid elevations, 2–3 times at the horizon.
 //! Packed for the GPU ([`UpperHemisphereFit::packed`]): block m after blocks 0..m, each
 //! `(L + 1 − m)²` values row-major over `l = m..=L`; `(L+1)(L+2)(2L+3)/6` values in all.
 
@@ -37,7 +38,13 @@ use crate::quadrature::gauss_legendre;
 use crate::sh::{sh_count, sh_eval, sh_index};
 
 /// The ridge ε of the fit's inverse, `(G + ε I)⁻¹` (module docs).
-pub const UPPER_FIT_RIDGE: f64 = 1e-4;
+pub const UPPER_FIT_RIDGE: f64 = 3e-4;
+
+/// The lowest SH order the renderer fits at (`shading::multiple::hemisphere_light_sh`): at
+/// order 2 (the draft preset's) the fit's nine functions overshoot in dim raking light (over
+/// 12 configurations × 3 fabrics the worst case went +85% → +164%), so the light keeps its
+/// plain SH there.
+pub const UPPER_FIT_MIN_ORDER: usize = 4;
 
 /// Highest SH order a fit is made for.
 pub const UPPER_FIT_MAX_ORDER: usize = 10;
@@ -219,7 +226,8 @@ mod tests {
                     }
                 }
                 eprintln!("order {order} {name}: fit {worst_fit:.2e}, plain projection {worst_cut:.2e}");
-                assert!(worst_fit < 6e-3, "order {order} {name}: fit off by {worst_fit}");
+                // The ridge's shrinkage: measured up to 7.0e-3 (order 2, the constant).
+                assert!(worst_fit < 1e-2, "order {order} {name}: fit off by {worst_fit}");
                 assert!(worst_cut > 5.0 * worst_fit, "order {order} {name}: {worst_cut} vs {worst_fit}");
             }
         }

@@ -93,6 +93,11 @@ pub fn prelude() -> String {
     #[allow(clippy::cast_possible_truncation)]
     let nudge = twill_precompute::bake::volume::VOXEL_START_NUDGE as f32;
     let _ = writeln!(out, "const VOXEL_START_NUDGE: f32 = {nudge:?};");
+    let _ = writeln!(
+        out,
+        "const UPPER_FIT_MIN_ORDER: u32 = {}u;",
+        twill_precompute::upper_fit::UPPER_FIT_MIN_ORDER
+    );
     // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
     {
         use twill_precompute::bake::iirtf::{

@@ -408,10 +408,12 @@ fn upper_fit_apply(order: u32, c: ptr<function, array<f32, 49>>) {
 // A light's SH for unit colour as the transfer takes it (multiple.rs hemisphere_light_sh over
 // the light's colour): directional (sharpness < 0) Y_j(dir), nothing from below the horizon; SG
 // sqrt(4 pi / (2l + 1)) z_l Y_j(dir); blended by upper_fit_share toward the upper-hemisphere
-// fit scaled by the light's share above the horizon (1, or sg_upper_fraction_f32).
+// fit scaled by the light's share above the horizon (1, or sg_upper_fraction_f32); below
+// UPPER_FIT_MIN_ORDER (upper_fit.rs, written into the prelude) the plain SH.
 fn hemisphere_light_sh(order: u32, dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>>) {
     sh_eval_f32(order, dir, c);
-    if (sharpness < 0.0 && !(dir.z > 0.0)) {
+    let fits = order >= UPPER_FIT_MIN_ORDER;
+    if (fits && sharpness < 0.0 && !(dir.z > 0.0)) {
         for (var j = 0u; j < 49u; j++) {
             (*c)[j] = 0.0;
         }
@@ -426,7 +428,7 @@ fn hemisphere_light_sh(order: u32, dir: vec3<f32>, sharpness: f32, c: ptr<functi
         }
     }
     let share = upper_fit_share(sharpness);
-    if (share > 0.0) {
+    if (fits && share > 0.0) {
         var upper = 1.0;
         if (sharpness >= 0.0) {
             upper = sg_upper_fraction_f32(dir.z, sharpness);

@@ -19,7 +19,8 @@
 //!   least-squares fit of the transfer over the upper hemisphere (`crate::upper_fit`), exact
 //!   for polynomial transfers of the order, scaled by the light's share above the horizon
 //!   ([`sg_upper_fraction`] for an SG). Broad SG lobes (λ < 4) keep their plain SH, which
-//!   average the ringing away ([`upper_fit_share`] blends the two up to λ = 40).
+//!   average the ringing away ([`upper_fit_share`] blends the two up to λ = 40). Below SH
+//!   order 4 ([`UPPER_FIT_MIN_ORDER`]) the light keeps its plain SH.
 //! - The renderer sums `V̄_glo · hemisphere_light_sh(light)` over lights (V̄_glo the light's
 //!   blurred global visibility) into one `c_light` per segment.
 //! - [`multiple_scattering_in_cell`]: `c_T = A_C c_light` **per channel**:
@@ -57,7 +58,7 @@ use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
 use crate::sg::sg_upper_fraction;
 use crate::sh::{ShEulerRotation, sh_count, sh_eval};
-use crate::upper_fit::UpperHemisphereFit;
+use crate::upper_fit::{UPPER_FIT_MIN_ORDER, UpperHemisphereFit};
 
 /// The SH coefficients (bands `0..=order`, fabric space) of a light's radiance; see the module
 /// docs.
@@ -95,12 +96,16 @@ pub fn light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
 /// above the horizon (1 or 0 for a directional light, [`sg_upper_fraction`] for an SG), and
 /// blended with the plain SH by [`upper_fit_share`]: broad SG lobes average the plain
 /// projection's ringing away, and their part below the horizon, which the transfer drops,
-/// would meet the fit's polynomial continued below it.
+/// would meet the fit's polynomial continued below it. Below [`UPPER_FIT_MIN_ORDER`] the plain
+/// SH.
 ///
 /// # Panics
 /// As [`light_sh`], and for an order above `upper_fit::UPPER_FIT_MAX_ORDER`.
 #[must_use]
 pub fn hemisphere_light_sh(light: &Light, order: usize, cg: &CgTable) -> Vec<Rgb> {
+    if order < UPPER_FIT_MIN_ORDER {
+        return light_sh(light, order, cg);
+    }
     let (share, upper) = match *light {
         Light::Directional { to_light, .. } => {
             if to_light.z <= 0.0 {
