@@ -311,7 +311,7 @@ mod tests {
                     let z = 0.5 * (x + 1.0);
                     let r = (1.0 - z * z).sqrt();
                     for k in 0..800 {
-                        let phi = 2.0 * PI * (k as f64 + 0.5) / 800.0;
+                        let phi = 2.0 * PI * (f64::from(k) + 0.5) / 800.0;
                         let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
                         sum += 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
                     }

@@ -199,7 +199,8 @@ mod tests {
     /// within the ridge's error at every elevation, where the plain projection rings.
     #[test]
     fn the_fit_recovers_polynomials_cut_at_the_horizon() {
-        let functions: [(&str, fn(DVec3) -> f64); 3] = [
+        type Named = (&'static str, fn(DVec3) -> f64);
+        let functions: [Named; 3] = [
             ("constant", |_| 1.0),
             ("cosine", |w| w.z),
             ("mixed", |w| 1.0 + 0.5 * w.x - 0.3 * w.y + 0.4 * w.z + 0.3 * w.x * w.z),
