@@ -224,28 +224,21 @@ pub fn sg_upper_fraction(axis_z: f64, lambda: f64) -> f64 {
     let upper = if lambda * gap > 20.0 {
         1.0
     } else {
-        let (mass_within, w_of) = sg_mass_share(lambda);
+        // The share of the mass within 1 − t ≤ w of the axis.
+        let total = (-2.0 * lambda).exp_m1();
+        let mass_within = |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
         let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
         let mut between = 0.0;
         for i in 0..UPPER_FRACTION_NODES {
             let u = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
-            let w = w_of(u);
+            // The inverse of `mass_within`: the sampler's, which takes the share from the far end.
+            let w = sample_one_minus_cos(lambda, 1.0 - u);
             let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
             between += (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos() / PI;
         }
         top + (bottom - top) * between / UPPER_FRACTION_NODES as f64
     };
     if z >= 0.0 { upper } else { 1.0 - upper }
-}
-
-/// A normalized SG's mass share within `1 − t ≤ w` of its axis, and its inverse.
-fn sg_mass_share(lambda: f64) -> (impl Fn(f64) -> f64, impl Fn(f64) -> f64) {
-    let total = (-2.0 * lambda).exp_m1();
-    let share = move |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
-    let inverse = move |u: f64| {
-        if lambda > 0.0 { (-(u * total).ln_1p() / lambda).clamp(0.0, 2.0) } else { (2.0 * u).clamp(0.0, 2.0) }
-    };
-    (share, inverse)
 }
 
 /// f32 twin of [`sg_upper_fraction`] (`shaders/shared/sg.wgsl`), with [`ln_1p_f32`] and

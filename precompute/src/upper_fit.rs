@@ -17,20 +17,23 @@
 //!
 //! How: G couples only coefficients of the same m and the same kind (cos or sin), with the same
 //! block for `m` and `−m`, so it is `L + 1` blocks over the bands `l = m..=L`, computed by a
-//! product rule exact for these polynomials (Gauss–Legendre in `z ∈ [0, 1]`, uniform in φ). The
-//! hemisphere's functions of high l and m are nearly those of lower l (G's condition number is
-//! 2.5e2 at order 2, 1.5e5 at order 4, 1.2e8 at order 6), so the inverse taken is of
-//! `G + ε I` with ε = [`UPPER_FIT_RIDGE`] (3e-4 of G's largest eigenvalue, 1): its entries
-//! stay below 1.6e3, so f32 rounding of a light's SH reaches a value as about 1e-4 of the
-//! transfer's scale on the GPU (2e-5 at ε = 1e-3, 5e-4 at 1e-4), and a polynomial transfer
-//! still comes out within about 1% (2% at 1e-3, 0.5% at 1e-4; docs/MATH.md). The fit's noise:
-//! a transfer's sampling noise reaches a light's value about 1.3 times as strongly as through
-//! the plain projection at mid elevations, 2–3 times at the horizon.
+//! product rule exact for these polynomials (Gauss–Legendre in `z ∈ [0, 1]`, uniform in φ), and
+//! each block inverted by its Cholesky factor (faer). The hemisphere's functions of high l and m
+//! are nearly those of lower l (G's condition number is 2.5e2 at order 2, 1.5e5 at order 4,
+//! 1.2e8 at order 6), so the inverse taken is of `G + ε I` with ε = [`UPPER_FIT_RIDGE`] (3e-4
+//! of G's largest eigenvalue, 1): its entries stay below 1.6e3, so f32 rounding of a light's SH
+//! reaches a value as about 1e-4 of the transfer's scale on the GPU (2e-5 at ε = 1e-3, 5e-4 at
+//! 1e-4), and a polynomial transfer still comes out within about 1% (2% at 1e-3, 0.5% at 1e-4;
+//! docs/MATH.md). The fit's noise: a transfer's sampling noise reaches a light's value about 1.3
+//! times as strongly as through the plain projection at mid elevations, 2–3 times at the
+//! horizon.
 //! Packed for the GPU ([`UpperHemisphereFit::packed`]): block m after blocks 0..m, each
 //! `(L + 1 − m)²` values row-major over `l = m..=L`; `(L+1)(L+2)(2L+3)/6` values in all.
 
 use std::sync::OnceLock;
 
+use faer::linalg::solvers::DenseSolveCore;
+use faer::{Mat, Side};
 use glam::DVec3;
 
 use crate::Rgb;
@@ -97,15 +100,12 @@ impl UpperHemisphereFit {
         let mut blocks = Vec::with_capacity(Self::packed_len(order));
         for m in 0..=order {
             let size = order + 1 - m;
-            let mut block: Vec<f64> = (0..size * size)
-                .map(|e| {
-                    let (a, b) = (e / size, e % size);
-                    let (ja, jb) = (sh_index(m + a, m as isize), sh_index(m + b, m as isize));
-                    gram[ja * n + jb] + if a == b { UPPER_FIT_RIDGE } else { 0.0 }
-                })
-                .collect();
-            invert_spd(&mut block, size);
-            blocks.extend(block);
+            let ridged = Mat::from_fn(size, size, |a, b| {
+                let (ja, jb) = (sh_index(m + a, m as isize), sh_index(m + b, m as isize));
+                gram[ja * n + jb] + if a == b { UPPER_FIT_RIDGE } else { 0.0 }
+            });
+            let inverse = ridged.llt(Side::Lower).expect("G + εI is symmetric positive definite").inverse();
+            blocks.extend((0..size * size).map(|e| inverse[(e / size, e % size)]));
         }
         Self { order, blocks }
     }
@@ -114,12 +114,6 @@ impl UpperHemisphereFit {
     #[must_use]
     pub const fn packed_len(order: usize) -> usize {
         (order + 1) * (order + 2) * (2 * order + 3) / 6
-    }
-
-    /// The SH order.
-    #[must_use]
-    pub fn order(&self) -> usize {
-        self.order
     }
 
     /// The blocks, packed as the module docs say.
@@ -158,31 +152,6 @@ impl UpperHemisphereFit {
             offset += size * size;
         }
     }
-}
-
-/// Inverts the symmetric positive definite `size × size` matrix `a` in place (Gauss–Jordan;
-/// G's blocks with the ridge are well enough conditioned that no pivoting is needed, and the
-/// fit's tests check the product with G).
-fn invert_spd(a: &mut [f64], size: usize) {
-    let mut inverse: Vec<f64> =
-        (0..size * size).map(|e| if e / size == e % size { 1.0 } else { 0.0 }).collect();
-    for col in 0..size {
-        let pivot = a[col * size + col];
-        for k in 0..size {
-            a[col * size + k] /= pivot;
-            inverse[col * size + k] /= pivot;
-        }
-        for row in 0..size {
-            if row != col {
-                let factor = a[row * size + col];
-                for k in 0..size {
-                    a[row * size + k] -= factor * a[col * size + k];
-                    inverse[row * size + k] -= factor * inverse[col * size + k];
-                }
-            }
-        }
-    }
-    a.copy_from_slice(&inverse);
 }
 
 #[cfg(test)]
