@@ -70,7 +70,11 @@ pub struct FabricHeaderGpu {
     /// Visibility points per segment (`VisibilityData::points`): `pca_coefficients` and
     /// `sos_weights` hold that many images per segment.
     pub visibility_points: u32,
-    pub pad: [u32; 2],
+    /// `u32` words per binary visibility image in `visibility_bits` (`BakeSettings::
+    /// visibility_bits`), 0 when the bake kept none (local visibility is then the PCA SSDF's
+    /// sign).
+    pub visibility_words: u32,
+    pub pad: u32,
 }
 const _: () = assert!(size_of::<FabricHeaderGpu>() == 80);
 
@@ -156,6 +160,10 @@ pub struct FabricArrays {
     pub pca_basis: Vec<f32>,
     pub pca_coefficients: Vec<f32>,
     pub sos_weights: Vec<f32>,
+    /// The binary visibility images (`VisibilityData::bits`), image after image in global
+    /// image order, `header.visibility_words` words each (bit `p % 32` of word `p / 32` is
+    /// pixel `p`); one zero word when the bake kept none.
+    pub visibility_bits: Vec<u32>,
     /// f16 pairs (see the module doc).
     pub iirtf: Vec<u32>,
     /// Per global cell: 1 if it holds segments (and so a transfer matrix), 0 if empty.
@@ -247,6 +255,7 @@ impl FabricArrays {
         let components = first.visibility.ssdf.component_count;
         let visibility_points = first.visibility.points;
         let sos_count = first.visibility.sum_of_sg.count;
+        let has_bits = first.visibility.bits.is_some();
         let theta_count = settings.cs_theta_count;
         let mut out = Self {
             header: FabricHeaderGpu::zeroed_header(),
@@ -258,6 +267,7 @@ impl FabricArrays {
             pca_basis: Vec::new(),
             pca_coefficients: Vec::new(),
             sos_weights: Vec::new(),
+            visibility_bits: Vec::new(),
             iirtf: Vec::new(),
             cell_flags: Vec::new(),
             lobes: Vec::new(),
@@ -285,6 +295,7 @@ impl FabricArrays {
                 && baked.visibility.sum_of_sg.count == sos_count
                 && baked.settings.cs_theta_count == theta_count
                 && baked.visibility.points == visibility_points
+                && baked.visibility.bits.is_some() == has_bits
                 && baked.volume.segments.axis.len() == baked.volume.segments.len()
                 && baked.volume.segments.radius.len() == baked.volume.segments.len();
             if !same {
@@ -371,6 +382,17 @@ impl FabricArrays {
             out.pca_basis.extend_from_slice(ssdf.components());
             out.pca_coefficients.extend_from_slice(ssdf.all_coefficients());
             out.sos_weights.extend_from_slice(baked.visibility.sum_of_sg.all_weights());
+            if let Some(bits) = &baked.visibility.bits {
+                if bits.resolution != settings.svf_resolution {
+                    return Err(FabricDataError::Inconsistent(format!(
+                        "exemplar {e}: binary visibility images of {0}x{0}, expected {1}x{1}",
+                        bits.resolution, settings.svf_resolution
+                    )));
+                }
+                // Little-endian halves: bit p % 64 of u64 word p / 64 is bit p % 32 of u32
+                // word p / 32.
+                out.visibility_bits.extend(bits.words().iter().flat_map(|&w| [w as u32, (w >> 32) as u32]));
+            }
             for cell in &baked.transfer.iirtf.cells {
                 if cell.is_empty() {
                     // Every cell has its slot: an empty one transfers nothing.
@@ -438,8 +460,16 @@ impl FabricArrays {
             z_range,
             cg_order: to_u32(cg_order, "C_G order")?,
             visibility_points: to_u32(visibility_points, "visibility points")?,
-            pad: [0; 2],
+            visibility_words: if has_bits {
+                to_u32(2 * (settings.svf_resolution * settings.svf_resolution).div_ceil(64), "visibility words")?
+            } else {
+                0
+            },
+            pad: 0,
         };
+        if out.visibility_bits.is_empty() {
+            out.visibility_bits.push(0);
+        }
         out.lobe_cells = out.count_lobe_cells();
         Ok(out)
     }
@@ -463,9 +493,9 @@ impl FabricArrays {
         self.lobes.chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
     }
 
-    /// Every buffer with its label and contents, in binding order (1 ..= 14).
+    /// Every buffer with its label and contents, in binding order (1 ..= 15).
     #[must_use]
-    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 14] {
+    pub fn storage_buffers(&self) -> [(&'static str, &[u8]); 15] {
         [
             ("exemplars", bytemuck::cast_slice(&self.exemplars)),
             ("pattern", bytemuck::cast_slice(&self.pattern)),
@@ -481,6 +511,7 @@ impl FabricArrays {
             ("gn_table", bytemuck::cast_slice(&self.gn_table)),
             ("cell_flags", bytemuck::cast_slice(&self.cell_flags)),
             ("lobes", bytemuck::cast_slice(&self.lobes)),
+            ("visibility_bits", bytemuck::cast_slice(&self.visibility_bits)),
         ]
     }
 
@@ -583,13 +614,13 @@ pub struct FabricData {
     buffers: Vec<wgpu::Buffer>,
 }
 
-/// The layout of bind group 1 (a uniform and fourteen read-only storage buffers, visible to
+/// The layout of bind group 1 (a uniform and fifteen read-only storage buffers, visible to
 /// fragment and compute stages).
 #[must_use]
 pub fn fabric_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     let visibility = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
     let mut entries = vec![uniform_entry(0, visibility)];
-    entries.extend((1..=14).map(|binding| storage_entry(binding, visibility, true)));
+    entries.extend((1..=15).map(|binding| storage_entry(binding, visibility, true)));
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("twill.fabric.bind_group_layout"),
         entries: &entries,

@@ -263,7 +263,7 @@ pub struct Renderer {
 }
 
 /// The renderer needs this many storage buffers in one shader stage (shading pass).
-const STORAGE_BUFFERS_NEEDED: u32 = 18;
+const STORAGE_BUFFERS_NEEDED: u32 = 19;
 
 impl Renderer {
     /// Uploads the shell and builds the pipelines. `fabric` must come from the same device.

@@ -46,20 +46,28 @@ use twill_renderer::passes::shade::ShadeVariant;
 use twill_renderer::plan::Components;
 use twill_renderer::shaders;
 
-/// The default scene's draft bake (no fiber lobes), shared by the tests of this binary.
+/// The default scene's draft bake (no fiber lobes; local visibility from the kept binary
+/// images), shared by the tests of this binary.
 fn default_bake() -> &'static Baked {
     static BAKE: std::sync::OnceLock<Baked> = std::sync::OnceLock::new();
-    BAKE.get_or_init(|| draft_bake(&SceneFile::default_scene()))
+    BAKE.get_or_init(|| draft_bake(&SceneFile::default_scene(), true))
 }
 
-fn draft_bake(file: &SceneFile) -> Baked {
+/// A draft bake of `file`, with or without the binary visibility images
+/// (`BakeSettings::visibility_bits`; without them, local visibility is the PCA SSDF's sign).
+fn draft_bake(file: &SceneFile, visibility_bits: bool) -> Baked {
     let scene = file.build().expect("scene");
     let inputs = BakeInputs {
         exemplar: &scene.exemplar,
         materials: &scene.material_descs,
         // The SH transfer alone: the fiber lobes have their own bake (`lobe_bake`). Three
         // visibility points per segment, so every function reads images past the first.
-        settings: BakeSettings { fiber_lobes: false, visibility_points: 3, ..Quality::Draft.settings() },
+        settings: BakeSettings {
+            fiber_lobes: false,
+            visibility_points: 3,
+            visibility_bits,
+            ..Quality::Draft.settings()
+        },
     };
     bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake").baked
 }
@@ -232,6 +240,21 @@ fn cases(baked: &Baked, lambdas: &[f64]) -> Vec<Case> {
     out
 }
 
+/// Whether local visibility toward `dir` is clearly decided, so f32 and f64 agree on it: the
+/// PCA SSDF at least 1e-3 from zero, and with binary images also the direction at least 1e-4
+/// pixel from the edges of its pixel (`pixel_of_direction`).
+fn visibility_clearly_decided(baked: &Baked, image: usize, dir: DVec3) -> bool {
+    let vis = &baked.visibility;
+    let Some(bits) = &vis.bits else {
+        return shading::ssdf_lookup(&vis.ssdf, image, dir).abs() > 1e-3;
+    };
+    let n = bits.resolution as f64;
+    let row = dir.z.clamp(-1.0, 1.0).acos() / std::f64::consts::PI * n;
+    let col = dir.y.atan2(dir.x).rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU * n;
+    let clear = |x: f64| (x - x.round()).abs() > 1e-4;
+    clear(row) && clear(col)
+}
+
 fn compare(name: &str, cases: &[Case], gpu: &[[f32; 4]], cpu: &[Option<Rgb>]) -> Vec<String> {
     let mut failures = Vec::new();
     let mut worst = 0.0_f64;
@@ -337,7 +360,8 @@ fn shading_functions_match_their_rust_twins() {
     let Some(gpu) = Gpu::for_test("shading_functions_match_their_rust_twins") else { return };
     let mut failures = Vec::new();
     failures.extend(compare_bake(&gpu, "default", default_bake()));
-    let narrow = draft_bake(&narrow_scene());
+    // The narrow material's bake also takes local visibility from the PCA SSDF alone.
+    let narrow = draft_bake(&narrow_scene(), false);
     let narrow_segments = grid_segments(&narrow)
         .into_iter()
         .filter(|&k| {
@@ -384,7 +408,8 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
         gpu.evaluate_with_fabric(&library, exp, inputs, Some(&fabric)).expect("GPU evaluation")
     }));
 
-    // Directional single scattering (unit irradiance): compared where the SSDF is clearly signed.
+    // Directional single scattering (unit irradiance): compared where local visibility is
+    // clearly decided.
     let dir_cases = cases(baked, &[0.0]);
     let gpu_dir = run(
         "vec4<f32>(shade_single_directional(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input)), 0.0)",
@@ -395,8 +420,7 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
         .map(|c| {
             let s = seg(c);
             let wd = c.axis(s.tangent);
-            let d = shading::ssdf_lookup(&baked.visibility.ssdf, case_image(baked, c.segment), wd);
-            (d.abs() > 1e-3).then(|| {
+            visibility_clearly_decided(baked, case_image(baked, c.segment), wd).then(|| {
                 shading::single_scattering_directional(
                     &s.fiber,
                     &baked.gn,
@@ -417,7 +441,8 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
     eprintln!("{label}, single, directional: {occluded} occluded and {visible} visible cases");
     assert!(occluded > 0 && visible > 0, "the grid must include occluded and visible cases");
 
-    // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF (≥ 200).
+    // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF (≥ 200; compared
+    // where local visibility's sign is clearly decided).
     let sg_cases = cases(baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
     let gpu_sg = run(
         "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
@@ -427,6 +452,10 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
         .iter()
         .map(|c| {
             let s = seg(c);
+            let image = case_image(baked, c.segment);
+            if c.lambda > 100.0 && !visibility_clearly_decided(baked, image, c.axis(s.tangent)) {
+                return None;
+            }
             Some(shading::single_scattering_sg(
                 &s.fiber,
                 &baked.gn,

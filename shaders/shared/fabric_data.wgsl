@@ -10,6 +10,8 @@
 //   pca_coefficients[image * pca_components + c]
 //   sos_weights     [image * sos_count + q]
 //                   image = global segment * visibility_points + point (visibility_image)
+//   visibility_bits [image * visibility_words + p / 32] bit p % 32 = pixel p of the binary
+//                   visibility image (row-major, rows theta), when visibility_words > 0
 //   iirtf           f16 pairs: entry e = ((global cell * 3 + channel) * sh_count + j1) * sh_count + j0,
 //                   the value a_C[j0, j1] (light coefficient j0 -> incoming-radiance coefficient j1)
 //                   is unpack2x16float(iirtf[e / 2])[e % 2]
@@ -53,8 +55,10 @@ struct FabricHeader {
     // Visibility images per segment (VisibilityData::points): pca_coefficients and sos_weights
     // hold image segment * visibility_points + point.
     visibility_points: u32,
+    // u32 words per binary visibility image in visibility_bits; 0 when the bake kept none
+    // (local visibility is then the PCA SSDF's sign).
+    visibility_words: u32,
     _pad1: u32,
-    _pad2: u32,
 }
 
 struct ExemplarGpu {
@@ -119,6 +123,7 @@ struct MaterialGpu {
 @group(1) @binding(12) var<storage, read> gn_table: array<f32>;
 @group(1) @binding(13) var<storage, read> cell_flags: array<u32>;
 @group(1) @binding(14) var<storage, read> lobes: array<vec4<f32>>;
+@group(1) @binding(15) var<storage, read> visibility_bits: array<u32>;
 
 // Euclidean remainder (WGSL's % keeps the sign of the dividend).
 fn wrap_f32(x: f32, period: f32) -> f32 {

@@ -1,6 +1,7 @@
 // Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
 // precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma, LobeAngles,
-// lobe_quadrature; visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; single.rs;
+// lobe_quadrature; visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; svf.rs:
+// pixel_of_direction; bake/pipeline.rs: VisibilityData::visible, distance; single.rs;
 // multiple.rs: light_sh, multiple_scattering_in_cell, FiberLobe, lobe_scattering), compared on
 // the GPU by renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
@@ -279,10 +280,48 @@ fn ssdf_lookup(e: u32, image: u32, dir: vec3<f32>) -> f32 {
     return (1.0 - fu) * ((1.0 - fv) * d00 + fv * d01) + fu * ((1.0 - fv) * d10 + fv * d11);
 }
 
-// Single scattering of a unit-irradiance directional light (single.rs): the SSDF sign times
-// S cos(theta_d).
+// The pixel of the binary visibility image whose cell holds a unit direction (svf.rs
+// pixel_of_direction): row floor(theta n / pi), column floor(phi n / (2 pi)), clamped.
+fn visibility_bit(image: u32, dir: vec3<f32>) -> bool {
+    let n = fabric.svf_resolution;
+    let nf = f32(n);
+    let theta = acos(clamp(dir.z, -1.0, 1.0));
+    var phi = atan2(dir.y, dir.x);
+    if (dir.x == 0.0 && dir.y == 0.0) {
+        phi = select(0.0, PI, (bitcast<u32>(dir.x) & 0x80000000u) != 0u);
+    }
+    if (phi < 0.0) {
+        phi += 2.0 * PI;
+    }
+    let row = min(u32(theta / PI * nf), n - 1u);
+    let col = min(u32(phi / (2.0 * PI) * nf), n - 1u);
+    let pixel = row * n + col;
+    return ((visibility_bits[image * fabric.visibility_words + pixel / 32u] >> (pixel % 32u)) & 1u) != 0u;
+}
+
+// Whether an image sees a unit direction: its binary image's pixel when the bake kept them,
+// else the PCA SSDF's sign (pipeline.rs VisibilityData::visible).
+fn local_visible(e: u32, image: u32, dir: vec3<f32>) -> bool {
+    if (fabric.visibility_words > 0u) {
+        return visibility_bit(image, dir);
+    }
+    return ssdf_lookup(e, image, dir) > 0.0;
+}
+
+// The signed distance to the image's visibility edge for the erf step: the PCA SSDF's
+// magnitude with the kept binary image's sign (pipeline.rs VisibilityData::distance).
+fn local_distance(e: u32, image: u32, dir: vec3<f32>) -> f32 {
+    let d = ssdf_lookup(e, image, dir);
+    if (fabric.visibility_words > 0u) {
+        return select(-abs(d), abs(d), visibility_bit(image, dir));
+    }
+    return d;
+}
+
+// Single scattering of a unit-irradiance directional light (single.rs): local visibility
+// times S cos(theta_d).
 fn shade_single_directional(e: u32, segment: u32, image: u32, wo: vec3<f32>, wd: vec3<f32>) -> vec3<f32> {
-    if (ssdf_lookup(e, image, wd) <= 0.0) {
+    if (!local_visible(e, image, wd)) {
         return vec3<f32>(0.0);
     }
     let s = segments[segment];
@@ -291,7 +330,7 @@ fn shade_single_directional(e: u32, segment: u32, image: u32, wo: vec3<f32>, wd:
 
 // Single scattering of a unit-intensity normalized SG light through the erf-smoothed SSDF.
 fn shade_single_sg_ssdf_erf(e: u32, segment: u32, image: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
-    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * ssdf_lookup(e, image, axis));
+    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * local_distance(e, image, axis));
     if (soft <= 0.0) {
         return vec3<f32>(0.0);
     }

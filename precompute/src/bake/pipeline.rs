@@ -4,7 +4,7 @@
 //! | stage | depends on |
 //! |---|---|
 //! | mean free path | geometry, `mfp_samples`, `seed` |
-//! | visibility (SVF → SSDF → PCA, sum of SGs) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `sos_count`, `sos_sharpness`, `seed` |
+//! | visibility (SVF → SSDF → PCA, sum of SGs, the kept bits) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `visibility_bits`, `sos_count`, `sos_sharpness`, `seed` |
 //! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts` |
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
@@ -45,6 +45,7 @@ use super::volume::{
     EMPTY_VOXEL, Occupancy, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize,
 };
 use super::{Cancel, Cancelled};
+use crate::shading::{ssdf_lookup, ssdf_step_visibility};
 use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::ParamError;
@@ -93,15 +94,15 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
-/// 3: images at `visibility_points` points along each segment; transfer 5: the fiber lobes,
+/// 3: images at `visibility_points` points along each segment, 4: the kept bits; transfer 5: the fiber lobes,
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix; volume 3:
 /// touching occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 3, 5, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 5, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
-/// `radius`).
-pub const BAKE_LAYOUT_VERSION: u32 = 5;
+/// `radius`; 6: `VisibilityData::bits`).
+pub const BAKE_LAYOUT_VERSION: u32 = 6;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -130,9 +131,40 @@ pub struct VisibilityData {
     /// Visibility points per segment (`BakeSettings::visibility_points`).
     pub points: usize,
     pub ssdf: PcaBasis,
+    /// The binary visibility images themselves, when `BakeSettings::visibility_bits` kept
+    /// them: local visibility's sign ([`VisibilityData::visible`], [`VisibilityData::distance`]).
+    pub bits: Option<VisibilityImages>,
     pub sum_of_sg: SumOfSgVisibility,
     /// Mean visible solid angle over the images (steradians), for reports.
     pub mean_visible_solid_angle: f64,
+}
+
+impl VisibilityData {
+    /// Whether image `image` sees the unit direction `dir`: its pixel in the kept binary
+    /// image (nearest pixel, `VisibilityImages::lookup`), else the sign of the PCA SSDF
+    /// (bilinear, the paper). A directional light's hard step. Twin: `local_visible` in
+    /// shaders/shared/shading.wgsl.
+    #[must_use]
+    pub fn visible(&self, image: usize, dir: DVec3) -> bool {
+        match &self.bits {
+            Some(bits) => bits.lookup(image, dir),
+            None => ssdf_step_visibility(ssdf_lookup(&self.ssdf, image, dir)) > 0.0,
+        }
+    }
+
+    /// The signed angular distance (radians) from the unit direction `dir` to image `image`'s
+    /// nearest visibility edge, for a sharp SG light's erf step: the PCA SSDF's magnitude
+    /// with the kept binary image's sign, else the PCA SSDF itself. Twin: `local_distance`
+    /// in shaders/shared/shading.wgsl.
+    #[must_use]
+    pub fn distance(&self, image: usize, dir: DVec3) -> f64 {
+        let d = ssdf_lookup(&self.ssdf, image, dir);
+        match &self.bits {
+            Some(bits) if bits.lookup(image, dir) => d.abs(),
+            Some(_) => -d.abs(),
+            None => d,
+        }
+    }
 }
 
 /// IIRTF cells and their transfer matrices.
@@ -212,6 +244,13 @@ impl Baked {
         expect("PCA mean values", ssdf.mean().len(), ssdf.dims)?;
         expect("PCA component values", ssdf.components().len(), ssdf.component_count * ssdf.dims)?;
         expect("PCA coefficients", ssdf.all_coefficients().len(), images * ssdf.component_count)?;
+        if let Some(bits) = &self.visibility.bits {
+            expect("binary visibility images", bits.segment_count(), images)?;
+            expect("binary visibility image resolution", bits.resolution, self.visibility.resolution)?;
+            if !bits.is_well_formed() {
+                return Err("the binary visibility images' bits do not match their count".to_owned());
+            }
+        }
         let sos = &self.visibility.sum_of_sg;
         expect("visibility (sum of SGs) images", sos.segment_count, images)?;
         expect("sum-of-SG weights", sos.all_weights().len(), images * sos.count)?;
@@ -563,6 +602,7 @@ fn bake_stages(
             resolution: s.svf_resolution,
             points: s.visibility_points,
             ssdf,
+            bits: s.visibility_bits.then_some(images),
             sum_of_sg,
             mean_visible_solid_angle,
         })
@@ -1060,6 +1100,7 @@ impl StageKeys {
             .usize(s.svf_resolution)
             .usize(s.visibility_points)
             .usize(s.pca_components)
+            .bool(s.visibility_bits)
             .usize(s.sos_count)
             .f64(s.sos_sharpness)
             .u64(s.seed)
@@ -1129,6 +1170,7 @@ pub(crate) mod tests {
             svf_resolution: 8,
             visibility_points: 2,
             pca_components: 4,
+            visibility_bits: true,
             sos_count: 8,
             sos_sharpness: 128.0,
             cell_size_mfp: 16.0,

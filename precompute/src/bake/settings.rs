@@ -45,6 +45,17 @@ pub struct BakeSettings {
     pub visibility_points: usize,
     /// PCA components kept for the SSDFs.
     pub pca_components: usize,
+    /// Keep the binary visibility images (one bit a pixel) beside the PCA SSDF, and take local
+    /// visibility's sign from them: a directional light's hard step reads the image's pixel,
+    /// and a sharp SG light's erf step takes its distance from the SSDF and its sign from
+    /// the image. PCA's least squares put a segment's edges where its neighbours' are: at
+    /// raking light, where most lit points sit just inside their edge, 24 components darkened
+    /// single scattering by 15–30% (`docs/BENCHMARKS.md`, "The PCA SSDF's sign at raking
+    /// light"). The bits cost `svf_resolution²/8` bytes an image (72 at 24², less than the
+    /// 24 coefficients' 96; 2 KB at the paper's 128²). Off: the sign of the PCA SSDF (the
+    /// paper).
+    #[serde(default)]
+    pub visibility_bits: bool,
     /// Number Q of SGs in the sum-of-SGs visibility.
     pub sos_count: usize,
     /// Sharpness λ_svf of those SGs.
@@ -103,6 +114,7 @@ impl Quality {
                 svf_resolution: 16,
                 visibility_points: 1,
                 pca_components: 8,
+                visibility_bits: true,
                 sos_count: 32,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 4.0,
@@ -120,6 +132,7 @@ impl Quality {
                 svf_resolution: 24,
                 visibility_points: 2,
                 pca_components: 24,
+                visibility_bits: true,
                 sos_count: 64,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 2.5,
@@ -137,6 +150,7 @@ impl Quality {
                 svf_resolution: 128,
                 visibility_points: 1,
                 pca_components: 48,
+                visibility_bits: false,
                 sos_count: 48,
                 sos_sharpness: 128.0,
                 cell_size_mfp: 1.0,

@@ -510,6 +510,7 @@ mod tests {
             svf_resolution: 8,
             visibility_points: 2,
             pca_components: 4,
+            visibility_bits: true,
             sos_count: 8,
             sos_sharpness: 128.0,
             cell_size_mfp: 1.0,

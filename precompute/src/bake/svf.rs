@@ -135,7 +135,7 @@ pub fn visibility_point_of(axial: f64, half_length: f64, points: usize) -> usize
 /// Binary visibility images of every segment of an exemplar (`points` images per segment,
 /// one per visibility point, [`visibility_point_fraction`]); see the module docs for the
 /// parameterization and the bit layout.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct VisibilityImages {
     /// `n`: images are `n` rows (θ) by `n` columns (φ).
     pub resolution: usize,
@@ -168,6 +168,14 @@ impl VisibilityImages {
             words_per_image,
             bits,
         })
+    }
+
+    /// Whether the words are `segment_count` images of `resolution`² bits (what a file read
+    /// must check before any lookup).
+    #[must_use]
+    pub fn is_well_formed(&self) -> bool {
+        self.words_per_image == (self.resolution * self.resolution).div_ceil(64)
+            && self.bits.len() == self.words_per_image * self.segment_count
     }
 
     /// The images of `parts`, one after the other; `None` when their resolutions differ.

@@ -18,7 +18,11 @@
 //!    3′. (when the bake has more than one visibility point per segment) from the lit side of
 //!    the point whose piece of the segment the hit lies on (twill's V_k);
 //! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
-//! 5. the method: PCA-compressed SSDF (hard step, erf soft step), sum of SGs, closed-form Γ;
+//!    4′. the sign of the PCA-compressed SSDF (bilinear) of that image: the paper's local
+//!    visibility, still with the exact scattering function (what PCA alone costs; with
+//!    `BakeSettings::visibility_bits` the method takes the sign from rung 4's bits instead);
+//! 5. the method: local visibility as the bake keeps it (the binary image's sign, or the PCA
+//!    SSDF's), its magnitude for the erf soft step, sum of SGs, closed-form Γ;
 //! 6. the method on the GPU's primary hits: the first fiber entered among the voxels of the
 //!    bake's volume along the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
@@ -56,6 +60,7 @@ use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
 use super::ShadingError;
+use super::visibility::ssdf_lookup;
 use super::render::{MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use crate::Rgb;
 use crate::bake::Cancel;
@@ -240,6 +245,16 @@ pub fn error_budget(
     })?;
     push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
     let t = Instant::now();
+    let film = single_by_light_sampling(scene, settings, |hit, dir| {
+        ssdf_lookup(&baked.visibility.ssdf, visibility_image_of(baked, hit), dir) > 0.0
+    })?;
+    push(
+        Component::Single,
+        format!("4' the PCA SSDF's sign (K = {}): the paper's local visibility", baked.settings.pca_components),
+        &film,
+        t.elapsed().as_secs_f64(),
+    );
+    let t = Instant::now();
     let film = render_flat_with(
         scene,
         baked,
@@ -251,8 +266,10 @@ pub fn error_budget(
     push(
         Component::Single,
         format!(
-            "5 the method: PCA SSDF (K = {}), sum of {} SGs, closed-form Γ",
-            baked.settings.pca_components, baked.settings.sos_count
+            "5 the method: {} (K = {}), sum of {} SGs, closed-form Γ",
+            if baked.visibility.bits.is_some() { "binary images' sign, PCA SSDF" } else { "PCA SSDF" },
+            baked.settings.pca_components,
+            baked.settings.sos_count
         ),
         &film,
         t.elapsed().as_secs_f64(),

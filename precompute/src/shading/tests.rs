@@ -970,6 +970,7 @@ fn tiny_baked() -> &'static Baked {
             svf_resolution: 8,
             visibility_points: 1,
             pca_components: 4,
+            visibility_bits: false,
             sos_count: 8,
             sos_sharpness: 128.0,
             cell_size_mfp: 16.0,

@@ -155,6 +155,7 @@ pub fn hard_configurations(count: usize) -> Result<Vec<HardConfiguration>, Accur
 pub enum Knob {
     ShOrder,
     PcaComponents,
+    VisibilityBits,
     SvfResolution,
     VisibilityPoints,
     SosCount,
@@ -169,9 +170,10 @@ pub enum Knob {
 }
 
 impl Knob {
-    pub const ALL: [Knob; 13] = [
+    pub const ALL: [Knob; 14] = [
         Knob::ShOrder,
         Knob::PcaComponents,
+        Knob::VisibilityBits,
         Knob::SvfResolution,
         Knob::VisibilityPoints,
         Knob::SosCount,
@@ -191,6 +193,7 @@ impl Knob {
         match self {
             Self::ShOrder => "sh_order",
             Self::PcaComponents => "pca_components",
+            Self::VisibilityBits => "visibility_bits",
             Self::SvfResolution => "svf_resolution",
             Self::VisibilityPoints => "visibility_points",
             Self::SosCount => "sos_count",
@@ -234,7 +237,7 @@ impl Knob {
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
-            Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
+            Self::VisibilityBits | Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
         }
     }
 
@@ -243,6 +246,7 @@ impl Knob {
         match self {
             Self::ShOrder => bake.sh_order = count,
             Self::PcaComponents => bake.pca_components = count,
+            Self::VisibilityBits => bake.visibility_bits = value >= 0.5,
             Self::SvfResolution => bake.svf_resolution = count,
             Self::VisibilityPoints => bake.visibility_points = count,
             Self::SosCount => bake.sos_count = count,
@@ -263,6 +267,7 @@ impl Knob {
         match self {
             Self::ShOrder => bake.sh_order as f64,
             Self::PcaComponents => bake.pca_components as f64,
+            Self::VisibilityBits => f64::from(u8::from(bake.visibility_bits)),
             Self::SvfResolution => bake.svf_resolution as f64,
             Self::VisibilityPoints => bake.visibility_points as f64,
             Self::SosCount => bake.sos_count as f64,
