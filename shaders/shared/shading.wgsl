@@ -1,7 +1,7 @@
 // Render-time shading from bake data (paper 5.2, 5.3, Appendix A). Twins of
 // precompute/src/shading/ (bcsdf.rs: fiber_eval_cos; gamma.rs: gamma, LobeAngles,
-// lobe_quadrature; visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path; svf.rs:
-// pixel_of_direction; bake/pipeline.rs: VisibilityData::visible, distance; single.rs;
+// lobe_quadrature; visibility.rs: ssdf_lookup, erf_soft_visibility, sum_of_sg_path,
+// bits_lookup; bake/pipeline.rs: VisibilityData::visibility, soft_visibility; single.rs;
 // multiple.rs: light_sh, multiple_scattering_in_cell, FiberLobe, lobe_scattering), compared on
 // the GPU by renderer/tests/gpu_shading_parity.rs.
 // Every direction is a unit vector in flat-fabric space; `e` is the exemplar, `segment` the
@@ -249,9 +249,18 @@ fn ssdf_pixel(e: u32, image: u32, pixel: u32) -> f32 {
     return d;
 }
 
-// The SSDF at a direction: bilinear over pixel centres, phi wrapping, theta clamped
-// (visibility.rs ssdf_lookup).
-fn ssdf_lookup(e: u32, image: u32, dir: vec3<f32>) -> f32 {
+// The four pixels (row-major) around a unit direction and its weights, bilinear over pixel
+// centres, phi wrapping, theta clamped (visibility.rs bilinear_over_pixel_centres).
+struct PixelBilinear {
+    p00: u32,
+    p01: u32,
+    p10: u32,
+    p11: u32,
+    fu: f32,
+    fv: f32,
+}
+
+fn pixel_bilinear(dir: vec3<f32>) -> PixelBilinear {
     let n = fabric.svf_resolution;
     let nf = f32(n);
     let theta = atan2(length(dir.xy), dir.z);
@@ -268,69 +277,68 @@ fn ssdf_lookup(e: u32, image: u32, dir: vec3<f32>) -> f32 {
     let v = phi * nf / (2.0 * PI) - 0.5;
     let r0 = min(u32(floor(u)), n - 2u);
     let r1 = min(r0 + 1u, n - 1u);
-    let fu = u - f32(r0);
     let v0 = floor(v);
-    let fv = v - v0;
     let c0 = u32(wrap_i32(i32(v0), i32(n)));
     let c1 = (c0 + 1u) % n;
-    let d00 = ssdf_pixel(e, image, r0 * n + c0);
-    let d01 = ssdf_pixel(e, image, r0 * n + c1);
-    let d10 = ssdf_pixel(e, image, r1 * n + c0);
-    let d11 = ssdf_pixel(e, image, r1 * n + c1);
-    return (1.0 - fu) * ((1.0 - fv) * d00 + fv * d01) + fu * ((1.0 - fv) * d10 + fv * d11);
+    return PixelBilinear(r0 * n + c0, r0 * n + c1, r1 * n + c0, r1 * n + c1, u - f32(r0), v - v0);
 }
 
-// The pixel of the binary visibility image whose cell holds a unit direction (svf.rs
-// pixel_of_direction): row floor(theta n / pi), column floor(phi n / (2 pi)), clamped.
-fn visibility_bit(image: u32, dir: vec3<f32>) -> bool {
-    let n = fabric.svf_resolution;
-    let nf = f32(n);
-    let theta = acos(clamp(dir.z, -1.0, 1.0));
-    var phi = atan2(dir.y, dir.x);
-    if (dir.x == 0.0 && dir.y == 0.0) {
-        phi = select(0.0, PI, (bitcast<u32>(dir.x) & 0x80000000u) != 0u);
-    }
-    if (phi < 0.0) {
-        phi += 2.0 * PI;
-    }
-    let row = min(u32(theta / PI * nf), n - 1u);
-    let col = min(u32(phi / (2.0 * PI) * nf), n - 1u);
-    let pixel = row * n + col;
-    return ((visibility_bits[image * fabric.visibility_words + pixel / 32u] >> (pixel % 32u)) & 1u) != 0u;
+fn bilinear_blend(b: PixelBilinear, d00: f32, d01: f32, d10: f32, d11: f32) -> f32 {
+    return (1.0 - b.fu) * ((1.0 - b.fv) * d00 + b.fv * d01) + b.fu * ((1.0 - b.fv) * d10 + b.fv * d11);
 }
 
-// Whether an image sees a unit direction: its binary image's pixel when the bake kept them,
-// else the PCA SSDF's sign (pipeline.rs VisibilityData::visible).
-fn local_visible(e: u32, image: u32, dir: vec3<f32>) -> bool {
+// The SSDF at a direction (visibility.rs ssdf_lookup).
+fn ssdf_lookup(e: u32, image: u32, dir: vec3<f32>) -> f32 {
+    let b = pixel_bilinear(dir);
+    return bilinear_blend(b, ssdf_pixel(e, image, b.p00), ssdf_pixel(e, image, b.p01),
+        ssdf_pixel(e, image, b.p10), ssdf_pixel(e, image, b.p11));
+}
+
+// One pixel of a kept binary visibility image: 1 visible, 0 occluded.
+fn visibility_bit(image: u32, pixel: u32) -> f32 {
+    let word = visibility_bits[image * fabric.visibility_words + pixel / 32u];
+    return f32((word >> (pixel % 32u)) & 1u);
+}
+
+// The kept binary image's visible fraction toward a direction (visibility.rs bits_lookup).
+fn bits_lookup(image: u32, dir: vec3<f32>) -> f32 {
+    let b = pixel_bilinear(dir);
+    return bilinear_blend(b, visibility_bit(image, b.p00), visibility_bit(image, b.p01),
+        visibility_bit(image, b.p10), visibility_bit(image, b.p11));
+}
+
+// Local visibility toward a directional light: the kept binary image's visible fraction, else
+// the PCA SSDF's hard step (pipeline.rs VisibilityData::visibility).
+fn local_visibility(e: u32, image: u32, dir: vec3<f32>) -> f32 {
     if (fabric.visibility_words > 0u) {
-        return visibility_bit(image, dir);
+        return bits_lookup(image, dir);
     }
-    return ssdf_lookup(e, image, dir) > 0.0;
+    return select(0.0, 1.0, ssdf_lookup(e, image, dir) > 0.0);
 }
 
-// The signed distance to the image's visibility edge for the erf step: the PCA SSDF's
-// magnitude with the kept binary image's sign (pipeline.rs VisibilityData::distance).
-fn local_distance(e: u32, image: u32, dir: vec3<f32>) -> f32 {
-    let d = ssdf_lookup(e, image, dir);
+// Local visibility for a sharp SG light: the kept binary image's visible fraction toward its
+// axis, else the PCA SSDF's erf step (pipeline.rs VisibilityData::soft_visibility).
+fn local_soft_visibility(e: u32, image: u32, axis: vec3<f32>, lambda: f32) -> f32 {
     if (fabric.visibility_words > 0u) {
-        return select(-abs(d), abs(d), visibility_bit(image, dir));
+        return bits_lookup(image, axis);
     }
-    return d;
+    return 0.5 * erfc_f32(-sqrt(0.5 * lambda) * ssdf_lookup(e, image, axis));
 }
 
 // Single scattering of a unit-irradiance directional light (single.rs): local visibility
 // times S cos(theta_d).
 fn shade_single_directional(e: u32, segment: u32, image: u32, wo: vec3<f32>, wd: vec3<f32>) -> vec3<f32> {
-    if (!local_visible(e, image, wd)) {
+    let local = local_visibility(e, image, wd);
+    if (local <= 0.0) {
         return vec3<f32>(0.0);
     }
     let s = segments[segment];
-    return fiber_eval_cos(fiber_constants(s.material), normalize(s.direction), wd, wo);
+    return fiber_eval_cos(fiber_constants(s.material), normalize(s.direction), wd, wo) * local;
 }
 
 // Single scattering of a unit-intensity normalized SG light through the erf-smoothed SSDF.
 fn shade_single_sg_ssdf_erf(e: u32, segment: u32, image: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
-    let soft = 0.5 * erfc_f32(-sqrt(0.5 * lambda) * local_distance(e, image, axis));
+    let soft = local_soft_visibility(e, image, axis, lambda);
     if (soft <= 0.0) {
         return vec3<f32>(0.0);
     }

@@ -20,9 +20,9 @@
 //! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
 //!    4′. the sign of the PCA-compressed SSDF (bilinear) of that image: the paper's local
 //!    visibility, still with the exact scattering function (what PCA alone costs; with
-//!    `BakeSettings::visibility_bits` the method takes the sign from rung 4's bits instead);
-//! 5. the method: local visibility as the bake keeps it (the binary image's sign, or the PCA
-//!    SSDF's), its magnitude for the erf soft step, sum of SGs, closed-form Γ;
+//!    `BakeSettings::visibility_bits` the method reads rung 4's bits instead);
+//! 5. the method: local visibility as the bake keeps it (the binary image's bits bilinear
+//!    between pixel centres, or the PCA SSDF's hard and erf steps), sum of SGs, closed-form Γ;
 //! 6. the method on the GPU's primary hits: the first fiber entered among the voxels of the
 //!    bake's volume along the ray ([`PrimaryHits::Voxels`]), what the GPU's eye rays see.
 //!
@@ -267,7 +267,7 @@ pub fn error_budget(
         Component::Single,
         format!(
             "5 the method: {} (K = {}), sum of {} SGs, closed-form Γ",
-            if baked.visibility.bits.is_some() { "binary images' sign, PCA SSDF" } else { "PCA SSDF" },
+            if baked.visibility.bits.is_some() { "binary images bilinear" } else { "PCA SSDF" },
             baked.settings.pca_components,
             baked.settings.sos_count
         ),

@@ -44,7 +44,8 @@ pub use multiple::{hemisphere_light_sh, light_sh, multiple_scattering, multiple_
 pub use render::{MethodOptions, render_flat, render_flat_with, render_primary_hits, shade};
 pub use single::{single_scattering, single_scattering_directional, single_scattering_sg};
 pub use visibility::{
-    erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,
+    bilinear_over_pixel_centres, bits_lookup, erf_soft_visibility, sg_path_weights, ssdf_lookup,
+    ssdf_step_visibility, sum_of_sg_path,
 };
 
 use glam::DVec3;

@@ -4,11 +4,13 @@
 //! holds the shaded position (`Baked::visibility_image`; the midpoint's without a position).
 //!
 //! - Directional light (to-light ω_d, irradiance E):
-//!   `V_glo · V_k(ω_d) · S(ω_d, ωo) cos θ_d · E`, `V_k` the image's pixel when the bake kept
-//!   the binary images, else the hard step of the PCA SSDF (`VisibilityData::visible`).
+//!   `V_glo · V_k(ω_d) · S(ω_d, ωo) cos θ_d · E`, `V_k` the kept binary image's visible
+//!   fraction toward ω_d (bilinear), else the hard step `H(d_k(ω_d))` of the PCA SSDF
+//!   (`VisibilityData::visibility`).
 //! - Normalized SG light (axis ξ, sharpness λ, intensity I; radiance `I G(ω; ξ, λ)/M(λ)`):
-//!   `V_glo · I/M(λ) · [w_sos · SOS + w_ssdf · ½ erfc(−sqrt(λ/2) d_k(ξ)) Γ(ξ, λ, ωo)]`, `d_k`
-//!   the PCA SSDF with the kept binary image's sign (`VisibilityData::distance`), with
+//!   `V_glo · I/M(λ) · [w_sos · SOS + w_ssdf · V_k(ξ, λ) Γ(ξ, λ, ωo)]`, `V_k(ξ, λ)` the kept
+//!   binary image's visible fraction toward ξ, else `½ erfc(−sqrt(λ/2) d_k(ξ))`
+//!   (`VisibilityData::soft_visibility`), with
 //!   `(w_sos, w_ssdf) = sg_path_weights(λ)` and SOS the sum-of-SGs path
 //!   ([`super::visibility`]); a path whose weight is 0 is not evaluated.
 //!
@@ -19,7 +21,7 @@ use glam::DVec3;
 
 use super::bcsdf::{FiberConstants, fiber_eval_cos};
 use super::gamma::gamma;
-use super::visibility::{erf_soft_visibility, sg_path_weights, sum_of_sg_path};
+use super::visibility::{sg_path_weights, sum_of_sg_path};
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::pipeline::{Baked, VisibilityData};
@@ -41,10 +43,11 @@ pub fn single_scattering_directional(
     irradiance: Rgb,
     v_glo: f64,
 ) -> Rgb {
-    if v_glo == 0.0 || !visibility.visible(image, to_light) {
+    let local = visibility.visibility(image, to_light);
+    if local == 0.0 || v_glo == 0.0 {
         return Rgb::ZERO;
     }
-    fiber_eval_cos(fiber, gn, t, to_light, wo) * irradiance * v_glo
+    fiber_eval_cos(fiber, gn, t, to_light, wo) * irradiance * (v_glo * local)
 }
 
 /// SG-light single scattering of a segment (unit tangent `t`) with visibility image `image`
@@ -83,7 +86,7 @@ pub fn single_scattering_sg(
         integral += path * w_sos;
     }
     if w_ssdf > 0.0 {
-        let soft = erf_soft_visibility(visibility.distance(image, axis), sharpness);
+        let soft = visibility.soft_visibility(image, axis, sharpness);
         if soft > 0.0 {
             integral += gamma(fiber, gn, t, axis, sharpness, wo) * (w_ssdf * soft);
         }

@@ -559,7 +559,7 @@ fn shading_gamma_is_finite_and_non_negative_in_every_degenerate_configuration() 
 // Visibility paths.
 
 use super::visibility::{
-    erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,
+    bits_lookup, erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,
 };
 use crate::fibonacci::spherical_fibonacci;
 use crate::sg::sg_mass;
@@ -642,6 +642,7 @@ fn shading_sum_of_sg_path_is_exactly_zero_without_weights() {
 
 use crate::bake::pca::{PcaBasis, compress};
 use crate::bake::svf::{col_phi, pixel_direction, row_theta};
+use crate::bake::pipeline::VisibilityData;
 use crate::bake::{Cancel, ssdf::ssdf_all, svf::VisibilityImages};
 
 /// A one-segment PCA basis that reproduces `values` (n × n, row-major) exactly in f32.
@@ -710,6 +711,77 @@ fn shading_ssdf_step_at_pixel_centres_is_the_visibility_image() {
             assert_eq!(ssdf_step_visibility(d) == 1.0, images.get(0, r, c), "({r}, {c}): {d}");
         }
     }
+}
+
+/// Images of a horizon at a different elevation per image (5° to 25°, varying with φ), what
+/// exposed fibers see at raking light: PCA with 2 components moves some horizons, while local
+/// visibility from the kept bits is each pixel's bit at its centre, between centres the bits
+/// bilinear (in [0, 1]), and its mean over raking directions that of the image itself.
+#[test]
+fn shading_local_visibility_reads_the_kept_binary_images_bilinearly() {
+    let (n, count) = (24, 40);
+    let mut images = VisibilityImages::new(n, count);
+    for k in 0..count {
+        for r in 0..n {
+            for c in 0..n {
+                let phi = col_phi(n, c);
+                let horizon_deg = 15.0 + 10.0 * ((k as f64 * 0.37).sin() * (phi + k as f64).cos());
+                let elevation_deg = 90.0 - row_theta(n, r).to_degrees();
+                images.set(k, r, c, elevation_deg > horizon_deg);
+            }
+        }
+    }
+    let ssdf = ssdf_all(&images, &Cancel::new()).unwrap();
+    let basis = compress(&ssdf, n * n, 2, 1, &Cancel::new()).unwrap();
+    let sum_of_sg = fit_weights(&images, 8, 128.0, 1, 1, &Cancel::new()).unwrap();
+    let pca_only = VisibilityData {
+        resolution: n,
+        points: 1,
+        ssdf: basis,
+        bits: None,
+        sum_of_sg,
+        mean_visible_solid_angle: 0.0,
+    };
+    let with_bits = VisibilityData { bits: Some(images.clone()), ..pca_only.clone() };
+    for k in 0..count {
+        for r in 0..n {
+            for c in 0..n {
+                let bit = f64::from(u8::from(images.get(k, r, c)));
+                let v = with_bits.visibility(k, pixel_direction(n, r, c));
+                assert!((v - bit).abs() < 1e-9, "image {k} pixel ({r}, {c}): {v} against its bit {bit}");
+            }
+        }
+    }
+    let (mut pca_wrong, mut bits_sum, mut exact_sum, mut lookups) = (0, 0.0, 0.0, 0);
+    for k in 0..count {
+        // Raking directions (elevation 2° to 30°) all around, off the pixel centres.
+        for i in 0..400 {
+            let elevation = (2.0 + 28.0 * (i as f64 * 0.618_034).fract()).to_radians();
+            let phi = 2.0 * PI * (i as f64 * 0.414_214).fract();
+            let dir = direction(0.5 * PI - elevation, phi);
+            let exact = images.lookup(k, dir);
+            let d = ssdf_lookup(&pca_only.ssdf, k, dir);
+            let v = with_bits.visibility(k, dir);
+            assert!((0.0..=1.0).contains(&v), "image {k}, direction {dir}: {v}");
+            assert_eq!(v, bits_lookup(&images, k, dir));
+            for lambda in [100.0, 300.0, 1e5] {
+                assert_eq!(with_bits.soft_visibility(k, dir, lambda), v);
+                assert_eq!(pca_only.soft_visibility(k, dir, lambda), erf_soft_visibility(d, lambda));
+            }
+            assert_eq!(pca_only.visibility(k, dir), ssdf_step_visibility(d));
+            pca_wrong += usize::from((d > 0.0) != exact);
+            bits_sum += v;
+            exact_sum += f64::from(u8::from(exact));
+            lookups += 1;
+        }
+    }
+    let (bits_mean, exact_mean) = (bits_sum / f64::from(lookups), exact_sum / f64::from(lookups));
+    eprintln!(
+        "raking lookups: visible {exact_mean:.4} (image), {bits_mean:.4} (bits bilinear); the PCA \
+         SSDF's sign wrong at {pca_wrong} of {lookups}"
+    );
+    assert!((bits_mean - exact_mean).abs() < 0.02 * exact_mean, "{bits_mean} against {exact_mean}");
+    assert!(pca_wrong > 0, "the images must be ones 2 components cannot hold exactly");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1002,6 +1074,7 @@ fn with_uniform_visibility(baked: &Baked, visible: bool) -> Baked {
     }
     let ssdf = ssdf_all(&images, &Cancel::new()).unwrap();
     out.visibility.ssdf = compress(&ssdf, n * n, baked.settings.pca_components, 1, &Cancel::new()).unwrap();
+    out.visibility.bits = baked.visibility.bits.as_ref().map(|_| images.clone());
     let s = &baked.settings;
     out.visibility.sum_of_sg =
         fit_weights(&images, s.sos_count, s.sos_sharpness, s.seed, baked.visibility.points, &Cancel::new())

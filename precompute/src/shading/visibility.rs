@@ -12,6 +12,9 @@
 //!   between the last and the first column). Rows `r0 = min(floor(u), n − 2)`, `r1 = r0 + 1`
 //!   (`r0 = r1 = 0` for n = 1), weights `fu = u − r0`, `fv = v − floor(v)`:
 //!   `d = (1−fu)((1−fv) d[r0,c0] + fv d[r0,c1]) + fu((1−fv) d[r1,c0] + fv d[r1,c1])`.
+//! - **Kept binary images** ([`bits_lookup`], with `BakeSettings::visibility_bits`): the
+//!   image's bits, 1 visible and 0 occluded, bilinear between pixel centres exactly as the
+//!   SSDF: the visible fraction toward the direction, in [0, 1].
 //! - **Hard step** (directional lights, [`ssdf_step_visibility`]): 1 where `d > 0` (visible),
 //!   0 where `d ≤ 0` or NaN.
 //! - **Soft step** (sharp SG lights, [`erf_soft_visibility`]): `½[erf(sqrt(λ/2) d) + 1]`,
@@ -31,6 +34,7 @@ use super::bcsdf::FiberConstants;
 use super::gamma::gamma;
 use crate::Rgb;
 use crate::bake::pca::PcaBasis;
+use crate::bake::svf::VisibilityImages;
 use crate::bake::tables::GnTable;
 use crate::sg::sg_mass;
 use crate::special::erfc;
@@ -80,11 +84,10 @@ pub fn ssdf_pixel(ssdf: &PcaBasis, segment: usize, pixel: usize) -> f64 {
     d
 }
 
-/// `d_k(dir)`: the SSDF of `segment` (radians, positive where visible) toward the unit
-/// direction `dir`, bilinear between pixel centres (see the module docs).
+/// The value at the unit direction `dir` of an `n x n` image whose pixel `p` (row-major) holds
+/// `pixel(p)`, bilinear between pixel centres, φ wrapping and θ clamped (see the module docs).
 #[must_use]
-pub fn ssdf_lookup(ssdf: &PcaBasis, segment: usize, dir: DVec3) -> f64 {
-    let n = ssdf.dims.isqrt();
+pub fn bilinear_over_pixel_centres(n: usize, dir: DVec3, pixel: impl Fn(usize) -> f64) -> f64 {
     let (u, v) = ssdf_grid_coordinates(n, dir);
     let u = u.clamp(0.0, (n - 1) as f64);
     let r0 = (u.floor() as usize).min(n.saturating_sub(2));
@@ -94,8 +97,24 @@ pub fn ssdf_lookup(ssdf: &PcaBasis, segment: usize, dir: DVec3) -> f64 {
     let fv = v - v0;
     let c0 = (v0 as i64).rem_euclid(n as i64) as usize;
     let c1 = (c0 + 1) % n;
-    let d = |r: usize, c: usize| ssdf_pixel(ssdf, segment, r * n + c);
+    let d = |r: usize, c: usize| pixel(r * n + c);
     (1.0 - fu) * ((1.0 - fv) * d(r0, c0) + fv * d(r0, c1)) + fu * ((1.0 - fv) * d(r1, c0) + fv * d(r1, c1))
+}
+
+/// `d_k(dir)`: the SSDF of `segment` (radians, positive where visible) toward the unit
+/// direction `dir`, bilinear between pixel centres (see the module docs).
+#[must_use]
+pub fn ssdf_lookup(ssdf: &PcaBasis, segment: usize, dir: DVec3) -> f64 {
+    bilinear_over_pixel_centres(ssdf.dims.isqrt(), dir, |p| ssdf_pixel(ssdf, segment, p))
+}
+
+/// The visible fraction of image `image` of `images` toward the unit direction `dir`: its
+/// bits (1 visible, 0 occluded) bilinear between pixel centres as [`ssdf_lookup`], in
+/// [0, 1]. A light between pixel centres takes its neighbours' visibility by how near it is
+/// to each, so a shadow edge moves smoothly with the light rather than in pixel steps.
+#[must_use]
+pub fn bits_lookup(images: &VisibilityImages, image: usize, dir: DVec3) -> f64 {
+    bilinear_over_pixel_centres(images.resolution, dir, |p| f64::from(u8::from(images.get_pixel(image, p))))
 }
 
 /// The hard step of a directional light: 1 where the SSDF says visible (`d > 0`), else 0.
