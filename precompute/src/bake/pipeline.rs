@@ -94,7 +94,8 @@ impl Stage {
 }
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
-/// 3: images at `visibility_points` points along each segment, 4: the kept bits; transfer 5: the fiber lobes,
+/// 3: images at `visibility_points` points along each segment, 4: the kept bits and rays from
+/// the centroid of the fiber's upper half; transfer 5: the fiber lobes,
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix; volume 3:
 /// touching occupancy and the segments' capsules).
 pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 5, 1, 1, 1, 3];

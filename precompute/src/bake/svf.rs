@@ -8,20 +8,25 @@
 //!   direction is its centre, `θ_i = (i + 0.5)π/n`, `φ_j = (j + 0.5)2π/n` ([`pixel_direction`]).
 //!   Its solid angle is exact: `(2π/n)(cos θ_top − cos θ_bottom)` ([`pixel_solid_angle`]), so the
 //!   pixels of an image add up to 4π. Pixel `p = i n + j` (row-major).
-//! - **Visibility**: `V_k(ω) = 1` iff the infinite ray toward `ω` from the point where light
-//!   from `ω` enters the fiber, `μ_k + r_k · n̂(ω)` ([`lit_side_origin`]: the segment midpoint
-//!   `μ_k` moved by the fiber radius `r_k` across the fiber toward `ω`), hits no fiber other than
-//!   segment `k`'s own fiber (a fiber never shadows itself). The paper casts from `μ_k` itself,
-//!   on the fiber axis; there the fiber's touching neighbours hide light that reaches its lit
-//!   surface, and single scattering of the default scene came out 14% too dark (a shadow ray
-//!   from the lit side: 3.5%, from the exact hit point 2.3%, with 2% noise; measured by
-//!   `tests/shading_vs_reference.rs`, `diagnose_directional_single_scattering_visibility`).
+//! - **Visibility**: `V_k(ω) = 1` iff the infinite ray toward `ω` from `o_k = μ_k + (2/π) r_k
+//!   û_k` ([`visibility_origin`]: the segment midpoint `μ_k` raised across the fiber toward
+//!   the fabric's normal, `û_k` the unit part of +z across the tangent, by the centroid of the
+//!   upper half of its cross-section) hits no fiber other than segment `k`'s own fiber (a
+//!   fiber never shadows itself). That is the mean position of the points of the fiber an eye
+//!   above the fabric sees, where the method's hits lie. The paper casts from `μ_k` itself, on
+//!   the fiber axis, where the fiber's touching neighbours hide light that reaches its upper
+//!   surface: single scattering of the default scene came out 14% too dark. Rays from the lit
+//!   side of the fiber (`μ_k` moved by `r_k` across the fiber toward `ω`, twill's origin until
+//!   2026-11-27) fixed that for lights from above, but at raking light the lit side is the
+//!   fiber's flank, level with the neighbours it touches: the gabardine lit 12° above the
+//!   horizon came out 34% too dark against shadow rays from the hit point, the centroid 0.5%
+//!   (`twill accuracy budget`, docs/BENCHMARKS.md "Where visibility rays start").
 //!   The midpoint is placed in the copy of the exemplar nearest the centre of
 //!   the scene ([`FiberScene::central_tile`]); with `Extent::Unbounded` on a periodic exemplar
 //!   every copy is interior, so the fabric around the segment is infinite and there are no
 //!   boundary effects. `Tiling::AsIs` exemplars are used as they are.
 //! - **Points along the segment** (`visibility_points` P): a segment is cut into P equal
-//!   pieces and each piece's centre gets its own image, cast from its lit side
+//!   pieces and each piece's centre gets its own image, cast from its raised centroid
 //!   ([`visibility_point_fraction`]); image `k P + j` is point `j` of segment `k`. A hit shades
 //!   with the image of the piece it lies on ([`visibility_point_of`]). Segments run ten fiber
 //!   diameters and more; one crossed by a yarn half way is seen only where it is uncovered, and
@@ -100,14 +105,20 @@ pub fn pixel_of_direction(n: usize, dir: DVec3) -> (usize, usize) {
     (row, col)
 }
 
-/// Where a visibility ray toward unit `dir` starts for a segment with midpoint `midpoint`, unit
-/// tangent `tangent` and fiber radius `radius`: the midpoint moved by the radius across the
-/// fiber toward `dir` (the fiber surface that light from `dir` reaches first). A direction
-/// along the fiber has no side and keeps the midpoint.
+/// How far above a fiber's axis visibility rays start, as a fraction of its radius: `2/π`, the
+/// centroid of the upper half of its cross-section ([`visibility_origin`]).
+pub const EXPOSED_CENTROID: f64 = std::f64::consts::FRAC_2_PI;
+
+/// Where the visibility rays of a point on a segment (unit tangent `tangent`, fiber radius
+/// `radius`) start: the point raised across the fiber toward the fabric's normal (+z) by
+/// [`EXPOSED_CENTROID`] times the radius. That is the mean position of the fiber's points an
+/// eye above the fabric sees (the upper half of its circumference, projected on the cross
+/// section), where the method's hits lie; the fiber never shadows itself, so rays from inside
+/// it are not blocked by it. A fiber along z keeps the point.
 #[must_use]
-pub fn lit_side_origin(midpoint: DVec3, tangent: DVec3, radius: f64, dir: DVec3) -> DVec3 {
-    let across = dir - tangent * tangent.dot(dir);
-    midpoint + across.normalize_or_zero() * radius
+pub fn visibility_origin(point: DVec3, tangent: DVec3, radius: f64) -> DVec3 {
+    let up = (DVec3::Z - tangent * tangent.z).normalize_or_zero();
+    point + up * (EXPOSED_CENTROID * radius)
 }
 
 /// Where visibility point `j` of `points` lies along a segment: the centre of piece `j` of
@@ -322,9 +333,8 @@ pub fn render_segments(
                 let along = visibility_point_fraction(image % points, points);
                 let (a, b) = (seg.a.as_dvec3(), seg.b.as_dvec3());
                 let point = a + (b - a) * along + offset;
-                let (tangent, radius) = (seg.tangent().as_dvec3(), f64::from(seg.radius));
+                let origin = visibility_origin(point, seg.tangent().as_dvec3(), f64::from(seg.radius));
                 for (p, &dir) in directions.iter().enumerate() {
-                    let origin = lit_side_origin(point, tangent, radius, dir);
                     if !scene.any_hit_f64(origin, dir, f64::INFINITY, Some(seg.fiber)) {
                         words[p / 64] |= 1 << (p % 64);
                     }
@@ -424,30 +434,18 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn visibility_rays_start_on_the_lit_side_of_the_fiber() {
-        let (mid, t, r) = (DVec3::new(1.0, 2.0, 3.0), DVec3::X, 0.01);
-        let up = lit_side_origin(mid, t, r, DVec3::Z);
-        assert!((up - (mid + DVec3::Z * r)).length() < 1e-15);
-        // A direction with a component along the fiber moves the origin only across it.
-        let slanted = DVec3::new(0.8, -0.6, 0.0);
-        assert!((lit_side_origin(mid, t, r, slanted) - (mid - DVec3::Y * r)).length() < 1e-15);
-        // Along the fiber there is no side: the midpoint is kept.
-        assert_eq!(lit_side_origin(mid, t, r, -DVec3::X), mid);
-        // A thin fiber buried in this one's upper half hides the sky from the axis but not
-        // from the fiber's top surface.
-        let host = fiber(Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), 0.01);
-        let buried = fiber(Vec3::new(0.0, -1.0, 0.005), Vec3::new(0.0, 1.0, 0.005), 0.001);
-        let scene = FiberScene::new(&exemplar(vec![host, buried], Tiling::AsIs), Extent::Unbounded).unwrap();
-        let images = render_scene(&scene, 8, 1, &Cancel::new(), &no_progress).unwrap();
-        let k = scene.segments().iter().position(|s| s.fiber == 0).unwrap();
-        let (row, col) = pixel_of_direction(8, DVec3::new(0.0, 0.05, 1.0).normalize());
-        assert!(images.get(k, row, col), "the top of the host fiber sees the sky");
-        assert!(scene.any_hit_f64(
-            scene.segments()[k].midpoint().as_dvec3(),
-            DVec3::Z,
-            f64::INFINITY,
-            Some(0)
-        ));
+    fn visibility_rays_start_at_the_centroid_of_the_fibers_upper_half() {
+        let (mid, r) = (DVec3::new(1.0, 2.0, 3.0), 0.01);
+        // A fiber in the fabric plane: straight up by 2r/π.
+        let origin = visibility_origin(mid, DVec3::X, r);
+        assert!((origin - (mid + DVec3::Z * (2.0 * r / PI))).length() < 1e-15);
+        // A fiber rising at 30°: up across the fiber, perpendicular to it.
+        let t = DVec3::new(30f64.to_radians().cos(), 0.0, 30f64.to_radians().sin());
+        let offset = visibility_origin(mid, t, r) - mid;
+        assert!(offset.dot(t).abs() < 1e-15 && offset.z > 0.0);
+        assert!((offset.length() - 2.0 * r / PI).abs() < 1e-15);
+        // A fiber along z has no up across it.
+        assert_eq!(visibility_origin(mid, DVec3::Z, r), mid);
     }
 
     #[test]

@@ -13,10 +13,10 @@
 //! 1. shadow rays from the hit point: exactly what the path tracer does (checks the
 //!    decomposition and the light and scattering conventions);
 //! 2. shadow rays from the segment midpoint, on the fiber axis (the paper's V_k);
-//! 3. shadow rays from the lit side of the segment (`bake::svf::lit_side_origin`, twill's V_k
-//!    at one visibility point);
-//!    3′. (when the bake has more than one visibility point per segment) from the lit side of
-//!    the point whose piece of the segment the hit lies on (twill's V_k);
+//! 3. shadow rays from the segment midpoint raised to the centroid of the fiber's upper half
+//!    (`bake::svf::visibility_origin`, twill's V_k at one visibility point);
+//!    3′. (when the bake has more than one visibility point per segment) from the point whose
+//!    piece of the segment the hit lies on, raised the same way (twill's V_k);
 //! 4. the binary visibility image of the bake's resolution (nearest pixel) at that point;
 //!    4′. the sign of the PCA-compressed SSDF (bilinear) of that image: the paper's local
 //!    visibility, still with the exact scattering function (what PCA alone costs; with
@@ -66,7 +66,7 @@ use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
-use crate::bake::svf::{VisibilityImages, lit_side_origin, render_exemplar, visibility_point_fraction};
+use crate::bake::svf::{VisibilityImages, render_exemplar, visibility_origin, visibility_point_fraction};
 use crate::image::{Estimate, Film, Image, compare};
 use crate::pathtrace::integrator::{below_ground, occluded, radiance_from, russian_roulette, trace};
 use crate::pathtrace::{Component, Light, RenderSettings, render};
@@ -172,10 +172,11 @@ impl Budget {
 enum ShadowOrigin {
     HitPoint,
     Midpoint,
-    /// The lit side of the segment's midpoint.
-    LitSideOfMidpoint,
-    /// The lit side of the bake's visibility point whose piece holds the hit.
-    LitSideOfHitsPoint,
+    /// The segment's midpoint raised to the centroid of the fiber's upper half
+    /// (`bake::svf::visibility_origin`).
+    RaisedMidpoint,
+    /// The bake's visibility point whose piece holds the hit, raised the same way.
+    RaisedHitsPoint,
 }
 
 /// Runs the ladder on `scene` (a flat swatch) with `baked`, a bake of its fabric; see the
@@ -222,12 +223,11 @@ pub fn error_budget(
     let mut origins = vec![
         ("1 shadow rays from the hit point (exact)".to_string(), ShadowOrigin::HitPoint),
         ("2 shadow rays from the segment midpoint (paper)".to_string(), ShadowOrigin::Midpoint),
-        ("3 shadow rays from the lit side of the segment".to_string(), ShadowOrigin::LitSideOfMidpoint),
+        ("3 shadow rays from the segment midpoint raised (twill's origin)".to_string(), ShadowOrigin::RaisedMidpoint),
     ];
     if points > 1 {
-        let name =
-            format!("3' shadow rays from the lit side of the nearest of {points} points along the segment");
-        origins.push((name, ShadowOrigin::LitSideOfHitsPoint));
+        let name = format!("3' shadow rays from the nearest of {points} points along the segment, raised");
+        origins.push((name, ShadowOrigin::RaisedHitsPoint));
     }
     for (name, origin) in origins {
         let t = Instant::now();
@@ -452,15 +452,15 @@ fn shadow_ray_visible(scene: &Scene, baked: &Baked, hit: &Hit, dir: DVec3, origi
     let start = match origin {
         ShadowOrigin::HitPoint => fibers.world_position_f64(hit),
         ShadowOrigin::Midpoint => midpoint,
-        ShadowOrigin::LitSideOfMidpoint => {
-            lit_side_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
+        ShadowOrigin::RaisedMidpoint => {
+            visibility_origin(midpoint, segment.tangent().as_dvec3(), f64::from(segment.radius))
         }
-        ShadowOrigin::LitSideOfHitsPoint => {
+        ShadowOrigin::RaisedHitsPoint => {
             let points = baked.visibility.points;
             let (a, b) = (segment.a.as_dvec3(), segment.b.as_dvec3());
             let along = visibility_point_fraction(visibility_image_of(baked, hit) % points, points);
             let point = a + (b - a) * along + fibers.tile_offset(hit.tile);
-            lit_side_origin(point, segment.tangent().as_dvec3(), f64::from(segment.radius), dir)
+            visibility_origin(point, segment.tangent().as_dvec3(), f64::from(segment.radius))
         }
     };
     !below_ground(&scene.path_scene, start, dir)

@@ -573,6 +573,9 @@ pub struct FabricResult {
     pub errors: [ComponentErrors; 3],
     /// Relative error of each configuration's image mean, per component.
     pub configuration_errors: Vec<[f64; 3]>,
+    /// Each configuration's reference image mean (the mean over pixels and channels), per
+    /// component: the weight a configuration has in the Fig. 13 figure.
+    pub configuration_reference_means: Vec<[f64; 3]>,
     /// The first `example_images` configurations' images of all light.
     pub images: Vec<Image>,
 }
@@ -744,7 +747,7 @@ fn component_errors(
     images: &[Image],
     references: &[(Image, Image)],
     spp_of_reference: u32,
-) -> (ComponentErrors, Vec<f64>) {
+) -> (ComponentErrors, Vec<(f64, f64)>) {
     let n = images.len().max(1) as f64;
     let (mut avg_sq, mut ref_sq, mut avg_noise, mut pixel_sq, mut pixel_noise, mut ssim_sum) =
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
@@ -759,15 +762,15 @@ fn component_errors(
         pixel_noise += noise;
         ssim_sum += s;
         let (m, r) = (mean.element_sum(), ref_mean.element_sum());
-        relative.push(if r > 0.0 { m / r - 1.0 } else { 0.0 });
+        relative.push((if r > 0.0 { m / r - 1.0 } else { 0.0 }, r / 3.0));
     }
     let rms = (ref_sq / n).sqrt().max(1e-300);
     let pixel_excess = ((pixel_sq - pixel_noise) / n).max(0.0);
     let worst = relative
         .iter()
         .enumerate()
-        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-        .map_or((0, 0.0), |(i, &e)| (i, e));
+        .max_by(|a, b| a.1.0.abs().total_cmp(&b.1.0.abs()))
+        .map_or((0, 0.0), |(i, &(e, _))| (i, e));
     let errors = ComponentErrors {
         mean_relative_rmse: ((avg_sq - avg_noise) / n).max(0.0).sqrt() / rms,
         worst_relative: worst.1,
@@ -1027,20 +1030,22 @@ fn summarize(
     single: &[Image],
     references: &[Reference],
     settings: &SweepSettings,
-) -> ([ComponentErrors; 3], Vec<[f64; 3]>) {
+) -> ([ComponentErrors; 3], Vec<[f64; 3]>, Vec<[f64; 3]>) {
     let multiple: Vec<Image> = all.iter().zip(single).map(|(a, s)| sub(a, s)).collect();
     let mut errors = [ComponentErrors::default(); 3];
     let mut per_config = vec![[0.0; 3]; all.len()];
+    let mut reference_means = vec![[0.0; 3]; all.len()];
     for (c, (component, images)) in ReportComponent::ALL.into_iter().zip([single, &multiple, all]).enumerate()
     {
         let refs: Vec<(Image, Image)> = references.iter().map(|r| r.component(component)).collect();
         let (e, relative) = component_errors(images, &refs, settings.reference_spp);
         errors[c] = e;
-        for (row, r) in per_config.iter_mut().zip(relative) {
+        for ((row, means), (r, mean)) in per_config.iter_mut().zip(&mut reference_means).zip(relative) {
             row[c] = r;
+            means[c] = mean;
         }
     }
-    (errors, per_config)
+    (errors, per_config, reference_means)
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -1077,7 +1082,8 @@ fn gpu_fabric(
         let single_frame = FrameSettings { components: Components::SingleOnly, ..*frame };
         single.push(session.render(scene, &single_frame)?.radiance_image());
     }
-    let (errors, configuration_errors) = summarize(&all, &single, references, settings);
+    let (errors, configuration_errors, configuration_reference_means) =
+        summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
         frame_seconds: median(&mut wall),
@@ -1085,6 +1091,7 @@ fn gpu_fabric(
         resident_bytes: session.renderer.resident_bytes(),
         errors,
         configuration_errors,
+        configuration_reference_means,
         images: all.into_iter().take(settings.example_images).collect(),
     })
 }
@@ -1111,7 +1118,8 @@ fn cpu_fabric(
         all.push(add(&s, &m));
         single.push(s);
     }
-    let (errors, configuration_errors) = summarize(&all, &single, references, settings);
+    let (errors, configuration_errors, configuration_reference_means) =
+        summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
         frame_seconds: median(&mut wall),
@@ -1119,6 +1127,7 @@ fn cpu_fabric(
         resident_bytes: 0,
         errors,
         configuration_errors,
+        configuration_reference_means,
         images: all.into_iter().take(settings.example_images).collect(),
     })
 }
@@ -1246,16 +1255,18 @@ impl Sweep {
     }
 
     /// One CSV row per point, fabric and configuration: the relative error of the image mean
-    /// per component, with the configuration's angles.
+    /// per component and the reference's image mean (a configuration's weight in the Fig. 13
+    /// figure), with the configuration's angles.
     #[must_use]
     pub fn configurations_csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel\n",
+            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel,single_reference,multiple_reference,all_reference\n",
         );
         for point in &self.points {
             let method = if point.method == Method::Gpu { "gpu" } else { "cpu" };
             for (fabric, result) in self.fabrics.iter().zip(&point.fabrics) {
-                for (i, (c, e)) in self.configurations.iter().zip(&result.configuration_errors).enumerate() {
+                let errors = result.configuration_errors.iter().zip(&result.configuration_reference_means);
+                for (i, (c, (e, m))) in self.configurations.iter().zip(errors).enumerate() {
                     let (kind, sharpness) = match c.light {
                         Light::Directional { .. } => ("directional", String::new()),
                         Light::Sg { sharpness, .. } => ("sg", format!("{sharpness:.2}")),
@@ -1263,7 +1274,7 @@ impl Sweep {
                     let l = c.light_direction();
                     let _ = writeln!(
                         out,
-                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5}",
+                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5},{:.6e},{:.6e},{:.6e}",
                         fabric.name,
                         point.label.replace(',', ";"),
                         c.class.replace(',', ";"),
@@ -1272,7 +1283,10 @@ impl Sweep {
                         c.azimuth_apart_deg(),
                         e[0],
                         e[1],
-                        e[2]
+                        e[2],
+                        m[0],
+                        m[1],
+                        m[2]
                     );
                 }
             }
@@ -1373,7 +1387,9 @@ mod tests {
         let (biased, relative) = component_errors(&[image(1.1), image(1.0)], &references, 16);
         assert_eq!(biased.worst_configuration, 1);
         assert!((biased.worst_relative + 0.5).abs() < 1e-12);
-        assert!((relative[0] - 0.1).abs() < 1e-12);
+        assert!((relative[0].0 - 0.1).abs() < 1e-12);
+        // Each configuration's reference mean, per pixel and channel.
+        assert!((relative[0].1 - 1.0).abs() < 1e-12 && (relative[1].1 - 2.0).abs() < 1e-12);
         // RMSE sqrt((0.01 + 1) / 2) over the RMS sqrt((1 + 4) / 2).
         assert!((biased.mean_relative_rmse - (1.01f64 / 5.0).sqrt()).abs() < 1e-12);
         // Noise in the reference is not counted as error.
