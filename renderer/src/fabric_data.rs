@@ -461,7 +461,10 @@ impl FabricArrays {
             cg_order: to_u32(cg_order, "C_G order")?,
             visibility_points: to_u32(visibility_points, "visibility points")?,
             visibility_words: if has_bits {
-                to_u32(2 * (settings.svf_resolution * settings.svf_resolution).div_ceil(64), "visibility words")?
+                to_u32(
+                    2 * (settings.svf_resolution * settings.svf_resolution).div_ceil(64),
+                    "visibility words",
+                )?
             } else {
                 0
             },

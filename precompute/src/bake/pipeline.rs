@@ -45,11 +45,11 @@ use super::volume::{
     EMPTY_VOXEL, Occupancy, SegmentTable, VolumeError, VoxelVolume, fit_resolution, rasterize,
 };
 use super::{Cancel, Cancelled};
-use crate::shading::{bits_lookup, erf_soft_visibility, ssdf_lookup, ssdf_step_visibility};
 use crate::bcsdf::{Material, MaterialDesc};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::ParamError;
 use crate::raycast::{Extent, FiberScene, mean_free_path};
+use crate::shading::{bits_lookup, erf_soft_visibility, ssdf_lookup, ssdf_step_visibility};
 
 /// The stages, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

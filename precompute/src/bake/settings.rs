@@ -45,15 +45,14 @@ pub struct BakeSettings {
     pub visibility_points: usize,
     /// PCA components kept for the SSDFs.
     pub pca_components: usize,
-    /// Keep the binary visibility images (one bit a pixel) beside the PCA SSDF, and take local
-    /// visibility's sign from them: a directional light's hard step reads the image's pixel,
-    /// and a sharp SG light's erf step takes its distance from the SSDF and its sign from
-    /// the image. PCA's least squares put a segment's edges where its neighbours' are: at
-    /// raking light, where most lit points sit just inside their edge, 24 components darkened
-    /// single scattering by 15–30% (`docs/BENCHMARKS.md`, "The PCA SSDF's sign at raking
-    /// light"). The bits cost `svf_resolution²/8` bytes an image (72 at 24², less than the
-    /// 24 coefficients' 96; 2 KB at the paper's 128²). Off: the sign of the PCA SSDF (the
-    /// paper).
+    /// Keep the binary visibility images (one bit a pixel) beside the PCA SSDF, and read local
+    /// visibility from them: directional and sharp SG lights (the erf path) take the images'
+    /// visible fraction toward the light, bilinear between pixel centres. PCA's least squares
+    /// move a segment's edges toward its neighbours': at raking light, where most lit points
+    /// sit just inside their edge, 24 components darkened single scattering by 15–30%
+    /// (`docs/BENCHMARKS.md`, "Local visibility at raking light"). The bits cost
+    /// `svf_resolution²/8` bytes an image (72 at 24², less than the 24 coefficients' 96; 2 KB
+    /// at the paper's 128²). Off: the PCA SSDF's hard and erf steps (the paper).
     #[serde(default)]
     pub visibility_bits: bool,
     /// Number Q of SGs in the sum-of-SGs visibility.

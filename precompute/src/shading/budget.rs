@@ -60,8 +60,8 @@ use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
 use super::ShadingError;
-use super::visibility::ssdf_lookup;
 use super::render::{MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
+use super::visibility::ssdf_lookup;
 use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
@@ -223,7 +223,10 @@ pub fn error_budget(
     let mut origins = vec![
         ("1 shadow rays from the hit point (exact)".to_string(), ShadowOrigin::HitPoint),
         ("2 shadow rays from the segment midpoint (paper)".to_string(), ShadowOrigin::Midpoint),
-        ("3 shadow rays from the segment midpoint raised (twill's origin)".to_string(), ShadowOrigin::RaisedMidpoint),
+        (
+            "3 shadow rays from the segment midpoint raised (twill's origin)".to_string(),
+            ShadowOrigin::RaisedMidpoint,
+        ),
     ];
     if points > 1 {
         let name = format!("3' shadow rays from the nearest of {points} points along the segment, raised");
@@ -250,7 +253,10 @@ pub fn error_budget(
     })?;
     push(
         Component::Single,
-        format!("4' the PCA SSDF's sign (K = {}): the paper's local visibility", baked.settings.pca_components),
+        format!(
+            "4' the PCA SSDF's sign (K = {}): the paper's local visibility",
+            baked.settings.pca_components
+        ),
         &film,
         t.elapsed().as_secs_f64(),
     );

@@ -641,8 +641,8 @@ fn shading_sum_of_sg_path_is_exactly_zero_without_weights() {
 // SSDF lookup conventions.
 
 use crate::bake::pca::{PcaBasis, compress};
-use crate::bake::svf::{col_phi, pixel_direction, row_theta};
 use crate::bake::pipeline::VisibilityData;
+use crate::bake::svf::{col_phi, pixel_direction, row_theta};
 use crate::bake::{Cancel, ssdf::ssdf_all, svf::VisibilityImages};
 
 /// A one-segment PCA basis that reproduces `values` (n × n, row-major) exactly in f32.
