@@ -752,12 +752,12 @@ fn shading_local_visibility_reads_the_kept_binary_images_bilinearly() {
             }
         }
     }
-    let (mut pca_wrong, mut bits_sum, mut exact_sum, mut lookups) = (0, 0.0, 0.0, 0);
+    let (mut pca_wrong, mut bits_sum, mut exact_sum, mut lookups) = (0, 0.0, 0.0, 0_u32);
     for k in 0..count {
         // Raking directions (elevation 2° to 30°) all around, off the pixel centres.
-        for i in 0..400 {
-            let elevation = (2.0 + 28.0 * (i as f64 * 0.618_034).fract()).to_radians();
-            let phi = 2.0 * PI * (i as f64 * 0.414_214).fract();
+        for i in 0..400_u32 {
+            let elevation = (2.0 + 28.0 * (f64::from(i) * 0.618_034).fract()).to_radians();
+            let phi = 2.0 * PI * (f64::from(i) * 0.414_214).fract();
             let dir = direction(0.5 * PI - elevation, phi);
             let exact = images.lookup(k, dir);
             let d = ssdf_lookup(&pca_only.ssdf, k, dir);
