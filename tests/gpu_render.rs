@@ -547,6 +547,18 @@ fn sh_orders_above_what_the_shaders_hold_are_refused_naming_the_limit() {
 /// all 8.9% → 7.4% / 7.9% → 7.1%, grazing −24.5% → −18.4%, backlit −7.0% → −1.0%; CPU method
 /// 10.1% → 6.0% / 9.8% → 8.7%, backlit −18.0% → −13.7%, and its grazing case −0.2% → +6.3%
 /// (over-bright now where it had been near zero; the band follows the measurement).
+///
+/// Re-measured 2026-11-27 (seventh session), since local visibility reads the kept binary
+/// images bilinearly and its rays start at the centroid of the fiber's upper half
+/// (`BakeSettings::visibility_bits`, `svf::visibility_origin`): single scattering's darkness at
+/// raking light is gone, and with it what had offset other biases here. GPU single / all
+/// 11.2% → 14.3% / 7.1% → 8.4% (configuration 3, a broad SG light 80° from the normal behind a
+/// 75° view, is +28% in single scattering: the sum-of-SGs path's own excess, which the lit
+/// side's darkness had hidden), grazing −18.4% → −13.2%, backlit −1.0% → +7.4% (its multiple
+/// scattering's excess now shows); CPU method single 11.7% → 13.5%, grazing +6.3% → +12.5%,
+/// backlit −13.7% → −6.5%. Over the 100 configurations of `twill accuracy` at draft the same
+/// change took single scattering from 10.6% to 9.6% (docs/BENCHMARKS.md, "Local visibility at
+/// raking light"); the bands follow this measurement.
 #[test]
 fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     use twill_renderer::accuracy::sweep::{Fabric, Method, ReferenceCache, SweepSettings, run};
@@ -578,8 +590,8 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     // Per method: (single, multiple, all) image-mean error and per-pixel error; then the
     // grazing (1) and backlit (2) configurations' relative error of all light.
     let measured: [([f64; 3], [f64; 3], [f64; 2]); 2] = [
-        ([0.112, 0.074, 0.071], [0.926, 0.546, 0.594], [-0.184, -0.010]),
-        ([0.117, 0.060, 0.087], [1.025, 0.556, 0.629], [0.063, -0.137]),
+        ([0.143, 0.075, 0.084], [0.950, 0.546, 0.603], [-0.132, 0.074]),
+        ([0.135, 0.060, 0.088], [1.050, 0.556, 0.643], [0.125, -0.065]),
     ];
     let mut failures = Vec::new();
     for (point, (mean, pixel, cases)) in sweep.points.iter().zip(measured) {
