@@ -878,11 +878,13 @@ fn hard_light_exactly_along_a_fiber_and_theta_at_plus_minus_half_pi() {
 
 #[test]
 fn hard_fully_visible_and_fully_occluded_segments() {
-    // Every segment of the default bake whose SSDF is clearly negative toward the light (fully
-    // occluded, |d| > 1e-3 rad) gives exactly 0 on the CPU and the GPU; every clearly visible
-    // one gives exactly the unshadowed S cos θi (CPU) and within the twins' f32 tolerance (2e-3
-    // of the segment's value, renderer/tests/gpu_shading_parity.rs) on the GPU. Both kinds must
-    // occur; V_glo = 0 (fully occluded by the macro-scale shadow) gives exactly 0 as well.
+    // Every segment of the default bake whose local visibility toward the light is 0 (its kept
+    // binary image's four pixels around the light all occluded) gives exactly 0 on the CPU and
+    // the GPU; every one whose visibility is 1 gives exactly the unshadowed S cos θi (CPU) and
+    // within the twins' f32 tolerance (2e-3 of the segment's value,
+    // renderer/tests/gpu_shading_parity.rs) on the GPU; one partly visible gives that fraction
+    // of it. Both kinds must occur; V_glo = 0 (fully occluded by the macro-scale shadow) gives
+    // exactly 0 as well.
     let b = baked(Materials::Default);
     let segs = segments(b);
     let wd = DVec3::new(-0.5, 0.3, 0.8).normalize();
@@ -891,7 +893,7 @@ fn hard_fully_visible_and_fully_occluded_segments() {
     let mut inputs = Vec::new();
     let mut expected = Vec::new();
     for &(k, s) in &segs {
-        let d = shading::ssdf_lookup(&b.visibility.ssdf, midpoint_image(b, k), wd);
+        let local = b.visibility.visibility(midpoint_image(b, k), wd);
         let v = shading::single_scattering_directional(
             &s.fiber,
             &b.gn,
@@ -918,14 +920,15 @@ fn hard_fully_visible_and_fully_occluded_segments() {
             v.is_finite() && v.min_element() >= 0.0 && hidden == Rgb::ZERO,
             "segment {k}: {v} / {hidden}"
         );
-        if d < -1e-3 {
+        let free = shading::fiber_eval_cos(&s.fiber, &b.gn, s.tangent, wd, wo);
+        if local == 0.0 {
             occluded += 1;
-            assert!(v == Rgb::ZERO, "occluded segment {k} (SSDF {d}) gives {v}");
-        } else if d > 1e-3 {
+            assert!(v == Rgb::ZERO, "occluded segment {k} gives {v}");
+        } else if local == 1.0 {
             visible += 1;
-            let free = shading::fiber_eval_cos(&s.fiber, &b.gn, s.tangent, wd, wo);
-            assert!(v == free, "visible segment {k} (SSDF {d}) gives {v}, unshadowed {free}");
+            assert!(v == free, "visible segment {k} gives {v}, unshadowed {free}");
         } else {
+            assert!((v - free * local).abs().max_element() <= 1e-12 * free.max_element(), "segment {k}: {v}");
             continue;
         }
         inputs.push([k as f32, 0.0, 0.0, 0.0]);
