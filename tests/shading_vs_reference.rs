@@ -481,8 +481,8 @@ fn diagnose_sg_single_scattering() {
 /// The error budget's ladder (`shading::budget`, `twill accuracy budget`) on the default scene
 /// at 32 × 32: its exact rungs must equal the path tracer within noise (this checks the
 /// decomposition itself: single + multiple = all light, and the light and fiber-scattering
-/// conventions of both), every rung is finite, and the lit-side visibility origin keeps its
-/// measured gain over the paper's fiber-axis origin.
+/// conventions of both), every rung is finite, and the raised visibility origin (the centroid
+/// of the fiber's upper half) keeps its measured gain over the paper's fiber-axis origin.
 #[test]
 fn error_budget_exact_rungs_equal_the_path_tracer() {
     use twill_precompute::shading::budget::{BudgetSettings, error_budget};
@@ -493,7 +493,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3, split_transfer: false };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
-    assert_eq!(budget.rungs.len(), 12);
+    assert_eq!(budget.rungs.len(), 13);
     for rung in &budget.rungs {
         assert!(
             rung.relative_error_of_mean.is_finite() && rung.relative_pixel_rmse.is_finite(),
@@ -521,7 +521,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     assert!((again.relative_error_of_mean - fifth.relative_error_of_mean).abs() < 1e-12);
     assert_eq!(
         budget.rungs.iter().position(|r| r.name == "the method again"),
-        Some(6),
+        Some(7),
         "after the single rungs"
     );
     // Interpolating transfer between cells (no block edges) must not lose per-pixel accuracy
@@ -543,11 +543,11 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         interpolated.relative_error_of_mean
     );
     let midpoint = budget.rung(Component::Single, "2 ").expect("midpoint rung");
-    let lit_side = budget.rung(Component::Single, "3 ").expect("lit-side rung");
+    let raised = budget.rung(Component::Single, "3 ").expect("raised-origin rung");
     assert!(
-        lit_side.relative_error_of_mean.abs() + 0.05 < midpoint.relative_error_of_mean.abs(),
-        "lit side {:+.4} vs midpoint {:+.4}",
-        lit_side.relative_error_of_mean,
+        raised.relative_error_of_mean.abs() + 0.05 < midpoint.relative_error_of_mean.abs(),
+        "raised {:+.4} vs midpoint {:+.4}",
+        raised.relative_error_of_mean,
         midpoint.relative_error_of_mean
     );
 }
