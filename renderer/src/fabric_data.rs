@@ -255,7 +255,8 @@ impl FabricArrays {
         let components = first.visibility.ssdf.component_count;
         let visibility_points = first.visibility.points;
         let sos_count = first.visibility.sum_of_sg.count;
-        let has_bits = first.visibility.bits.is_some();
+        // u32 words per kept binary image: two per u64 word of `VisibilityImages`.
+        let bit_words = first.visibility.bits.as_ref().map(|b| 2 * b.words_per_image());
         let theta_count = settings.cs_theta_count;
         let mut out = Self {
             header: FabricHeaderGpu::zeroed_header(),
@@ -295,7 +296,7 @@ impl FabricArrays {
                 && baked.visibility.sum_of_sg.count == sos_count
                 && baked.settings.cs_theta_count == theta_count
                 && baked.visibility.points == visibility_points
-                && baked.visibility.bits.is_some() == has_bits
+                && baked.visibility.bits.as_ref().map(|b| 2 * b.words_per_image()) == bit_words
                 && baked.volume.segments.axis.len() == baked.volume.segments.len()
                 && baked.volume.segments.radius.len() == baked.volume.segments.len();
             if !same {
@@ -460,14 +461,7 @@ impl FabricArrays {
             z_range,
             cg_order: to_u32(cg_order, "C_G order")?,
             visibility_points: to_u32(visibility_points, "visibility points")?,
-            visibility_words: if has_bits {
-                to_u32(
-                    2 * (settings.svf_resolution * settings.svf_resolution).div_ceil(64),
-                    "visibility words",
-                )?
-            } else {
-                0
-            },
+            visibility_words: to_u32(bit_words.unwrap_or(0), "visibility words")?,
             pad: 0,
         };
         if out.visibility_bits.is_empty() {

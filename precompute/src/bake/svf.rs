@@ -18,9 +18,10 @@
 //!   surface: single scattering of the default scene came out 14% too dark. Rays from the lit
 //!   side of the fiber (`μ_k` moved by `r_k` across the fiber toward `ω`, twill's origin until
 //!   2026-11-27) fixed that for lights from above, but at raking light the lit side is the
-//!   fiber's flank, level with the neighbours it touches: the gabardine lit 12° above the
-//!   horizon came out 34% too dark against shadow rays from the hit point, the centroid 0.5%
-//!   (`twill accuracy budget`, docs/BENCHMARKS.md "Where visibility rays start").
+//!   fiber's flank, level with the neighbours it touches: two gabardine views lit 12–13° above
+//!   the horizon came out 34% and 26% too dark against shadow rays from the hit point, from
+//!   the centroid 12% and 0.5% (`twill accuracy budget`, docs/BENCHMARKS.md "Local visibility
+//!   at raking light").
 //!   The midpoint is placed in the copy of the exemplar nearest the centre of
 //!   the scene ([`FiberScene::central_tile`]); with `Extent::Unbounded` on a periodic exemplar
 //!   every copy is interior, so the fabric around the segment is infinite and there are no
@@ -446,6 +447,21 @@ pub(crate) mod tests {
         assert!((offset.length() - 2.0 * r / PI).abs() < 1e-15);
         // A fiber along z has no up across it.
         assert_eq!(visibility_origin(mid, DVec3::Z, r), mid);
+        // A thin fiber buried in this one's upper half (its top 0.6 r above the axis, below the
+        // centroid's 2r/π) hides the sky from the axis but not from the raised origin.
+        let host = fiber(Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), 0.01);
+        let buried = fiber(Vec3::new(0.0, -1.0, 0.005), Vec3::new(0.0, 1.0, 0.005), 0.001);
+        let scene = FiberScene::new(&exemplar(vec![host, buried], Tiling::AsIs), Extent::Unbounded).unwrap();
+        let images = render_scene(&scene, 8, 1, &Cancel::new(), &no_progress).unwrap();
+        let k = scene.segments().iter().position(|s| s.fiber == 0).unwrap();
+        let (row, col) = pixel_of_direction(8, DVec3::new(0.0, 0.05, 1.0).normalize());
+        assert!(images.get(k, row, col), "the raised origin of the host fiber sees the sky");
+        assert!(scene.any_hit_f64(
+            scene.segments()[k].midpoint().as_dvec3(),
+            DVec3::Z,
+            f64::INFINITY,
+            Some(0)
+        ));
     }
 
     #[test]

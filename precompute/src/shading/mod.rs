@@ -12,7 +12,8 @@
 //! - [`visibility`]: local visibility from the bake: the SSDF lookup (bilinear over pixel
 //!   centres), the erf soft step, the sum-of-SGs product with a light, and the blend weights
 //!   between the two for SG lights ([`sg_path_weights`]).
-//! - [`single`]: single scattering per light (directional: hard SSDF step; SG: the blend).
+//! - [`single`]: single scattering per light (directional: local visibility, the kept bits or
+//!   the hard SSDF step; SG: the blend).
 //! - [`multiple`]: multiple scattering, `C_S[θo] · (R_ωo · A_cell · c_light)` per channel, with
 //!   the lights projected to SH by [`hemisphere_light_sh`] (the light above the horizon, taken
 //!   through the transfer's least-squares fit over the upper hemisphere, so the transfer's cut
