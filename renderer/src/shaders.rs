@@ -101,7 +101,8 @@ pub fn prelude() -> String {
     // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
     {
         use twill_precompute::bake::iirtf::{
-            LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
+            LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
+            TOWARD_UP_WIDTH,
         };
         use twill_precompute::shading::gamma::{LOBE_NODES, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
@@ -110,24 +111,24 @@ pub fn prelude() -> String {
         let _ = writeln!(out, "const LOBE_FOURIER_TERMS: u32 = {LOBE_FOURIER_TERMS}u;");
         let _ = writeln!(out, "const LOBE_SHAPE_LEN: u32 = {LOBE_SHAPE_LEN}u;");
         let _ = writeln!(out, "const LOBE_PACKED_VEC4S: u32 = {}u;", LOBE_PACKED_FLOATS / 4);
+        let _ = writeln!(out, "const LOBE_AZIMUTH_TERMS: u32 = {LOBE_AZIMUTH_TERMS}u;");
         #[allow(clippy::cast_possible_truncation)]
-        let max_cos = twill_precompute::shading::multiple::MAX_AZIMUTH_MEAN_COSINE as f32;
-        let _ = writeln!(out, "const MAX_AZIMUTH_MEAN_COSINE: f32 = {max_cos:?};");
-        // Jackson's factors of Fourier terms 1..=LOBE_FOURIER_TERMS (gamma.rs jackson_factor).
-        #[allow(clippy::cast_possible_truncation)]
-        let jackson: Vec<String> = (1..=LOBE_FOURIER_TERMS)
-            .map(|k| {
-                format!(
-                    "{:?}",
-                    twill_precompute::shading::gamma::jackson_factor(k, LOBE_FOURIER_TERMS) as f32
-                )
-            })
-            .collect();
-        let _ = writeln!(
-            out,
-            "const LOBE_JACKSON: array<f32, {LOBE_FOURIER_TERMS}> = array<f32, {LOBE_FOURIER_TERMS}>({});",
-            jackson.join(", ")
-        );
+        for (name, value) in [
+            ("AZIMUTH_FADE_ACROSS", twill_precompute::shading::multiple::AZIMUTH_FADE_ACROSS as f32),
+            ("TOWARD_UP_WIDTH", TOWARD_UP_WIDTH as f32),
+            ("BESSEL_RATIO_GAUSSIAN_ABOVE", twill_precompute::special::BESSEL_RATIO_GAUSSIAN_ABOVE as f32),
+        ] {
+            let _ = writeln!(out, "const {name}: f32 = {value:?};");
+        }
+        let _ = writeln!(out, "const BESSEL_RATIO_DEPTH: u32 = {}u;", twill_precompute::special::BESSEL_RATIO_DEPTH);
+        // Jackson's factors of Fourier terms 1..=K (gamma.rs jackson_factor), for both series.
+        for (name, terms) in [("LOBE_JACKSON", LOBE_FOURIER_TERMS), ("LOBE_AZIMUTH_JACKSON", LOBE_AZIMUTH_TERMS)] {
+            #[allow(clippy::cast_possible_truncation)]
+            let jackson: Vec<String> = (1..=terms)
+                .map(|k| format!("{:?}", twill_precompute::shading::gamma::jackson_factor(k, terms) as f32))
+                .collect();
+            let _ = writeln!(out, "const {name}: array<f32, {terms}> = array<f32, {terms}>({});", jackson.join(", "));
+        }
         // lobe_quadrature's θi rule: Gauss–Legendre on [−1, 1] over ±LOBE_WINDOW deviations.
         #[allow(clippy::cast_possible_truncation)]
         let window = LOBE_WINDOW as f32;

@@ -599,11 +599,61 @@ fn shade_multiple(e: u32, segment: u32, p: vec3<f32>, wo: vec3<f32>, c_in: ptr<f
 
 // Where a lobe's light arrives from, per unit strength (gamma.rs LobeAngles): about an axis xi
 // at fiber angles (theta', phi'), L dwi = p(theta_i - theta') v(phi_i - phi') dtheta_i dphi_i,
-// p the Fourier series [c_1, s_1, c_2, s_2, ...] of the longitudinal offset and v a von Mises
-// density of concentration kappa.
+// p the Fourier series [c_1, s_1, c_2, s_2, ...] of the longitudinal offset and v the series
+// [a_1, b_1, a_2, b_2, ...] of the azimuthal one (turning in the positive sense about t).
 struct LobeAngles {
     fourier: array<f32, 2u * LOBE_FOURIER_TERMS>,
-    kappa: f32,
+    azimuth: array<f32, 2u * LOBE_AZIMUTH_TERMS>,
+}
+
+// I_k(kappa) / I_0(kappa) for k = 1..LOBE_AZIMUTH_TERMS (special.rs bessel_i_ratios): the
+// continued fraction r_k = 1 / (2k / kappa + r_(k+1)) run down from BESSEL_RATIO_DEPTH terms
+// above the last and multiplied up, or exp(-k^2 / 2 kappa) above BESSEL_RATIO_GAUSSIAN_ABOVE;
+// zero for kappa <= 0.
+fn bessel_i_ratios(kappa: f32) -> array<f32, LOBE_AZIMUTH_TERMS> {
+    var out: array<f32, LOBE_AZIMUTH_TERMS>;
+    if (!(kappa > 0.0)) {
+        return out;
+    }
+    if (kappa > BESSEL_RATIO_GAUSSIAN_ABOVE) {
+        for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
+            let order = f32(k + 1u);
+            out[k] = exp(-order * order / (2.0 * kappa));
+        }
+        return out;
+    }
+    var r = 0.0;
+    for (var k = LOBE_AZIMUTH_TERMS + BESSEL_RATIO_DEPTH; k > LOBE_AZIMUTH_TERMS; k--) {
+        r = 1.0 / (2.0 * f32(k) / kappa + r);
+    }
+    for (var k = LOBE_AZIMUTH_TERMS; k > 0u; k--) {
+        r = 1.0 / (2.0 * f32(k) / kappa + r);
+        out[k - 1u] = r;
+    }
+    var product = 1.0;
+    for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
+        product *= out[k];
+        out[k] = product;
+    }
+    return out;
+}
+
+// The TT lobe's von Mises about pi convolved with the lobe's azimuthal series at
+// Phi = phi_o - phi' (gamma.rs lobe_tt_azimuth): (1 + 2 sum_k (-1)^k rho_k (a_k cos k Phi +
+// b_k sin k Phi)) / 2 pi, clamped at zero, with rho_k = I_k(kappa_TT) / I_0(kappa_TT).
+fn lobe_tt_azimuth(angles: ptr<function, LobeAngles>, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>, cos_phi: f32, sin_phi: f32) -> f32 {
+    var ck = cos_phi;
+    var sk = sin_phi;
+    var sign = -1.0;
+    var v = 1.0;
+    for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
+        v += 2.0 * sign * tt_ratios[k] * ((*angles).azimuth[2u * k] * ck + (*angles).azimuth[2u * k + 1u] * sk);
+        let next = ck * cos_phi - sk * sin_phi;
+        sk = sk * cos_phi + ck * sin_phi;
+        ck = next;
+        sign = -sign;
+    }
+    return max(v / (2.0 * PI), 0.0);
 }
 
 // p(dtheta) = (1 + 2 sum_k c_k cos k dtheta + s_k sin k dtheta) / 2 pi, clamped at zero
@@ -625,29 +675,22 @@ fn lobe_longitudinal(angles: ptr<function, LobeAngles>, delta_theta: f32) -> f32
 }
 
 // int L(wi) S(wi, wo) cos(theta_i) dwi for the unit lobe `angles` about unit xi, per RGB channel
-// (gamma.rs lobe_quadrature). The phi_i integrals are exact: S_R's azimuth is uniform (1 / 2 pi
-// against v); S_TT's von Mises about phi = pi times v about phi' gives
-// i0e(r) e^(r - kappa - kappa_TT) / (2 pi i0e(kappa) i0e(kappa_TT)) with
-// r = |kappa e^(i phi') - kappa_TT|, held without cancellation as tt_azimuthal is: r from
-// 1 - cos phi' = (h - xi_b) / h, the exponent -2 kappa kappa_TT (1 + cos phi') / (r + kappa +
-// kappa_TT). The theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
+// (gamma.rs lobe_quadrature). The phi_i integrals are exact for the series: S_R's azimuth is
+// uniform (1 / 2 pi against v); S_TT's von Mises about phi = pi convolved with v is
+// lobe_tt_azimuth at phi_o - phi' (in omega_o-space, -phi'). The theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
 // the lobe's Gaussian exp(-lambda_X (theta_i + theta_o)^2) out to LOBE_WINDOW deviations either
 // side, clipped to [-pi/2, pi/2], with p, cos(theta_i), Gn and Fresnel exact at each node. The
 // interval is held in the offset theta_i + theta_o (the twin's theta_i minus its centre), which
 // f32 keeps exact where the window is not clipped.
 fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
     let axis = sg_axis_in_omega_o_space(space, xi);
-    let kappa = (*angles).kappa;
-    let kappa_tt = f.kappa;
-    var one_plus_cos = 1.0;
-    var one_minus_cos = 1.0;
+    var cos_phi = 1.0;
+    var sin_phi = 0.0;
     if (axis.h > 0.0) {
-        one_plus_cos = axis.h_plus_b / axis.h;
-        one_minus_cos = axis.h_minus_b / axis.h;
+        cos_phi = dot(space.b, xi) / axis.h;
+        sin_phi = -dot(space.c, xi) / axis.h;
     }
-    let r = sqrt((kappa - kappa_tt) * (kappa - kappa_tt) + 2.0 * kappa * kappa_tt * one_minus_cos);
-    let deficit = -2.0 * kappa * kappa_tt * one_plus_cos / max(r + kappa + kappa_tt, 1e-30);
-    let tt_azimuth = i0e_f32(r) * exp(deficit) / (2.0 * PI * i0e_f32(kappa) * f.i0e_kappa);
+    let tt_azimuth = lobe_tt_azimuth(angles, bessel_i_ratios(f.kappa), cos_phi, sin_phi);
     var nodes = LOBE_LEGENDRE_NODES;
     var weights = LOBE_LEGENDRE_WEIGHTS;
     var out = vec3<f32>(0.0);
@@ -767,35 +810,42 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
 
 // Where lobe `lobe` (0 forward, 1 reflected) of `at` brings the light from direction `dir`
 // (sharpness < 0: directional, else an SG of that sharpness) at a fiber of unit tangent t
-// (multiple.rs FiberLobe::angles): writes the axis and the angles' densities and returns true,
-// or false for a lobe without light. The shape's means are its sums over sqrt(4 pi) times the
-// total strength, the longitudinal ones smoothed by Jackson's factors (LOBE_JACKSON); the azimuth a von Mises density of concentration r (2 - r^2) / (1 - r^2)
-// (r = |mean cos dphi|, clamped to MAX_AZIMUTH_MEAN_COSINE), about the light's azimuth, or the
-// opposite one (the axis mirrored across t) where the mean is negative. An SG light widens both:
-// the Fourier terms are damped by exp(-k^2 / 2 lambda), and kappa combines with the light's own
-// concentration about t, lambda |dir x t|^2 (= lambda (1 - (dir.t)^2), without its f32
-// cancellation near t), as kappa kappa_l / (kappa + kappa_l).
+// (multiple.rs FiberLobe::angles): writes the axis (dir) and the angles' series and returns
+// true, or false for a lobe without light. The shape's means are its sums over sqrt(4 pi)
+// times the total strength, both series smoothed by Jackson's factors; the azimuth's odd terms
+// turn with toward_up(t, dir), and all of its terms fade out within AZIMUTH_FADE_ACROSS of a
+// light along t (1 - (dir.t)^2 taken as |dir x t|^2, without its f32 cancellation near t). An
+// SG light widens both: the longitudinal terms are damped by exp(-k^2 / 2 lambda), the
+// azimuthal ones by I_k(kappa_l) / I_0(kappa_l) with kappa_l = lambda |dir x t|^2.
 fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>, sharpness: f32, t: vec3<f32>, axis: ptr<function, vec3<f32>>, angles: ptr<function, LobeAngles>) -> bool {
     let total = select((*at).total.x, (*at).total.y, lobe == 1u) * sqrt(4.0 * PI);
     if (!(total > 0.0)) {
         return false;
     }
     let base = lobe * LOBE_SHAPE_LEN;
-    let mean_cos = clamp((*at).shapes[base] / total, -MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
-    let r = abs(mean_cos);
-    var kappa = r * (2.0 - r * r) / (1.0 - r * r);
-    // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
-    // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
-    for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
-        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[base + 1u + i] / total;
-    }
-    // A light along the fiber has no azimuth about it (multiple.rs FiberLobe::angles).
     let across_vec = cross(dir, t);
     let across = dot(across_vec, across_vec);
-    kappa *= across;
+    let fade = min(across / AZIMUTH_FADE_ACROSS, 1.0);
+    let odd = toward_up(t, dir);
+    var light_ratios: array<f32, LOBE_AZIMUTH_TERMS>;
+    for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
+        light_ratios[k] = 1.0;
+    }
     if (sharpness >= 0.0) {
-        let kappa_light = sharpness * across;
-        kappa = select(0.0, kappa * kappa_light / (kappa + kappa_light), kappa + kappa_light > 0.0);
+        light_ratios = bessel_i_ratios(sharpness * across);
+    }
+    for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
+        let scale = LOBE_AZIMUTH_JACKSON[k] * fade * light_ratios[k] / total;
+        (*angles).azimuth[2u * k] = scale * (*at).shapes[base + 2u * k];
+        (*angles).azimuth[2u * k + 1u] = scale * odd * (*at).shapes[base + 2u * k + 1u];
+    }
+    // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
+    // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
+    let longitudinal = base + 2u * LOBE_AZIMUTH_TERMS;
+    for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
+        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[longitudinal + i] / total;
+    }
+    if (sharpness >= 0.0) {
         for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
             let order = f32(k + 1u);
             let damping = exp(-order * order / (2.0 * max(sharpness, 1e-30)));
@@ -803,9 +853,14 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
             (*angles).fourier[2u * k + 1u] *= damping;
         }
     }
-    (*angles).kappa = kappa;
-    *axis = select(dir, 2.0 * dot(dir, t) * t - dir, mean_cos < 0.0);
+    *axis = dir;
     return true;
+}
+
+// Which way about t the fabric's up lies from dir (iirtf.rs toward_up): t . (dir x z) over
+// TOWARD_UP_WIDTH, clamped to [-1, 1].
+fn toward_up(t: vec3<f32>, dir: vec3<f32>) -> f32 {
+    return clamp(dot(t, cross(dir, vec3<f32>(0.0, 0.0, 1.0))) / TOWARD_UP_WIDTH, -1.0, 1.0);
 }
 
 // The fiber lobes' radiance toward wo for one light of unit colour from `dir` (flat-fabric

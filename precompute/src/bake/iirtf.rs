@@ -115,8 +115,9 @@ pub struct CellTransfer {
     /// Where the forward chains arrive from, against the light's direction, in the fiber frame
     /// of the segment they arrive at ([`FiberOffset`]): [`LOBE_SHAPE_LEN`] sums over the
     /// cell's paths, each weighted by the connection's forward share (summed over channels)
-    /// and divided by the paths: `cos Δφ`, then `cos kΔθ`, `sin kΔθ` for k = 1..=
-    /// [`LOBE_FOURIER_TERMS`]. Over `√(4π) Σ forward[0]`, the means the lobe is shaded with
+    /// and divided by the paths: `cos kΔφ` and `toward_up · sin kΔφ` for k = 1..=
+    /// [`LOBE_AZIMUTH_TERMS`], then `cos kΔθ`, `sin kΔθ` for k = 1..=[`LOBE_FOURIER_TERMS`]
+    /// ([`FiberOffset::accumulate`]). Over `√(4π) Σ forward[0]`, the means the lobe is shaded with
     /// ([`crate::shading::multiple::FiberLobe::angles`]). Empty without lobes.
     pub forward_shape: Vec<f32>,
     /// As `forward_shape`, for the reflected light.
@@ -135,8 +136,16 @@ pub const LOBE_SH_ORDER: usize = crate::sh::EULER_MAX_ORDER;
 /// but the shaded fiber's own lobe averages them; 40 terms changed nothing measured).
 pub const LOBE_FOURIER_TERMS: usize = 12;
 
-/// Floats of one lobe shape ([`CellTransfer::forward_shape`]).
-pub const LOBE_SHAPE_LEN: usize = 1 + 2 * LOBE_FOURIER_TERMS;
+/// Fourier terms of a lobe's azimuthal shape, about the light's azimuth around the fiber: a
+/// forward fan is about 20 degrees wide on silk, and the shaded fiber's own TT lobe (a von
+/// Mises density, whose coefficients fall as `e^{−k²/2κ}`) leaves little past k = 10 on the
+/// presets.
+pub const LOBE_AZIMUTH_TERMS: usize = 12;
+
+/// Floats of one lobe shape ([`CellTransfer::forward_shape`]): the azimuthal terms
+/// `[cos Δφ, sin Δφ, cos 2Δφ, …]` ([`LOBE_AZIMUTH_TERMS`] pairs), then the longitudinal
+/// `[cos Δθ, sin Δθ, cos 2Δθ, …]` ([`LOBE_FOURIER_TERMS`] pairs).
+pub const LOBE_SHAPE_LEN: usize = 2 * LOBE_AZIMUTH_TERMS + 2 * LOBE_FOURIER_TERMS;
 
 /// Floats of one cell's fiber lobes as the GPU reads them (`lobes` in
 /// `shaders/shared/fabric_data.wgsl`, written by [`CellTransfer::pack_lobes`]): the forward
@@ -145,16 +154,33 @@ pub const LOBE_SHAPE_LEN: usize = 1 + 2 * LOBE_FOURIER_TERMS;
 /// padded with zeros to whole vec4s.
 pub const LOBE_PACKED_FLOATS: usize = 8 * sh_count(LOBE_SH_ORDER) + (2 * LOBE_SHAPE_LEN).div_ceil(4) * 4;
 
+/// Width, in `t · (ω × z)`, of the turn from −1 to 1 of [`toward_up`].
+pub const TOWARD_UP_WIDTH: f64 = 0.1;
+
+/// Which way about the unit fiber tangent t the fabric's up (+z) lies from direction ω: +1
+/// where turning from ω's azimuth toward up is the positive sense about t, −1 where it is the
+/// negative, and between them a linear ramp of `t · (ω × z)` over ±[`TOWARD_UP_WIDTH`] (0
+/// where ω, t and z share a plane, and where t or ω is vertical). Light arrives at a fiber
+/// turned from the light's azimuth toward the fabric's top, through the fibers above it (on
+/// the silk satin backlit, a lobe made symmetric in azimuth lost a third of its light), so the
+/// lobes hold the azimuth's odd part in this sense, which does not depend on the sign of t.
+#[must_use]
+pub fn toward_up(tangent: DVec3, dir: DVec3) -> f64 {
+    (tangent.dot(dir.cross(DVec3::Z)) / TOWARD_UP_WIDTH).clamp(-1.0, 1.0)
+}
+
 /// Where light arrives from (ω1) against the light's own direction (ω0), both toward their
 /// sources, in the frame of a fiber of unit tangent t: `Δθ = θ1 − θ0` of their angles to the
-/// plane normal to t, and the cosine of the angle Δφ between their azimuths about t (1 where
-/// either lies along t). A fiber's R and TT lobes keep the light's angle to the fiber (a
-/// parallel neighbour sends light on at its own θ), so Δθ stays small along a yarn, while R
-/// spreads the azimuth about the fiber and TT keeps it.
+/// plane normal to t, and the angle Δφ turning from ω0's azimuth about t to ω1's, positive in
+/// the positive sense about t (0 where either lies along t). A fiber's R and TT lobes keep the
+/// light's angle to the fiber (a parallel neighbour sends light on at its own θ), so Δθ stays
+/// small along a yarn, while R spreads the azimuth about the fiber and TT keeps it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FiberOffset {
     pub delta_theta: f64,
-    pub cos_delta_phi: f64,
+    pub delta_phi: f64,
+    /// [`toward_up`] of the light's direction: the sense in which Δφ's odd part is kept.
+    pub toward_up: f64,
 }
 
 impl FiberOffset {
@@ -166,21 +192,29 @@ impl FiberOffset {
         };
         let (theta0, across0) = angle(to_light);
         let (theta1, across1) = angle(arrival);
-        let lengths = across0.length() * across1.length();
-        let cos_delta_phi =
-            if lengths > 1e-12 { (across0.dot(across1) / lengths).clamp(-1.0, 1.0) } else { 1.0 };
-        Self { delta_theta: theta1 - theta0, cos_delta_phi }
+        let delta_phi = if across0.length() * across1.length() > 1e-12 {
+            tangent.dot(across0.cross(across1)).atan2(across0.dot(across1))
+        } else {
+            0.0
+        };
+        Self { delta_theta: theta1 - theta0, delta_phi, toward_up: toward_up(tangent, to_light) }
     }
 
     /// Adds `weight ×` this offset's shape terms (`CellTransfer::forward_shape`'s layout) to
-    /// `shape`.
+    /// `shape`: `cos kΔφ` and `toward_up · sin kΔφ`, then `cos kΔθ` and `sin kΔθ`.
     pub fn accumulate(&self, weight: f64, shape: &mut [f64]) {
-        shape[0] += weight * self.cos_delta_phi;
+        let (azimuth, longitudinal) = shape.split_at_mut(2 * LOBE_AZIMUTH_TERMS);
+        let odd = weight * self.toward_up;
+        for (k, pair) in azimuth.chunks_exact_mut(2).enumerate() {
+            let (sk, ck) = ((k + 1) as f64 * self.delta_phi).sin_cos();
+            pair[0] += weight * ck;
+            pair[1] += odd * sk;
+        }
         let (s1, c1) = self.delta_theta.sin_cos();
         let (mut sk, mut ck) = (s1, c1);
-        for k in 0..LOBE_FOURIER_TERMS {
-            shape[1 + 2 * k] += weight * ck;
-            shape[2 + 2 * k] += weight * sk;
+        for pair in longitudinal.chunks_exact_mut(2) {
+            pair[0] += weight * ck;
+            pair[1] += weight * sk;
             (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
         }
     }

@@ -96,14 +96,15 @@ impl Stage {
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
 /// 3: images at `visibility_points` points along each segment, 4: the kept bits and rays from
 /// the centroid of the fiber's upper half; transfer 5: the fiber lobes,
-/// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix; volume 3:
-/// touching occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 5, 1, 1, 1, 3];
+/// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
+/// azimuth as a Fourier series with its odd part toward the fabric's top; volume 3: touching
+/// occupancy and the segments' capsules).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 6, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
-/// `radius`; 6: `VisibilityData::bits`).
-pub const BAKE_LAYOUT_VERSION: u32 = 6;
+/// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms).
+pub const BAKE_LAYOUT_VERSION: u32 = 7;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -482,8 +483,9 @@ pub fn recolour_basis(
 /// Version of the recolouring basis's code and layout: part of its cache key (8: the forward
 /// lobes, `RecolourBasis::forward_lobe`; 9: their per-cell fold, the forward chains' own matrix;
 /// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
-/// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell).
-const RECOLOUR_VERSION: u32 = 10;
+/// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell; 11: the shapes' azimuthal
+/// Fourier terms).
+const RECOLOUR_VERSION: u32 = 11;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {

@@ -48,6 +48,7 @@ use glam::DVec3;
 
 use super::bcsdf::{FiberConstants, LOBE_R, LOBE_TT};
 use crate::Rgb;
+use crate::bake::iirtf::LOBE_AZIMUTH_TERMS;
 use crate::bake::cs_table::OmegaOSpace;
 use crate::bake::tables::GnTable;
 use crate::special::{erf, i0e};
@@ -65,6 +66,9 @@ pub struct AxisInOmegaOSpace {
     pub h_plus_b: f64,
     /// h − ξ_b = h (1 − cos φ') ≥ 0.
     pub h_minus_b: f64,
+    /// ξ_b = h cos φ' and ξ_c = h sin φ', φ' measured from ωo's azimuth.
+    pub b: f64,
+    pub c: f64,
 }
 
 impl AxisInOmegaOSpace {
@@ -83,7 +87,7 @@ impl AxisInOmegaOSpace {
             let minus = h - b;
             (c * c / minus, minus)
         };
-        Self { theta_o: space.theta_o, theta: local.x.atan2(h), cos_theta: h, h_plus_b, h_minus_b }
+        Self { theta_o: space.theta_o, theta: local.x.atan2(h), cos_theta: h, h_plus_b, h_minus_b, b, c }
     }
 }
 
@@ -153,35 +157,29 @@ pub fn gamma_in_omega_o_space(
 /// - `p(Δθ) = (1 + 2 Σ_k c_k cos kΔθ + s_k sin kΔθ) / 2π`, the Fourier series of the
 ///   longitudinal offset, clamped at zero (its terms are means `c_k = E cos kΔθ`, so it
 ///   integrates to 1 over a period);
-/// - `v` a von Mises density of concentration κ.
+/// - `v(Δφ) = (1 + 2 Σ_k a_k cos kΔφ + b_k sin kΔφ) / 2π` likewise for the azimuthal offset,
+///   Δφ turning in the positive sense about the tangent.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LobeAngles {
     /// `[c_1, s_1, c_2, s_2, …]`.
     pub fourier: Vec<f64>,
-    pub kappa: f64,
+    /// `[a_1, b_1, a_2, b_2, …]`.
+    pub azimuth: Vec<f64>,
 }
 
 impl LobeAngles {
-    /// The unit lobe whose offset has the means `means = [E cos Δθ, E sin Δθ, E cos 2Δθ, …]`
-    /// and azimuthal concentration `kappa`, its Fourier series smoothed by Jackson's factors
-    /// ([`jackson_factor`]): cut after K terms, the series of a sharp density rings below
-    /// zero (an offset 5° wide, cut at 12 terms, loses a third of its mass to the clamp), while
-    /// the series smoothed by a non-negative kernel about 180°/(K+1) wide is itself a density.
+    /// The unit lobe whose offsets have the means `longitudinal = [E cos Δθ, E sin Δθ, E cos
+    /// 2Δθ, …]` and `azimuth = [E cos Δφ, E sin Δφ, …]`, both series smoothed by Jackson's
+    /// factors ([`jackson_factor`]): cut after K terms, the series of a sharp density rings
+    /// below zero (an offset 5° wide, cut at 12 terms, loses a third of its mass to the
+    /// clamp), while the series smoothed by a non-negative kernel about 180°/(K+1) wide is
+    /// itself a density.
     #[must_use]
-    pub fn from_means(means: &[f64], kappa: f64) -> Self {
-        let terms = means.len() / 2;
-        let fourier = means
-            .chunks_exact(2)
-            .enumerate()
-            .flat_map(|(k, m)| {
-                let g = jackson_factor(k + 1, terms);
-                [g * m[0], g * m[1]]
-            })
-            .collect();
-        Self { fourier, kappa }
+    pub fn from_means(longitudinal: &[f64], azimuth: &[f64]) -> Self {
+        Self { fourier: jackson_smoothed(longitudinal), azimuth: jackson_smoothed(azimuth) }
     }
 
-    /// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
+/// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
     #[must_use]
     pub fn longitudinal(&self, delta_theta: f64) -> f64 {
         let (s1, c1) = delta_theta.sin_cos();
@@ -193,6 +191,37 @@ impl LobeAngles {
         }
         (v / (2.0 * PI)).max(0.0)
     }
+}
+
+/// `[c_1, s_1, c_2, s_2, …]` with pair k multiplied by Jackson's factor of term k.
+fn jackson_smoothed(means: &[f64]) -> Vec<f64> {
+    let terms = means.len() / 2;
+    means
+        .chunks_exact(2)
+        .enumerate()
+        .flat_map(|(k, m)| {
+            let g = jackson_factor(k + 1, terms);
+            [g * m[0], g * m[1]]
+        })
+        .collect()
+}
+
+/// `∫ v(φi − φ') N_TT(φo − φi) dφi` for the lobe's azimuthal series `azimuth` ([`LobeAngles`])
+/// and a TT lobe whose von Mises density about π has the Fourier coefficients `tt_ratios`
+/// (`I_k(κ_TT)/I_0(κ_TT)`, [`crate::special::bessel_i_ratios`]), at `Φ = φo − φ'` given as its
+/// cosine and sine: a convolution, so term by term a product,
+/// `(1 + 2 Σ_k (−1)^k ρ_k (a_k cos kΦ + b_k sin kΦ)) / 2π`, clamped at zero.
+#[must_use]
+pub fn lobe_tt_azimuth(azimuth: &[f64], tt_ratios: &[f64], cos_phi: f64, sin_phi: f64) -> f64 {
+    let (mut ck, mut sk) = (cos_phi, sin_phi);
+    let mut sign = -1.0;
+    let mut v = 1.0;
+    for (pair, rho) in azimuth.chunks_exact(2).zip(tt_ratios) {
+        v += 2.0 * sign * rho * (pair[0] * ck + pair[1] * sk);
+        (ck, sk) = (ck * cos_phi - sk * sin_phi, sk * cos_phi + ck * sin_phi);
+        sign = -sign;
+    }
+    (v / (2.0 * PI)).max(0.0)
 }
 
 /// Half-width, in the fiber lobe's standard deviations, of the θi interval
@@ -219,10 +248,9 @@ pub fn jackson_factor(k: usize, terms: usize) -> f64 {
 }
 
 /// `∫ L(ωi) S(ωi, ωo) cos θi dωi` for the unit lobe `angles` about unit `xi` ([`LobeAngles`]),
-/// per RGB channel: unit tangent `t`, unit view direction `wo`. The φi integrals are exact:
-/// S_R's azimuth is uniform, so its integral against `v` is `1/2π`; S_TT's von Mises about
-/// φ = π times `v` about φ' integrates to `I0(|κ e^{iφ'} − κ_TT|) / (2π I0(κ) I0(κ_TT))`, held
-/// scaled and without cancellation as Γ's TT factor is (module docs). The θi integral, per lobe
+/// per RGB channel: unit tangent `t`, unit view direction `wo`. The φi integrals are exact
+/// for the series: S_R's azimuth is uniform, so its integral against `v` is `1/2π`; S_TT's
+/// von Mises about φ = π convolved with `v` is [`lobe_tt_azimuth`] at `φo − φ'`. The θi integral, per lobe
 /// X, is a [`LOBE_NODES`]-point Gauss–Legendre rule over the lobe's own Gaussian
 /// `exp(−λ_X (θi + θo)²)` within [`LOBE_WINDOW`] standard deviations, clipped to [−π/2, π/2]
 /// (a Gauss–Hermite rule lost its nodes past the pole at grazing views: 12% off on the
@@ -238,18 +266,12 @@ pub fn lobe_quadrature(
     wo: DVec3,
 ) -> Rgb {
     let axis = AxisInOmegaOSpace::new(t, wo, xi);
-    let kappa = angles.kappa;
-    let kappa_tt = fiber.kappa;
-    // |κ e^{iφ'} − κ_TT| and its deficit against κ + κ_TT, with cos φ' = ξ_b / h and
-    // 1 + cos φ' = (h + ξ_b)/h, h − ξ_b likewise (no cancellation when φ' is near 0 or π).
-    let (one_plus_cos, one_minus_cos) = if axis.cos_theta > 0.0 {
-        (axis.h_plus_b / axis.cos_theta, axis.h_minus_b / axis.cos_theta)
-    } else {
-        (1.0, 1.0)
-    };
-    let r = ((kappa - kappa_tt).powi(2) + 2.0 * kappa * kappa_tt * one_minus_cos).sqrt();
-    let deficit = -2.0 * kappa * kappa_tt * one_plus_cos / (r + kappa + kappa_tt).max(f64::MIN_POSITIVE);
-    let tt_azimuth = i0e(r) * deficit.exp() / (2.0 * PI * i0e(kappa) * fiber.i0e_kappa);
+    let mut tt_ratios = [0.0; LOBE_AZIMUTH_TERMS];
+    crate::special::bessel_i_ratios(fiber.kappa, &mut tt_ratios);
+    // φo − φ': in ωo-space ξ's azimuth is measured from ωo's, so Φ = −φ'.
+    let (cos_phi, sin_phi) =
+        if axis.cos_theta > 0.0 { (axis.b / axis.cos_theta, -axis.c / axis.cos_theta) } else { (1.0, 0.0) };
+    let tt_azimuth = lobe_tt_azimuth(&angles.azimuth, &tt_ratios, cos_phi, sin_phi);
     let mut out = Rgb::ZERO;
     for (lobe, lambda_lobe) in [(LOBE_R, fiber.lambda_r), (LOBE_TT, fiber.lambda_tt)] {
         // The lobe's Gaussian exp(−λ_X (θi + θo)²) over ±LOBE_WINDOW standard deviations,

@@ -52,7 +52,9 @@ use super::gamma::{LobeAngles, lobe_quadrature};
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
-use crate::bake::iirtf::{CellTransfer, LOBE_FOURIER_TERMS, LOBE_SH_ORDER, LOBE_SHAPE_LEN};
+use crate::bake::iirtf::{
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, toward_up,
+};
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
@@ -255,9 +257,10 @@ pub fn forward_sharpness(forward0: Rgb, forward_cosine: Rgb) -> f64 {
     mu * (3.0 - mu * mu) / (1.0 - mu * mu)
 }
 
-/// The largest |mean cos Δφ| a lobe's azimuth is given (κ about 50): beyond it a few hundred
-/// paths cannot tell "narrow" from "a delta".
-pub const MAX_AZIMUTH_MEAN_COSINE: f64 = 0.99;
+/// Below this `1 − (ξ·t)²` (the light within about 13° of the fiber's axis) a lobe's
+/// azimuthal terms fade linearly to zero ([`FiberLobe::angles`]): a light along the fiber
+/// has no azimuth about it, and the model stays continuous where φ' stops being defined.
+pub const AZIMUTH_FADE_ACROSS: f64 = 0.05;
 
 /// One fiber lobe (`CellTransfer::forward` and `forward_shape`, or `reflected` and
 /// `reflected_shape`) summed over the cells around a point with their interpolation weights.
@@ -296,49 +299,51 @@ impl FiberLobe {
     }
 
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
-    /// ξ its angles are measured from and their densities ([`LobeAngles`], the longitudinal
-    /// series smoothed by [`LobeAngles::from_means`]), or `None` for a lobe without light. The
-    /// shape's means are its sums over `√(4π) Σ strength[0]` (the total weight). The azimuth:
-    /// a von Mises density of concentration `κ = r(2 − r²)/(1 − r²)` (Banerjee et al.'s
-    /// estimate from the mean resultant r = |mean cos Δφ|, clamped to
-    /// [`MAX_AZIMUTH_MEAN_COSINE`]) about the light's azimuth, or about the opposite one (ξ
-    /// mirrored across the fiber axis) where the mean is negative: reflected light arrives
-    /// mostly from the far side. κ is scaled by `1 − (ξ·t)²`: a light along the fiber has no
-    /// azimuth about it, and the model stays continuous where φ' stops being defined. An SG
-    /// light of sharpness λ widens both densities: its own longitudinal spread (variance 1/λ)
-    /// multiplies the Fourier terms by `exp(−k²/2λ)`, and its azimuthal concentration about t,
-    /// `κ_l = λ (1 − (ξ·t)²)`, combines as `κ κ_l / (κ + κ_l)` (von Mises convolution's usual
-    /// approximation).
+    /// ξ its angles are measured from (the light's direction) and their densities
+    /// ([`LobeAngles`], both series smoothed by [`LobeAngles::from_means`]), or `None` for a
+    /// lobe without light. The shape's means are its sums over `√(4π) Σ strength[0]` (the
+    /// total weight). The azimuth's odd terms were kept in the sense toward the fabric's top
+    /// ([`toward_up`]), so they turn with `toward_up(t, ξ)` here. They fade out within
+    /// [`AZIMUTH_FADE_ACROSS`] of a light along the fiber. An SG light of sharpness λ widens
+    /// both densities by its own spread, exactly for a von Mises–like lobe: its longitudinal
+    /// variance 1/λ multiplies the longitudinal terms by `exp(−k²/2λ)`, and its azimuthal
+    /// concentration about t, `κ_l = λ (1 − (ξ·t)²)`, multiplies the azimuthal ones by
+    /// `I_k(κ_l)/I_0(κ_l)`.
     #[must_use]
     pub fn angles(&self, light: &Light, t: DVec3) -> Option<(DVec3, LobeAngles)> {
         let total = self.strength[0].element_sum() * (4.0 * PI).sqrt();
         if total.is_nan() || total <= 0.0 {
             return None;
         }
-        let mean_cos = (self.shape[0] / total).clamp(-MAX_AZIMUTH_MEAN_COSINE, MAX_AZIMUTH_MEAN_COSINE);
-        let r = mean_cos.abs();
         let (axis, sharpness) = match *light {
             Light::Directional { to_light, .. } => (to_light, None),
             Light::Sg { axis, sharpness, .. } => (axis, Some(sharpness)),
         };
-        // A light along the fiber has no azimuth about it: the concentration fades with the
-        // axis's distance from t (continuous where φ' stops being defined).
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
-        let mut kappa = r * (2.0 - r * r) / (1.0 - r * r) * across;
-        let means: Vec<f64> = self.shape[1..].iter().map(|v| v / total).collect();
-        let LobeAngles { mut fourier, .. } = LobeAngles::from_means(&means, 0.0);
+        let (azimuth_means, longitudinal_means) = self.shape.split_at(2 * LOBE_AZIMUTH_TERMS);
+        let longitudinal: Vec<f64> = longitudinal_means.iter().map(|v| v / total).collect();
+        let fade = (across / AZIMUTH_FADE_ACROSS).min(1.0);
+        let odd = toward_up(t, axis);
+        let azimuth: Vec<f64> = azimuth_means
+            .chunks_exact(2)
+            .flat_map(|pair| [pair[0] / total * fade, pair[1] / total * fade * odd])
+            .collect();
+        let LobeAngles { mut fourier, mut azimuth } = LobeAngles::from_means(&longitudinal, &azimuth);
         if let Some(sharpness) = sharpness {
-            let kappa_light = sharpness * across;
-            kappa = if kappa + kappa_light > 0.0 { kappa * kappa_light / (kappa + kappa_light) } else { 0.0 };
             for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
                 let damping = (-((k + 1) as f64).powi(2) / (2.0 * sharpness)).exp();
                 term[0] *= damping;
                 term[1] *= damping;
             }
+            let mut ratios = [0.0; LOBE_AZIMUTH_TERMS];
+            crate::special::bessel_i_ratios(sharpness * across, &mut ratios);
+            for (term, rho) in azimuth.chunks_exact_mut(2).zip(ratios) {
+                term[0] *= rho;
+                term[1] *= rho;
+            }
         }
-        let axis = if mean_cos < 0.0 { 2.0 * axis.dot(t) * t - axis } else { axis };
         debug_assert_eq!(fourier.len(), 2 * LOBE_FOURIER_TERMS);
-        Some((axis, LobeAngles { fourier, kappa }))
+        Some((axis, LobeAngles { fourier, azimuth }))
     }
 }
 
