@@ -419,7 +419,7 @@ mod tests {
         let n = 8192;
         let (mut num, mut den) = (0.0, 0.0);
         for i in 0..n {
-            let phi = 2.0 * std::f64::consts::PI * i as f64 / n as f64;
+            let phi = 2.0 * std::f64::consts::PI * f64::from(i) / f64::from(n);
             let w = (kappa * (phi.cos() - 1.0)).exp();
             num += w * (k as f64 * phi).cos();
             den += w;
@@ -435,7 +435,11 @@ mod tests {
             let bound = if kappa > BESSEL_RATIO_GAUSSIAN_ABOVE { 6e-4 } else { 2e-6 };
             for (k, g) in got.iter().enumerate() {
                 let want = bessel_ratio_by_quadrature(kappa, k + 1);
-                assert!(g.is_finite() && (g - want).abs() <= bound, "κ {kappa} k {}: {g} against {want}", k + 1);
+                assert!(
+                    g.is_finite() && (g - want).abs() <= bound,
+                    "κ {kappa} k {}: {g} against {want}",
+                    k + 1
+                );
             }
         }
         let mut zero = [1.0; 4];

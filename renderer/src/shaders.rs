@@ -120,14 +120,24 @@ pub fn prelude() -> String {
         ] {
             let _ = writeln!(out, "const {name}: f32 = {value:?};");
         }
-        let _ = writeln!(out, "const BESSEL_RATIO_DEPTH: u32 = {}u;", twill_precompute::special::BESSEL_RATIO_DEPTH);
+        let _ = writeln!(
+            out,
+            "const BESSEL_RATIO_DEPTH: u32 = {}u;",
+            twill_precompute::special::BESSEL_RATIO_DEPTH
+        );
         // Jackson's factors of Fourier terms 1..=K (gamma.rs jackson_factor), for both series.
-        for (name, terms) in [("LOBE_JACKSON", LOBE_FOURIER_TERMS), ("LOBE_AZIMUTH_JACKSON", LOBE_AZIMUTH_TERMS)] {
+        for (name, terms) in
+            [("LOBE_JACKSON", LOBE_FOURIER_TERMS), ("LOBE_AZIMUTH_JACKSON", LOBE_AZIMUTH_TERMS)]
+        {
             #[allow(clippy::cast_possible_truncation)]
             let jackson: Vec<String> = (1..=terms)
                 .map(|k| format!("{:?}", twill_precompute::shading::gamma::jackson_factor(k, terms) as f32))
                 .collect();
-            let _ = writeln!(out, "const {name}: array<f32, {terms}> = array<f32, {terms}>({});", jackson.join(", "));
+            let _ = writeln!(
+                out,
+                "const {name}: array<f32, {terms}> = array<f32, {terms}>({});",
+                jackson.join(", ")
+            );
         }
         // lobe_quadrature's θi rule: Gauss–Legendre on [−1, 1] over ±LOBE_WINDOW deviations.
         #[allow(clippy::cast_possible_truncation)]

@@ -27,7 +27,9 @@ use std::collections::HashMap;
 
 use glam::{DVec3, Vec3};
 use twill_precompute::bake::Cancel;
-use twill_precompute::bake::iirtf::{CellTransfer, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS};
+use twill_precompute::bake::iirtf::{
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SHAPE_LEN,
+};
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
 use twill_precompute::bake::settings::{BakeSettings, Quality};
@@ -578,16 +580,22 @@ fn assert_has_lobes(baked: &Baked) -> usize {
     with
 }
 
-/// Fourier terms `[c_1, s_1, …]` (`LobeAngles::fourier`) of a wrapped normal offset of mean
-/// `mean_deg` and deviation `sigma_deg`: `c_k + i s_k = exp(−k²σ²/2 + ikμ)`.
+/// Turn, in radians, of the von Mises azimuth [`quadrature_cases`] add (so that the series'
+/// odd terms count).
+const AZIMUTH_TURN: f64 = 0.3;
+
+/// A whole lobe shape (`CellTransfer::forward_shape`'s layout, over the lobe's total): no
+/// azimuthal terms, then the Fourier terms `[c_1, s_1, …]` (`LobeAngles::fourier`) of a
+/// wrapped normal offset of mean `mean_deg` and deviation `sigma_deg`:
+/// `c_k + i s_k = exp(−k²σ²/2 + ikμ)`.
 fn wrapped_normal(mean_deg: f64, sigma_deg: f64) -> Vec<f32> {
     let (mu, sigma) = (mean_deg.to_radians(), sigma_deg.to_radians());
-    (1..=LOBE_FOURIER_TERMS)
-        .flat_map(|k| {
+    std::iter::repeat_n(0.0, 2 * LOBE_AZIMUTH_TERMS)
+        .chain((1..=LOBE_FOURIER_TERMS).flat_map(|k| {
             let k = k as f64;
             let a = (-0.5 * k * k * sigma * sigma).exp();
             [(a * (k * mu).cos()) as f32, (a * (k * mu).sin()) as f32]
-        })
+        }))
         .collect()
 }
 
@@ -599,7 +607,7 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     let two_sided: Vec<f32> =
         wrapped_normal(8.0, 3.0).iter().zip(wrapped_normal(-8.0, 3.0)).map(|(a, b)| 0.5 * (a + b)).collect();
     let mut out = vec![
-        ("uniform".to_owned(), vec![0.0; 2 * LOBE_FOURIER_TERMS]),
+        ("uniform".to_owned(), vec![0.0; LOBE_SHAPE_LEN]),
         ("sharp, +4° σ 1.5°".to_owned(), wrapped_normal(4.0, 1.5)),
         ("broad, −12° σ 15°".to_owned(), wrapped_normal(-12.0, 15.0)),
         ("two-sided, ±8° σ 3°".to_owned(), two_sided),
@@ -619,7 +627,7 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     ] {
         let total = lobe[0].iter().sum::<f32>() * (4.0 * std::f32::consts::PI).sqrt();
         assert!(total > 0.0, "{name}: no light");
-        out.push((name.to_owned(), shape[1..].iter().map(|v| v / total).collect()));
+        out.push((name.to_owned(), shape.iter().map(|v| v / total).collect()));
     }
     out
 }
@@ -656,7 +664,7 @@ fn lobe_case_direction(code: u32, t: DVec3) -> DVec3 {
 /// WGSL for the quadrature cases: x = segment, y = κ, z = ωo code, w = axis code + OFFSET_CODE
 /// × offset (the offsets written out as WGSL arrays).
 fn quadrature_decode(offsets: &[(String, Vec<f32>)]) -> String {
-    let n = 2 * LOBE_FOURIER_TERMS;
+    let n = LOBE_SHAPE_LEN;
     let arrays: Vec<String> = offsets
         .iter()
         .map(|(_, terms)| {
@@ -666,10 +674,16 @@ fn quadrature_decode(offsets: &[(String, Vec<f32>)]) -> String {
         .collect();
     format!(
         "
-fn lobe_case_offset(index: u32, angles: ptr<function, LobeAngles>) {{
+fn lobe_case_offset(index: u32, kappa: f32, angles: ptr<function, LobeAngles>) {{
     var offsets = array<array<f32, {n}>, {count}>({arrays});
-    for (var i = 0u; i < {n}u; i++) {{
-        (*angles).fourier[i] = offsets[index][i];
+    let ratios = bessel_i_ratios(kappa);
+    for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {{
+        let turn = f32(k + 1u) * {turn:?};
+        (*angles).azimuth[2u * k] = offsets[index][2u * k] + ratios[k] * cos(turn);
+        (*angles).azimuth[2u * k + 1u] = offsets[index][2u * k + 1u] + ratios[k] * sin(turn);
+    }}
+    for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {{
+        (*angles).fourier[i] = offsets[index][2u * LOBE_AZIMUTH_TERMS + i];
     }}
 }}
 fn lobe_case_direction(code: u32, t: vec3<f32>) -> vec3<f32> {{
@@ -694,8 +708,7 @@ fn lobe_case_direction(code: u32, t: vec3<f32>) -> vec3<f32> {{
 fn quadrature_case(input: vec4<f32>) -> vec4<f32> {{
     var angles: LobeAngles;
     let code = u32(input.w);
-    lobe_case_offset(code / {OFFSET_CODE}u, &angles);
-    angles.kappa = input.y;
+    lobe_case_offset(code / {OFFSET_CODE}u, input.y, &angles);
     let s = segments[u32(input.x)];
     let t = case_t(input);
     let space = omega_o_space(t, lobe_case_direction(u32(input.z), t));
@@ -704,12 +717,13 @@ fn quadrature_case(input: vec4<f32>) -> vec4<f32> {{
 }}
 ",
         count = offsets.len(),
-        arrays = arrays.join(",\n        ")
+        arrays = arrays.join(",\n        "),
+        turn = AZIMUTH_TURN as f32
     )
 }
 
-/// The quadrature cases: the grid's segments, κ 0, 0.5, 5 and 50 (the largest
-/// `MAX_AZIMUTH_MEAN_COSINE` gives), view directions over the sphere with ±t and ±85° (grazing
+/// The quadrature cases: the grid's segments, κ 0, 0.5, 5 and 50 (a von Mises azimuth turned
+/// [`AZIMUTH_TURN`] from the axis, added to the offset's own azimuthal terms), view directions over the sphere with ±t and ±85° (grazing
 /// θo), axes over the sphere, mirrored across t, nearly along ±t, along ±t (with κ = 0) and
 /// near the normal, every offset distribution.
 fn quadrature_cases(baked: &Baked, offsets: usize) -> Vec<Case> {
@@ -725,7 +739,8 @@ fn quadrature_cases(baked: &Baked, offsets: usize) -> Vec<Case> {
                         // An axis along ±t has no azimuth φ', yet S_TT's azimuthal factor
                         // depends on it wherever κ > 0: each side takes its rounding's φ' (f64
                         // and f32 differ), so only κ = 0 compares there; 1e-3 off t otherwise.
-                        along @ (1000 | 1001) if kappa > 0.0 => along + 6,
+                        // The silk's own shapes (offsets 4 and 5) carry azimuthal terms too.
+                        along @ (1000 | 1001) if kappa > 0.0 || offset >= 4 => along + 6,
                         axis => axis,
                     };
                     let axis_code = axis + OFFSET_CODE * offset as u32;
@@ -811,7 +826,11 @@ fn lobe_quadrature_matches_its_rust_twin() {
     let silk = lobe_bake();
     let offsets = lobe_offsets(silk);
     for (name, terms) in &offsets {
-        eprintln!("offset {name}: c_1 {:.3}, s_1 {:.3}, c_12 {:.3}", terms[0], terms[1], terms[22]);
+        let f = &terms[2 * LOBE_AZIMUTH_TERMS..];
+        eprintln!(
+            "offset {name}: a_1 {:.3}, b_1 {:.3}, c_1 {:.3}, s_1 {:.3}, c_12 {:.3}",
+            terms[0], terms[1], f[0], f[1], f[22]
+        );
     }
     let library = format!("{}\n{DECODE}\n{}", shaders::shared_library(), quadrature_decode(&offsets));
     let mut failures = Vec::new();
@@ -831,10 +850,21 @@ fn lobe_quadrature_matches_its_rust_twin() {
                 let s =
                     SegmentShading::of(baked, c.segment).expect("fiber segment").expect("non-zero segment");
                 let offset = &offsets[(c.axis_code / OFFSET_CODE) as usize].1;
-                let angles = LobeAngles {
-                    fourier: offset.iter().map(|v| f64::from(*v)).collect(),
-                    kappa: f64::from(c.lambda as f32),
-                };
+                let offset: Vec<f64> = offset.iter().map(|v| f64::from(*v)).collect();
+                let (azimuth, fourier) = offset.split_at(2 * LOBE_AZIMUTH_TERMS);
+                let mut ratios = [0.0; LOBE_AZIMUTH_TERMS];
+                twill_precompute::special::bessel_i_ratios(f64::from(c.lambda as f32), &mut ratios);
+                let turn = f64::from(AZIMUTH_TURN as f32);
+                let azimuth = azimuth
+                    .chunks_exact(2)
+                    .zip(ratios)
+                    .enumerate()
+                    .flat_map(|(k, (pair, rho))| {
+                        let (sk, ck) = ((k + 1) as f64 * turn).sin_cos();
+                        [pair[0] + rho * ck, pair[1] + rho * sk]
+                    })
+                    .collect();
+                let angles = LobeAngles { fourier: fourier.to_vec(), azimuth };
                 let wo = lobe_case_direction(c.wo_code, s.tangent);
                 let axis = lobe_case_direction(c.axis_code % OFFSET_CODE, s.tangent);
                 let at = |t: DVec3, wo: DVec3, axis: DVec3| {

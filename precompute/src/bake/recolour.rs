@@ -2466,7 +2466,7 @@ mod tests {
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
         let n = sh_count(1);
-        assert_eq!(basis.entries(), n * n + 2 * 49 + 1 + 2 * 25);
+        assert_eq!(basis.entries(), n * n + 2 * 49 + 1 + 2 * LOBE_SHAPE_LEN);
         assert_eq!(basis.check_sizes(), Ok(()));
         let c = basis.cells.iter().position(|c| c.paths > 0).unwrap();
         // A cell holding the matrix alone (as a basis without lobes does), and one in the

@@ -48,8 +48,8 @@ use glam::DVec3;
 
 use super::bcsdf::{FiberConstants, LOBE_R, LOBE_TT};
 use crate::Rgb;
-use crate::bake::iirtf::LOBE_AZIMUTH_TERMS;
 use crate::bake::cs_table::OmegaOSpace;
+use crate::bake::iirtf::LOBE_AZIMUTH_TERMS;
 use crate::bake::tables::GnTable;
 use crate::special::{erf, i0e};
 
@@ -179,7 +179,7 @@ impl LobeAngles {
         Self { fourier: jackson_smoothed(longitudinal), azimuth: jackson_smoothed(azimuth) }
     }
 
-/// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
+    /// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
     #[must_use]
     pub fn longitudinal(&self, delta_theta: f64) -> f64 {
         let (s1, c1) = delta_theta.sin_cos();
@@ -222,6 +222,23 @@ pub fn lobe_tt_azimuth(azimuth: &[f64], tt_ratios: &[f64], cos_phi: f64, sin_phi
         sign = -sign;
     }
     (v / (2.0 * PI)).max(0.0)
+}
+
+impl LobeAngles {
+    /// `v(Δφ)`, the azimuthal density (see the type's docs), clamped at zero.
+    #[must_use]
+    pub fn azimuthal(&self, delta_phi: f64) -> f64 {
+        let v: f64 = self
+            .azimuth
+            .chunks_exact(2)
+            .enumerate()
+            .map(|(k, term)| {
+                let (sk, ck) = ((k + 1) as f64 * delta_phi).sin_cos();
+                term[0] * ck + term[1] * sk
+            })
+            .sum();
+        ((1.0 + 2.0 * v) / (2.0 * PI)).max(0.0)
+    }
 }
 
 /// Half-width, in the fiber lobe's standard deviations, of the θi interval
