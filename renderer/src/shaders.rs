@@ -101,8 +101,8 @@ pub fn prelude() -> String {
     // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
     {
         use twill_precompute::bake::iirtf::{
-            LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
-            TOWARD_UP_WIDTH,
+            LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS,
+            LOBE_LONGITUDINAL_AT, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, TOWARD_UP_WIDTH,
         };
         use twill_precompute::shading::gamma::{LOBE_NODES, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
@@ -111,7 +111,14 @@ pub fn prelude() -> String {
         let _ = writeln!(out, "const LOBE_FOURIER_TERMS: u32 = {LOBE_FOURIER_TERMS}u;");
         let _ = writeln!(out, "const LOBE_SHAPE_LEN: u32 = {LOBE_SHAPE_LEN}u;");
         let _ = writeln!(out, "const LOBE_PACKED_VEC4S: u32 = {}u;", LOBE_PACKED_FLOATS / 4);
-        let _ = writeln!(out, "const LOBE_AZIMUTH_TERMS: u32 = {LOBE_AZIMUTH_TERMS}u;");
+        for (name, value) in [
+            ("LOBE_AZIMUTH_TERMS", LOBE_AZIMUTH_TERMS),
+            ("LOBE_AZIMUTH_BINS", LOBE_AZIMUTH_BINS),
+            ("LOBE_AZIMUTH_TOTALS", LOBE_AZIMUTH_TOTALS),
+            ("LOBE_LONGITUDINAL_AT", LOBE_LONGITUDINAL_AT),
+        ] {
+            let _ = writeln!(out, "const {name}: u32 = {value}u;");
+        }
         #[allow(clippy::cast_possible_truncation)]
         for (name, value) in [
             ("AZIMUTH_FADE_ACROSS", twill_precompute::shading::multiple::AZIMUTH_FADE_ACROSS as f32),

@@ -727,16 +727,34 @@ fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles:
 
 // The fiber lobes around a shaded point: the cells and weights the transfer is interpolated
 // with (transfer_cells, multiple.rs lobe_scattering's cells), the cells without lobes given
-// weight 0, and both lobes' interpolated total strength and shape sums (multiple.rs FiberLobe:
-// the weighted sums of strength[0] over channels and of the shapes). The strengths over light
-// directions stay in the buffer and are read per light (fiber_lobe_strengths), so that
-// 2 x LOBE_SH_COUNT RGB coefficients need not live in every invocation's registers.
+// weight 0, and both lobes' interpolated total strength and the shapes' elevation-node totals
+// and longitudinal sums (multiple.rs FiberLobe: weighted sums of strength[0] over channels and
+// of the shapes). The strengths over light directions and the azimuthal sums per elevation
+// node stay in the buffer and are read per light (fiber_lobe_strengths, lobe_azimuth_means),
+// so that they need not live in every invocation's registers.
 struct FiberLobesAt {
     around: CellWeights,
     // Sum over channels of the interpolated strength[0]: forward (x) and reflected (y).
     total: vec2<f32>,
-    // The interpolated shape sums, forward then reflected, LOBE_SHAPE_LEN each.
-    shapes: array<f32, 2u * LOBE_SHAPE_LEN>,
+    // Per lobe (forward, then reflected) the shape's floats from LOBE_AZIMUTH_TOTALS on: the
+    // nodes' totals, then the longitudinal sums.
+    shapes: array<f32, 2u * LOBE_GATHERED>,
+}
+
+const LOBE_GATHERED: u32 = LOBE_SHAPE_LEN - LOBE_AZIMUTH_TOTALS;
+
+// Float i of the shapes of lobe cell `cell` (the forward shape's floats, then the reflected
+// shape's, as CellTransfer::pack_lobes lays them out after the strengths).
+fn lobe_shape_float(cell: u32, i: u32) -> f32 {
+    return lobes[cell * LOBE_PACKED_VEC4S + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
+}
+
+// The two elevation nodes around z and their weights (iirtf.rs elevation_hats).
+fn elevation_hats(z: f32) -> vec3<f32> {
+    let x = clamp(z, 0.0, 1.0) * f32(LOBE_AZIMUTH_BINS - 1u);
+    let lower = min(u32(floor(x)), LOBE_AZIMUTH_BINS - 2u);
+    let upper_weight = x - f32(lower);
+    return vec3<f32>(f32(lower), 1.0 - upper_weight, upper_weight);
 }
 
 // Fills `at` for the shaded point p (exemplar cm) of `segment` (multiple.rs lobe_scattering,
@@ -744,7 +762,7 @@ struct FiberLobesAt {
 fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLobesAt>) -> bool {
     (*at).around = transfer_cells(e, segment, p);
     (*at).total = vec2<f32>(0.0);
-    for (var i = 0u; i < 2u * LOBE_SHAPE_LEN; i++) {
+    for (var i = 0u; i < 2u * LOBE_GATHERED; i++) {
         (*at).shapes[i] = 0.0;
     }
     var any = false;
@@ -764,14 +782,9 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         }
         any = true;
         (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
-        let shapes = base + 2u * LOBE_SH_COUNT;
-        for (var q = 0u; q < (2u * LOBE_SHAPE_LEN + 3u) / 4u; q++) {
-            let v = lobes[shapes + q];
-            for (var c = 0u; c < 4u; c++) {
-                let i = 4u * q + c;
-                if (i < 2u * LOBE_SHAPE_LEN) {
-                    (*at).shapes[i] += w * v[c];
-                }
+        for (var lobe = 0u; lobe < 2u; lobe++) {
+            for (var i = 0u; i < LOBE_GATHERED; i++) {
+                (*at).shapes[lobe * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.cells[k], lobe * LOBE_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
             }
         }
     }
@@ -822,7 +835,7 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     if (!(total > 0.0)) {
         return false;
     }
-    let base = lobe * LOBE_SHAPE_LEN;
+    let base = lobe * LOBE_GATHERED;
     let across_vec = cross(dir, t);
     let across = dot(across_vec, across_vec);
     let fade = min(across / AZIMUTH_FADE_ACROSS, 1.0);
@@ -834,14 +847,15 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     if (sharpness >= 0.0) {
         light_ratios = bessel_i_ratios(sharpness * across);
     }
+    lobe_azimuth_means(at, lobe, dir.z, angles);
     for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
-        let scale = LOBE_AZIMUTH_JACKSON[k] * fade * light_ratios[k] / total;
-        (*angles).azimuth[2u * k] = scale * (*at).shapes[base + 2u * k];
-        (*angles).azimuth[2u * k + 1u] = scale * odd * (*at).shapes[base + 2u * k + 1u];
+        let scale = LOBE_AZIMUTH_JACKSON[k] * fade * light_ratios[k];
+        (*angles).azimuth[2u * k] *= scale;
+        (*angles).azimuth[2u * k + 1u] *= scale * odd;
     }
     // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
     // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
-    let longitudinal = base + 2u * LOBE_AZIMUTH_TERMS;
+    let longitudinal = base + LOBE_AZIMUTH_BINS;
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
         (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[longitudinal + i] / total;
     }
@@ -855,6 +869,36 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     }
     *axis = dir;
     return true;
+}
+
+// The azimuthal means of lobe `lobe` of `at` for a light at elevation z into angles.azimuth
+// (multiple.rs FiberLobe::azimuth_means): each of the two elevation nodes around z its sums
+// over the cells (read from the buffer) over its total, weighted by its hat; a node without
+// weight counts as uniform.
+fn lobe_azimuth_means(at: ptr<function, FiberLobesAt>, lobe: u32, z: f32, angles: ptr<function, LobeAngles>) {
+    for (var i = 0u; i < 2u * LOBE_AZIMUTH_TERMS; i++) {
+        (*angles).azimuth[i] = 0.0;
+    }
+    let hats = elevation_hats(z);
+    for (var side = 0u; side < 2u; side++) {
+        let node = u32(hats.x) + side;
+        let hat = select(hats.y, hats.z, side == 1u);
+        let total = (*at).shapes[lobe * LOBE_GATHERED + node];
+        if (!(total > 0.0) || !(hat > 0.0)) {
+            continue;
+        }
+        for (var k = 0u; k < 8u; k++) {
+            let w = (*at).around.weights[k];
+            if (!(w > 0.0)) {
+                continue;
+            }
+            let cell = (*at).around.cells[k];
+            let first = lobe * LOBE_SHAPE_LEN + node * 2u * LOBE_AZIMUTH_TERMS;
+            for (var i = 0u; i < 2u * LOBE_AZIMUTH_TERMS; i++) {
+                (*angles).azimuth[i] += hat * w * lobe_shape_float(cell, first + i) / total;
+            }
+        }
+    }
 }
 
 // Which way about t the fabric's up lies from dir (iirtf.rs toward_up): t . (dir x z) over

@@ -115,9 +115,11 @@ pub struct CellTransfer {
     /// Where the forward chains arrive from, against the light's direction, in the fiber frame
     /// of the segment they arrive at ([`FiberOffset`]): [`LOBE_SHAPE_LEN`] sums over the
     /// cell's paths, each weighted by the connection's forward share (summed over channels)
-    /// and divided by the paths: `cos kΔφ` and `toward_up · sin kΔφ` for k = 1..=
-    /// [`LOBE_AZIMUTH_TERMS`], then `cos kΔθ`, `sin kΔθ` for k = 1..=[`LOBE_FOURIER_TERMS`]
-    /// ([`FiberOffset::accumulate`]). Over `√(4π) Σ forward[0]`, the means the lobe is shaded with
+    /// and divided by the paths: per light-elevation node ([`LOBE_AZIMUTH_BINS`]) `cos kΔφ`
+    /// and `toward_up · sin kΔφ` for k = 1..=[`LOBE_AZIMUTH_TERMS`], then the nodes' totals,
+    /// then `cos kΔθ`, `sin kΔθ` for k = 1..=[`LOBE_FOURIER_TERMS`]
+    /// ([`FiberOffset::accumulate`]). The azimuthal sums over their node's total, and the
+    /// longitudinal ones over `√(4π) Σ forward[0]`, the means the lobe is shaded with
     /// ([`crate::shading::multiple::FiberLobe::angles`]). Empty without lobes.
     pub forward_shape: Vec<f32>,
     /// As `forward_shape`, for the reflected light.
@@ -142,10 +144,35 @@ pub const LOBE_FOURIER_TERMS: usize = 12;
 /// presets.
 pub const LOBE_AZIMUTH_TERMS: usize = 12;
 
-/// Floats of one lobe shape ([`CellTransfer::forward_shape`]): the azimuthal terms
-/// `[cos Δφ, sin Δφ, cos 2Δφ, …]` ([`LOBE_AZIMUTH_TERMS`] pairs), then the longitudinal
+/// Light elevations (`z` of the light's direction, 0 at the horizon to 1 overhead) at which a
+/// lobe keeps its azimuthal shape: evenly spaced nodes, between which the shape is
+/// interpolated linearly ([`elevation_hats`]). Where reflected light arrives from about the
+/// fiber depends on where the light stands: a raking light's comes back from the far side far
+/// more than an overhead light's (on the silk satin at 78°, a shape averaged over all light
+/// directions doubled its multiple scattering).
+pub const LOBE_AZIMUTH_BINS: usize = 5;
+
+/// The two [`LOBE_AZIMUTH_BINS`] nodes around elevation `z` (clamped to [0, 1]) and their
+/// linear interpolation weights, which sum to 1.
+#[must_use]
+pub fn elevation_hats(z: f64) -> [(usize, f64); 2] {
+    let x = z.clamp(0.0, 1.0) * (LOBE_AZIMUTH_BINS - 1) as f64;
+    let lower = (x.floor() as usize).min(LOBE_AZIMUTH_BINS - 2);
+    let upper_weight = x - lower as f64;
+    [(lower, 1.0 - upper_weight), (lower + 1, upper_weight)]
+}
+
+/// Offset, in a lobe shape, of its per-node totals ([`CellTransfer::forward_shape`]).
+pub const LOBE_AZIMUTH_TOTALS: usize = LOBE_AZIMUTH_BINS * 2 * LOBE_AZIMUTH_TERMS;
+
+/// Offset, in a lobe shape, of its longitudinal terms.
+pub const LOBE_LONGITUDINAL_AT: usize = LOBE_AZIMUTH_TOTALS + LOBE_AZIMUTH_BINS;
+
+/// Floats of one lobe shape ([`CellTransfer::forward_shape`]): per elevation node
+/// ([`LOBE_AZIMUTH_BINS`]) the azimuthal terms `[cos Δφ, sin Δφ, cos 2Δφ, …]`
+/// ([`LOBE_AZIMUTH_TERMS`] pairs), then the nodes' totals, then the longitudinal
 /// `[cos Δθ, sin Δθ, cos 2Δθ, …]` ([`LOBE_FOURIER_TERMS`] pairs).
-pub const LOBE_SHAPE_LEN: usize = 2 * LOBE_AZIMUTH_TERMS + 2 * LOBE_FOURIER_TERMS;
+pub const LOBE_SHAPE_LEN: usize = LOBE_LONGITUDINAL_AT + 2 * LOBE_FOURIER_TERMS;
 
 /// Floats of one cell's fiber lobes as the GPU reads them (`lobes` in
 /// `shaders/shared/fabric_data.wgsl`, written by [`CellTransfer::pack_lobes`]): the forward
@@ -181,6 +208,8 @@ pub struct FiberOffset {
     pub delta_phi: f64,
     /// [`toward_up`] of the light's direction: the sense in which Δφ's odd part is kept.
     pub toward_up: f64,
+    /// The light's elevation `z` (which [`LOBE_AZIMUTH_BINS`] nodes its azimuth goes to).
+    pub elevation: f64,
 }
 
 impl FiberOffset {
@@ -197,18 +226,34 @@ impl FiberOffset {
         } else {
             0.0
         };
-        Self { delta_theta: theta1 - theta0, delta_phi, toward_up: toward_up(tangent, to_light) }
+        Self {
+            delta_theta: theta1 - theta0,
+            delta_phi,
+            toward_up: toward_up(tangent, to_light),
+            elevation: to_light.z,
+        }
     }
 
     /// Adds `weight ×` this offset's shape terms (`CellTransfer::forward_shape`'s layout) to
-    /// `shape`: `cos kΔφ` and `toward_up · sin kΔφ`, then `cos kΔθ` and `sin kΔθ`.
+    /// `shape`: `cos kΔφ` and `toward_up · sin kΔφ` to the two elevation nodes around the
+    /// light's ([`elevation_hats`], each with its weight, and that weight to the node's total),
+    /// then `cos kΔθ` and `sin kΔθ`.
     pub fn accumulate(&self, weight: f64, shape: &mut [f64]) {
-        let (azimuth, longitudinal) = shape.split_at_mut(2 * LOBE_AZIMUTH_TERMS);
-        let odd = weight * self.toward_up;
-        for (k, pair) in azimuth.chunks_exact_mut(2).enumerate() {
-            let (sk, ck) = ((k + 1) as f64 * self.delta_phi).sin_cos();
-            pair[0] += weight * ck;
-            pair[1] += odd * sk;
+        let (azimuth, rest) = shape.split_at_mut(LOBE_AZIMUTH_TOTALS);
+        let (totals, longitudinal) = rest.split_at_mut(LOBE_AZIMUTH_BINS);
+        for (node, hat) in elevation_hats(self.elevation) {
+            let w = weight * hat;
+            if w == 0.0 {
+                continue;
+            }
+            totals[node] += w;
+            let odd = w * self.toward_up;
+            let terms = &mut azimuth[node * 2 * LOBE_AZIMUTH_TERMS..(node + 1) * 2 * LOBE_AZIMUTH_TERMS];
+            for (k, pair) in terms.chunks_exact_mut(2).enumerate() {
+                let (sk, ck) = ((k + 1) as f64 * self.delta_phi).sin_cos();
+                pair[0] += w * ck;
+                pair[1] += odd * sk;
+            }
         }
         let (s1, c1) = self.delta_theta.sin_cos();
         let (mut sk, mut ck) = (s1, c1);

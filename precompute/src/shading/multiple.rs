@@ -53,7 +53,8 @@ use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
 use crate::bake::iirtf::{
-    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, toward_up,
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT,
+    LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, toward_up,
 };
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
@@ -298,11 +299,30 @@ impl FiberLobe {
         self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO)
     }
 
+    /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` for a light at elevation `z`:
+    /// each elevation node's sums over its total, interpolated between the two nodes around
+    /// `z` ([`elevation_hats`]); a node without weight counts as uniform (means 0).
+    #[must_use]
+    pub fn azimuth_means(&self, z: f64) -> Vec<f64> {
+        let node_terms = 2 * LOBE_AZIMUTH_TERMS;
+        let mut out = vec![0.0; node_terms];
+        for (node, hat) in elevation_hats(z) {
+            let total = self.shape[LOBE_AZIMUTH_TOTALS + node];
+            if total > 0.0 && hat > 0.0 {
+                let sums = &self.shape[node * node_terms..(node + 1) * node_terms];
+                for (o, v) in out.iter_mut().zip(sums) {
+                    *o += hat * v / total;
+                }
+            }
+        }
+        out
+    }
+
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
     /// ξ its angles are measured from (the light's direction) and their densities
     /// ([`LobeAngles`], both series smoothed by [`LobeAngles::from_means`]), or `None` for a
     /// lobe without light. The shape's means are its sums over `√(4π) Σ strength[0]` (the
-    /// total weight). The azimuth's odd terms were kept in the sense toward the fabric's top
+    /// total weight), the azimuthal ones per light elevation ([`Self::azimuth_means`]). The azimuth's odd terms were kept in the sense toward the fabric's top
     /// ([`toward_up`]), so they turn with `toward_up(t, ξ)` here. They fade out within
     /// [`AZIMUTH_FADE_ACROSS`] of a light along the fiber. An SG light of sharpness λ widens
     /// both densities by its own spread, exactly for a von Mises–like lobe: its longitudinal
@@ -320,14 +340,12 @@ impl FiberLobe {
             Light::Sg { axis, sharpness, .. } => (axis, Some(sharpness)),
         };
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
-        let (azimuth_means, longitudinal_means) = self.shape.split_at(2 * LOBE_AZIMUTH_TERMS);
-        let longitudinal: Vec<f64> = longitudinal_means.iter().map(|v| v / total).collect();
+        let longitudinal: Vec<f64> = self.shape[LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total).collect();
+        let means = self.azimuth_means(axis.z);
         let fade = (across / AZIMUTH_FADE_ACROSS).min(1.0);
         let odd = toward_up(t, axis);
-        let azimuth: Vec<f64> = azimuth_means
-            .chunks_exact(2)
-            .flat_map(|pair| [pair[0] / total * fade, pair[1] / total * fade * odd])
-            .collect();
+        let azimuth: Vec<f64> =
+            means.chunks_exact(2).flat_map(|pair| [pair[0] * fade, pair[1] * fade * odd]).collect();
         let LobeAngles { mut fourier, mut azimuth } = LobeAngles::from_means(&longitudinal, &azimuth);
         if let Some(sharpness) = sharpness {
             for (k, term) in fourier.chunks_exact_mut(2).enumerate() {
