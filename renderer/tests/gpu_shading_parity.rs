@@ -28,7 +28,7 @@ use std::collections::HashMap;
 use glam::{DVec3, Vec3};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::iirtf::{
-    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS, LOBE_SHAPE_LEN,
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT, LOBE_PACKED_FLOATS,
 };
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
@@ -37,6 +37,7 @@ use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
 use twill_precompute::pathtrace::{Component, Light};
 use twill_precompute::scene::{Scene, SceneFile, camera_from};
 use twill_precompute::shading::gamma::{LobeAngles, lobe_quadrature};
+use twill_precompute::shading::multiple::FiberLobe;
 use twill_precompute::shading::{self, SegmentShading};
 use twill_precompute::{Rgb, sh};
 use twill_renderer::fabric_data::FabricArrays;
@@ -580,12 +581,15 @@ fn assert_has_lobes(baked: &Baked) -> usize {
     with
 }
 
+/// Floats of a quadrature case's offsets: the azimuthal means (`LobeAngles::azimuth`'s
+/// layout, before smoothing), then the longitudinal ones.
+const CASE_SHAPE_LEN: usize = 2 * LOBE_AZIMUTH_TERMS + 2 * LOBE_FOURIER_TERMS;
+
 /// Turn, in radians, of the von Mises azimuth [`quadrature_cases`] add (so that the series'
 /// odd terms count).
 const AZIMUTH_TURN: f64 = 0.3;
 
-/// A whole lobe shape (`CellTransfer::forward_shape`'s layout, over the lobe's total): no
-/// azimuthal terms, then the Fourier terms `[c_1, s_1, …]` (`LobeAngles::fourier`) of a
+/// A case's offsets ([`CASE_SHAPE_LEN`]): no azimuthal terms, then the Fourier terms `[c_1, s_1, …]` (`LobeAngles::fourier`) of a
 /// wrapped normal offset of mean `mean_deg` and deviation `sigma_deg`:
 /// `c_k + i s_k = exp(−k²σ²/2 + ikμ)`.
 fn wrapped_normal(mean_deg: f64, sigma_deg: f64) -> Vec<f32> {
@@ -607,7 +611,7 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     let two_sided: Vec<f32> =
         wrapped_normal(8.0, 3.0).iter().zip(wrapped_normal(-8.0, 3.0)).map(|(a, b)| 0.5 * (a + b)).collect();
     let mut out = vec![
-        ("uniform".to_owned(), vec![0.0; LOBE_SHAPE_LEN]),
+        ("uniform".to_owned(), vec![0.0; CASE_SHAPE_LEN]),
         ("sharp, +4° σ 1.5°".to_owned(), wrapped_normal(4.0, 1.5)),
         ("broad, −12° σ 15°".to_owned(), wrapped_normal(-12.0, 15.0)),
         ("two-sided, ±8° σ 3°".to_owned(), two_sided),
@@ -627,7 +631,15 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     ] {
         let total = lobe[0].iter().sum::<f32>() * (4.0 * std::f32::consts::PI).sqrt();
         assert!(total > 0.0, "{name}: no light");
-        out.push((name.to_owned(), shape.iter().map(|v| v / total).collect()));
+        // The azimuthal means at a light 30° above the horizon, as FiberLobe::angles takes them.
+        let cell_lobe = FiberLobe {
+            strength: lobe.iter().map(|c| Vec3::from(*c).as_dvec3()).collect(),
+            shape: shape.iter().map(|v| f64::from(*v)).collect(),
+        };
+        #[allow(clippy::cast_possible_truncation)]
+        let azimuth = cell_lobe.azimuth_means(0.5).into_iter().map(|v| v as f32);
+        let longitudinal = shape[LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total);
+        out.push((name.to_owned(), azimuth.chain(longitudinal).collect()));
     }
     out
 }
@@ -664,7 +676,7 @@ fn lobe_case_direction(code: u32, t: DVec3) -> DVec3 {
 /// WGSL for the quadrature cases: x = segment, y = κ, z = ωo code, w = axis code + OFFSET_CODE
 /// × offset (the offsets written out as WGSL arrays).
 fn quadrature_decode(offsets: &[(String, Vec<f32>)]) -> String {
-    let n = LOBE_SHAPE_LEN;
+    let n = CASE_SHAPE_LEN;
     let arrays: Vec<String> = offsets
         .iter()
         .map(|(_, terms)| {

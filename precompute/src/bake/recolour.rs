@@ -1390,7 +1390,7 @@ mod tests {
 
     use super::*;
     use crate::bake::cs_table::cs_coefficients;
-    use crate::bake::iirtf::{Iirtf, bake_iirtf};
+    use crate::bake::iirtf::{Iirtf, LOBE_AZIMUTH_BINS, LOBE_LONGITUDINAL_AT, bake_iirtf};
     use crate::bake::no_progress;
     use crate::bake::pipeline::tests::tiny;
     use crate::bake::pipeline::{BakeInputs, yarn_materials};
@@ -1982,10 +1982,13 @@ mod tests {
         "forward strength",
         "forward cosine",
         "reflected strength",
-        "forward shape cos Δφ",
-        "reflected shape cos Δφ",
+        "forward shape cos Δφ (middle elevation node)",
+        "reflected shape cos Δφ (middle elevation node)",
         "reflected shape cos Δθ",
     ];
+
+    /// The shape entry of `cos Δφ` at the middle light-elevation node.
+    const MIDDLE_COS_PHI: usize = LOBE_AZIMUTH_BINS / 2 * 2 * super::super::iirtf::LOBE_AZIMUTH_TERMS;
 
     /// A kept cell's [`LOBE_TOTALS`] terms.
     fn lobe_terms(c: &super::super::iirtf::CellTransfer) -> [f64; 6] {
@@ -1993,9 +1996,9 @@ mod tests {
             c.forward[0][0],
             c.forward_cosine[0],
             c.reflected[0][0],
-            c.forward_shape[0],
-            c.reflected_shape[0],
-            c.reflected_shape[1],
+            c.forward_shape[MIDDLE_COS_PHI],
+            c.reflected_shape[MIDDLE_COS_PHI],
+            c.reflected_shape[LOBE_LONGITUDINAL_AT],
         ]
         .map(f64::from)
     }
@@ -2016,9 +2019,9 @@ mod tests {
             (layout.forward().start, 1.0),
             (layout.cosine(), 1.0),
             (layout.reflected().start, 1.0),
-            (layout.forward_shape().start, 3.0),
-            (layout.reflected_shape().start, 3.0),
-            (layout.reflected_shape().start + 1, 3.0),
+            (layout.forward_shape().start + MIDDLE_COS_PHI, 3.0),
+            (layout.reflected_shape().start + MIDDLE_COS_PHI, 3.0),
+            (layout.reflected_shape().start + LOBE_LONGITUDINAL_AT, 3.0),
         ];
         let mut variance = [0.0; 6];
         for (c, cell) in basis.cells.iter().enumerate() {
@@ -2084,9 +2087,9 @@ mod tests {
                     x[0] += share.x * Y00;
                     x[1] += share.x * to_light.dot(sample.view);
                     x[2] += rest.x * Y00;
-                    x[3] += share.element_sum() * terms[0];
-                    x[4] += rest.element_sum() * terms[0];
-                    x[5] += rest.element_sum() * terms[1];
+                    x[3] += share.element_sum() * terms[MIDDLE_COS_PHI];
+                    x[4] += rest.element_sum() * terms[MIDDLE_COS_PHI];
+                    x[5] += rest.element_sum() * terms[LOBE_LONGITUDINAL_AT];
                 }
                 for i in 0..6 {
                     sum[i] += x[i];

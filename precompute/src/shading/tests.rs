@@ -486,6 +486,39 @@ fn shading_lobe_quadrature_matches_brute_force_integration() {
 }
 
 #[test]
+fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nodes() {
+    use crate::bake::iirtf::{FiberOffset, LOBE_AZIMUTH_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats};
+    use crate::shading::multiple::FiberLobe;
+    // The hats: two nodes, weights summing to one, exact at the nodes, clamped outside [0, 1].
+    for z in [-0.3, 0.0, 0.1, 0.25, 0.6, 0.999, 1.0, 1.7] {
+        let [(a, wa), (b, wb)] = elevation_hats(z);
+        assert!(
+            b == a + 1 && b < LOBE_AZIMUTH_BINS && (wa + wb - 1.0).abs() < 1e-15 && wa >= 0.0 && wb >= 0.0,
+            "{z}"
+        );
+        let at = (a as f64 * wa + b as f64 * wb) / (LOBE_AZIMUTH_BINS - 1) as f64;
+        assert!((at - z.clamp(0.0, 1.0)).abs() < 1e-12, "{z}: {at}");
+    }
+    // A low light whose light arrives from the far side (Δφ = π) and a high one whose arrives
+    // from its own azimuth (Δφ = 0): each node holds its own, and between them the means blend
+    // linearly, so neither light sees the other's shape.
+    let t = DVec3::X;
+    let mut shape = vec![0.0; LOBE_SHAPE_LEN];
+    let low = DVec3::new(0.0, 1.0, 0.0).normalize(); // z = 0: node 0
+    let high = DVec3::new(0.0, 0.0, 1.0); // z = 1: the last node
+    let mirrored = |w: DVec3| 2.0 * w.dot(t) * t - w;
+    FiberOffset::new(t, low, mirrored(low)).accumulate(2.0, &mut shape);
+    FiberOffset::new(t, high, high).accumulate(1.0, &mut shape);
+    let lobe = FiberLobe { strength: vec![Rgb::splat(1.0); crate::sh::sh_count(LOBE_SH_ORDER)], shape };
+    assert!((lobe.azimuth_means(0.0)[0] + 1.0).abs() < 1e-12);
+    assert!((lobe.azimuth_means(1.0)[0] - 1.0).abs() < 1e-12);
+    // Between: a node without weight counts as uniform, so half way along a hat that runs
+    // from the horizon node to an empty one, the mean is half the horizon's.
+    let quarter = 1.0 / (LOBE_AZIMUTH_BINS - 1) as f64;
+    assert!((lobe.azimuth_means(0.5 * quarter)[0] + 0.5).abs() < 1e-12);
+}
+
+#[test]
 fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() {
     use crate::bake::iirtf::FiberOffset;
     // The density the bake's sums describe: accumulate offsets drawn on a grid into a shape
@@ -502,9 +535,18 @@ fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() 
         offset.accumulate(weight, &mut shape);
         total += weight;
     }
-    let mean_cos = shape[0] / total;
-    assert!((mean_cos - 1.0_f64.cos()).abs() < 1e-12, "{mean_cos}");
-    let means: Vec<f64> = shape[2 * LOBE_AZIMUTH_TERMS..].iter().map(|v| v / total).collect();
+    // Every offset's light is at one elevation: its nodes' means are the offset's.
+    let lobe = crate::shading::multiple::FiberLobe {
+        strength: vec![
+            Rgb::splat(total / 3.0 / (4.0 * PI).sqrt());
+            crate::sh::sh_count(crate::bake::iirtf::LOBE_SH_ORDER)
+        ],
+        shape: shape.clone(),
+    };
+    let azimuth = lobe.azimuth_means(frame.direction(0.2, 0.1).z);
+    assert!((azimuth[0] - 1.0_f64.cos()).abs() < 1e-12, "{azimuth:?}");
+    let means: Vec<f64> =
+        shape[crate::bake::iirtf::LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total).collect();
     let uniform = vec![0.0; 2 * LOBE_AZIMUTH_TERMS];
     // Cut at 12 terms the raw series of this 4.6° wide offset rings below zero; smoothed, it is
     // a density (no clamp acts, so it integrates to one).
