@@ -650,8 +650,8 @@ const OFFSET_CODE: u32 = 4096;
 
 /// More direction codes for the quadrature cases, beyond [`direction_of`]'s: 1006 / 1007 =
 /// ±t tilted 1e-3 toward +z (an axis nearly along the fiber), 1008 / 1009 = ±85° from the
-/// fiber's normal plane (grazing θo), 2000 + k = Fibonacci point k mirrored across t (what
-/// `FiberLobe::angles` does to the axis of a lobe whose mean cos Δφ is negative). f32 as the
+/// fiber's normal plane (grazing θo), 2000 + k = Fibonacci point k mirrored across t (an axis
+/// on the far side of the fiber from the view). f32 as the
 /// WGSL twin (`lobe_case_direction`).
 fn lobe_case_direction(code: u32, t: DVec3) -> DVec3 {
     let tf = t.as_vec3();
@@ -691,8 +691,8 @@ fn lobe_case_offset(index: u32, kappa: f32, angles: ptr<function, LobeAngles>) {
     let ratios = bessel_i_ratios(kappa);
     for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {{
         let turn = f32(k + 1u) * {turn:?};
-        (*angles).azimuth[2u * k] = offsets[index][2u * k] + ratios[k] * cos(turn);
-        (*angles).azimuth[2u * k + 1u] = offsets[index][2u * k + 1u] + ratios[k] * sin(turn);
+        (*angles).azimuth[2u * k] = 0.5 * (offsets[index][2u * k] + ratios[k] * cos(turn));
+        (*angles).azimuth[2u * k + 1u] = 0.5 * (offsets[index][2u * k + 1u] + ratios[k] * sin(turn));
     }}
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {{
         (*angles).fourier[i] = offsets[index][2u * LOBE_AZIMUTH_TERMS + i];
@@ -735,7 +735,8 @@ fn quadrature_case(input: vec4<f32>) -> vec4<f32> {{
 }
 
 /// The quadrature cases: the grid's segments, κ 0, 0.5, 5 and 50 (a von Mises azimuth turned
-/// [`AZIMUTH_TURN`] from the axis, added to the offset's own azimuthal terms), view directions over the sphere with ±t and ±85° (grazing
+/// [`AZIMUTH_TURN`] from the axis, mixed half and half with the offset's own azimuth: a
+/// density, as the bake's means describe one), view directions over the sphere with ±t and ±85° (grazing
 /// θo), axes over the sphere, mirrored across t, nearly along ±t, along ±t (with κ = 0) and
 /// near the normal, every offset distribution.
 fn quadrature_cases(baked: &Baked, offsets: usize) -> Vec<Case> {
@@ -818,8 +819,11 @@ fn relative_parity(
 }
 
 /// Worst relative error the WGSL `lobe_quadrature` may make against its f64 twin, per case.
-/// Measured 2026-11-26 on lavapipe (the Gauss–Legendre rule): 5.4e-4 (the cotton's fibers, the
-/// silk's reflected shape), 2.4e-4 on the silk's, 0.6e-4 to 5.4e-4 per offset distribution.
+/// Measured 2026-11-27 on lavapipe (the Gauss–Legendre rule, the azimuthal series against the
+/// WGSL Bessel ratios): 3.5e-4 (the cotton's fibers, the silk's forward shape), 2.4e-4 on the
+/// silk's, 0.3e-4 to 3.5e-4 per offset distribution. Adding the von Mises to the offsets'
+/// azimuth instead of mixing it in (a series that is no density, rising above 1 in its mean
+/// cosine and clamped at zero) had reached 4.4e-3 where the sum cancels.
 /// That is the f64 function's own conditioning, not the shader's arithmetic: moving t, ωo or ξ
 /// by 1e-7 (f32 rounding) moves the f64 values by up to 9.5e-4 (an axis 1e-3 off t with κ 50;
 /// grazing views through the 1° R lobe's Gn).
@@ -873,7 +877,7 @@ fn lobe_quadrature_matches_its_rust_twin() {
                     .enumerate()
                     .flat_map(|(k, (pair, rho))| {
                         let (sk, ck) = ((k + 1) as f64 * turn).sin_cos();
-                        [pair[0] + rho * ck, pair[1] + rho * sk]
+                        [0.5 * (pair[0] + rho * ck), 0.5 * (pair[1] + rho * sk)]
                     })
                     .collect();
                 let angles = LobeAngles { fourier: fourier.to_vec(), azimuth };
