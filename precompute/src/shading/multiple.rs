@@ -321,10 +321,11 @@ impl FiberLobe {
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
     /// ξ its angles are measured from (the light's direction) and their densities
     /// ([`LobeAngles`], both series smoothed by [`LobeAngles::from_means`]), or `None` for a
-    /// lobe without light. The shape's means are its sums over `√(4π) Σ strength[0]` (the
-    /// total weight), the azimuthal ones per light elevation ([`Self::azimuth_means`]). The azimuth's odd terms were kept in the sense toward the fabric's top
-    /// ([`toward_up`]), so they turn with `toward_up(t, ξ)` here. They fade out within
-    /// [`AZIMUTH_FADE_ACROSS`] of a light along the fiber. An SG light of sharpness λ widens
+    /// lobe without light. The longitudinal means are the shape's sums over `√(4π) Σ
+    /// strength[0]` (the total weight), the azimuthal ones are taken per light elevation
+    /// ([`Self::azimuth_means`]). The azimuth's odd terms were kept in the sense toward the
+    /// fabric's top ([`toward_up`]), so they turn with `toward_up(t, ξ)` here; all of its terms
+    /// fade out within [`AZIMUTH_FADE_ACROSS`] of a light along the fiber. An SG light of sharpness λ widens
     /// both densities by its own spread, exactly for a von Mises–like lobe: its longitudinal
     /// variance 1/λ multiplies the longitudinal terms by `exp(−k²/2λ)`, and its azimuthal
     /// concentration about t, `κ_l = λ (1 − (ξ·t)²)`, multiplies the azimuthal ones by
