@@ -121,7 +121,7 @@ pub const BESSEL_RATIO_DEPTH: usize = 40;
 /// [`BESSEL_RATIO_DEPTH`] terms above the last (Miller's algorithm in ratio form: no overflow)
 /// and multiplied up; above [`BESSEL_RATIO_GAUSSIAN_ABOVE`] the continued fraction would need
 /// a depth of order √κ, and `exp(−k²/2κ)` is accurate there instead. WGSL twin
-/// `bessel_i_ratios` (shaders/shared/special.wgsl).
+/// `bessel_i_ratios` (shaders/shared/shading.wgsl, beside the fiber lobes that use it).
 pub fn bessel_i_ratios(kappa: f64, out: &mut [f64]) {
     if kappa.is_nan() || kappa <= 0.0 {
         out.fill(0.0);

@@ -725,7 +725,8 @@ fn quadrature_case(input: vec4<f32>) -> vec4<f32> {{
     let t = case_t(input);
     let space = omega_o_space(t, lobe_case_direction(u32(input.z), t));
     let axis = lobe_case_direction(code % {OFFSET_CODE}u, t);
-    return vec4<f32>(lobe_quadrature(fiber_constants(s.material), space, axis, &angles), 0.0);
+    let f = fiber_constants(s.material);
+    return vec4<f32>(lobe_quadrature(f, bessel_i_ratios(f.kappa), space, axis, &angles), 0.0);
 }}
 ",
         count = offsets.len(),

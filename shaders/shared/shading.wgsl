@@ -677,12 +677,14 @@ fn lobe_longitudinal(angles: ptr<function, LobeAngles>, delta_theta: f32) -> f32
 // int L(wi) S(wi, wo) cos(theta_i) dwi for the unit lobe `angles` about unit xi, per RGB channel
 // (gamma.rs lobe_quadrature). The phi_i integrals are exact for the series: S_R's azimuth is
 // uniform (1 / 2 pi against v); S_TT's von Mises about phi = pi convolved with v is
-// lobe_tt_azimuth at phi_o - phi' (in omega_o-space, -phi'). The theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
+// lobe_tt_azimuth at phi_o - phi' (in omega_o-space, -phi'), with tt_ratios the fiber's
+// bessel_i_ratios(kappa_TT) (FiberConstants::tt_ratios, which the caller computes once). The
+// theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
 // the lobe's Gaussian exp(-lambda_X (theta_i + theta_o)^2) out to LOBE_WINDOW deviations either
 // side, clipped to [-pi/2, pi/2], with p, cos(theta_i), Gn and Fresnel exact at each node. The
 // interval is held in the offset theta_i + theta_o (the twin's theta_i minus its centre), which
 // f32 keeps exact where the window is not clipped.
-fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
+fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
     let axis = sg_axis_in_omega_o_space(space, xi);
     var cos_phi = 1.0;
     var sin_phi = 0.0;
@@ -690,7 +692,7 @@ fn lobe_quadrature(f: FiberConstants, space: OmegaOSpace, xi: vec3<f32>, angles:
         cos_phi = dot(space.b, xi) / axis.h;
         sin_phi = -dot(space.c, xi) / axis.h;
     }
-    let tt_azimuth = lobe_tt_azimuth(angles, bessel_i_ratios(f.kappa), cos_phi, sin_phi);
+    let tt_azimuth = lobe_tt_azimuth(angles, tt_ratios, cos_phi, sin_phi);
     var nodes = LOBE_LEGENDRE_NODES;
     var weights = LOBE_LEGENDRE_WEIGHTS;
     var out = vec3<f32>(0.0);
@@ -920,6 +922,8 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
     let t = normalize(s.direction);
     let f = fiber_constants(s.material);
     let space = omega_o_space(t, wo);
+    // The TT lobe's azimuthal Fourier coefficients, once for both lobes (FiberConstants::tt_ratios).
+    let tt_ratios = bessel_i_ratios(f.kappa);
     var out = vec3<f32>(0.0);
     for (var lobe = 0u; lobe < 2u; lobe++) {
         let strength = max(strengths[lobe], vec3<f32>(0.0));
@@ -929,7 +933,7 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
         var axis: vec3<f32>;
         var angles: LobeAngles;
         if (fiber_lobe_angles(at, lobe, dir, sharpness, t, &axis, &angles)) {
-            out += strength * lobe_quadrature(f, space, axis, &angles);
+            out += strength * lobe_quadrature(f, tt_ratios, space, axis, &angles);
         }
     }
     return out;

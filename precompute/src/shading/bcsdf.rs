@@ -24,10 +24,11 @@ use glam::DVec3;
 
 use crate::Rgb;
 use crate::bake::cs_table::AZIMUTH_MIN_PERP;
+use crate::bake::iirtf::LOBE_AZIMUTH_TERMS;
 use crate::bake::tables::GnTable;
 use crate::bcsdf::{BETA_RANGE_DEG, FiberParams, GAMMA_RANGE_DEG};
 use crate::params::{ParamError, check_range, check_rgb};
-use crate::special::i0e;
+use crate::special::{bessel_i_ratios, i0e};
 
 /// Gn table lobe index of the R lobe.
 pub const LOBE_R: usize = 0;
@@ -47,6 +48,10 @@ pub struct FiberConstants {
     pub kappa: f64,
     /// `i0e(κ) = e^{−κ} I0(κ)`.
     pub i0e_kappa: f64,
+    /// `I_k(κ)/I_0(κ)` for k = 1..=[`LOBE_AZIMUTH_TERMS`]: the TT lobe's azimuthal Fourier
+    /// coefficients, which the fiber lobes' azimuth is convolved with
+    /// ([`super::gamma::lobe_tt_azimuth`]).
+    pub tt_ratios: [f64; LOBE_AZIMUTH_TERMS],
     /// Material slot: the row of the Gn table (and the index of the C_S table).
     pub material: usize,
 }
@@ -63,6 +68,8 @@ impl FiberConstants {
         let (glo, ghi) = GAMMA_RANGE_DEG;
         let gamma = check_range("gamma_tt_deg", params.gamma_tt_deg, glo, ghi)?.to_radians();
         let kappa = 1.0 / (gamma * gamma);
+        let mut tt_ratios = [0.0; LOBE_AZIMUTH_TERMS];
+        bessel_i_ratios(kappa, &mut tt_ratios);
         Ok(Self {
             c_r,
             c_tt,
@@ -70,6 +77,7 @@ impl FiberConstants {
             lambda_tt: 0.5 / (beta_tt * beta_tt),
             kappa,
             i0e_kappa: i0e(kappa),
+            tt_ratios,
             material,
         })
     }

@@ -49,7 +49,6 @@ use glam::DVec3;
 use super::bcsdf::{FiberConstants, LOBE_R, LOBE_TT};
 use crate::Rgb;
 use crate::bake::cs_table::OmegaOSpace;
-use crate::bake::iirtf::LOBE_AZIMUTH_TERMS;
 use crate::bake::tables::GnTable;
 use crate::special::{erf, i0e};
 
@@ -182,15 +181,27 @@ impl LobeAngles {
     /// `p(Δθ)`, the longitudinal density (see the type's docs), clamped at zero.
     #[must_use]
     pub fn longitudinal(&self, delta_theta: f64) -> f64 {
-        let (s1, c1) = delta_theta.sin_cos();
-        let (mut sk, mut ck) = (s1, c1);
-        let mut v = 1.0;
-        for term in self.fourier.chunks_exact(2) {
-            v += 2.0 * (term[0] * ck + term[1] * sk);
-            (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
-        }
-        (v / (2.0 * PI)).max(0.0)
+        fourier_density(&self.fourier, delta_theta)
     }
+
+    /// `v(Δφ)`, the azimuthal density (see the type's docs), clamped at zero.
+    #[must_use]
+    pub fn azimuthal(&self, delta_phi: f64) -> f64 {
+        fourier_density(&self.azimuth, delta_phi)
+    }
+}
+
+/// `(1 + 2 Σ_k c_k cos kx + s_k sin kx) / 2π` for `series = [c_1, s_1, c_2, s_2, …]`, clamped
+/// at zero: cos kx and sin kx by the rotation recurrence.
+fn fourier_density(series: &[f64], x: f64) -> f64 {
+    let (s1, c1) = x.sin_cos();
+    let (mut sk, mut ck) = (s1, c1);
+    let mut v = 1.0;
+    for term in series.chunks_exact(2) {
+        v += 2.0 * (term[0] * ck + term[1] * sk);
+        (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+    }
+    (v / (2.0 * PI)).max(0.0)
 }
 
 /// `[c_1, s_1, c_2, s_2, …]` with pair k multiplied by Jackson's factor of term k.
@@ -224,23 +235,6 @@ pub fn lobe_tt_azimuth(azimuth: &[f64], tt_ratios: &[f64], cos_phi: f64, sin_phi
     (v / (2.0 * PI)).max(0.0)
 }
 
-impl LobeAngles {
-    /// `v(Δφ)`, the azimuthal density (see the type's docs), clamped at zero.
-    #[must_use]
-    pub fn azimuthal(&self, delta_phi: f64) -> f64 {
-        let v: f64 = self
-            .azimuth
-            .chunks_exact(2)
-            .enumerate()
-            .map(|(k, term)| {
-                let (sk, ck) = ((k + 1) as f64 * delta_phi).sin_cos();
-                term[0] * ck + term[1] * sk
-            })
-            .sum();
-        ((1.0 + 2.0 * v) / (2.0 * PI)).max(0.0)
-    }
-}
-
 /// Half-width, in the fiber lobe's standard deviations, of the θi interval
 /// [`lobe_quadrature`] integrates over (the Gaussian is e^{−12.5} of its peak there).
 pub const LOBE_WINDOW: f64 = 5.0;
@@ -267,8 +261,9 @@ pub fn jackson_factor(k: usize, terms: usize) -> f64 {
 /// `∫ L(ωi) S(ωi, ωo) cos θi dωi` for the unit lobe `angles` about unit `xi` ([`LobeAngles`]),
 /// per RGB channel: unit tangent `t`, unit view direction `wo`. The φi integrals are exact
 /// for the series: S_R's azimuth is uniform, so its integral against `v` is `1/2π`; S_TT's
-/// von Mises about φ = π convolved with `v` is [`lobe_tt_azimuth`] at `φo − φ'`. The θi integral, per lobe
-/// X, is a [`LOBE_NODES`]-point Gauss–Legendre rule over the lobe's own Gaussian
+/// von Mises about φ = π convolved with `v` is [`lobe_tt_azimuth`] at `φo − φ'`, with the
+/// fiber's own ratios (`FiberConstants::tt_ratios`, computed once per material). The θi
+/// integral, per lobe X, is a [`LOBE_NODES`]-point Gauss–Legendre rule over the lobe's own Gaussian
 /// `exp(−λ_X (θi + θo)²)` within [`LOBE_WINDOW`] standard deviations, clipped to [−π/2, π/2]
 /// (a Gauss–Hermite rule lost its nodes past the pole at grazing views: 12% off on the
 /// fleece), with `p`, `cos θi`, Gn and Fresnel exact at each node. Finite and non-negative for
@@ -283,12 +278,10 @@ pub fn lobe_quadrature(
     wo: DVec3,
 ) -> Rgb {
     let axis = AxisInOmegaOSpace::new(t, wo, xi);
-    let mut tt_ratios = [0.0; LOBE_AZIMUTH_TERMS];
-    crate::special::bessel_i_ratios(fiber.kappa, &mut tt_ratios);
     // φo − φ': in ωo-space ξ's azimuth is measured from ωo's, so Φ = −φ'.
     let (cos_phi, sin_phi) =
         if axis.cos_theta > 0.0 { (axis.b / axis.cos_theta, -axis.c / axis.cos_theta) } else { (1.0, 0.0) };
-    let tt_azimuth = lobe_tt_azimuth(&angles.azimuth, &tt_ratios, cos_phi, sin_phi);
+    let tt_azimuth = lobe_tt_azimuth(&angles.azimuth, &fiber.tt_ratios, cos_phi, sin_phi);
     let mut out = Rgb::ZERO;
     for (lobe, lambda_lobe) in [(LOBE_R, fiber.lambda_r), (LOBE_TT, fiber.lambda_tt)] {
         // The lobe's Gaussian exp(−λ_X (θi + θo)²) over ±LOBE_WINDOW standard deviations,
