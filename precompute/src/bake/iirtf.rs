@@ -12,7 +12,10 @@
 //! ([`path_strata`]: randomly shifted low-discrepancy sequences), and walks from μ_k or its
 //! exposed start (in the
 //! central copy of the fabric tiled over the whole plane, no ground) toward ω1, ignoring k's
-//! own fiber on the first ray ([`TransferSampler::sample`]). At each fiber event it draws a
+//! own fiber on the first ray ([`TransferSampler::sample`]), choosing and sampling each event's
+//! lobe without the colours and weighing the path at the materials' colours afterwards (the
+//! colour-free walk the recolouring basis differentiates, so a bake and a live recolouring share
+//! their paths). At each fiber event it draws a
 //! light direction ω0 from that fiber's scattering function and casts a shadow ray; ω0 counts
 //! if it lies in the light domain (the upper hemisphere, as in the paper: T is zero for light
 //! from below;
@@ -511,9 +514,11 @@ pub struct TransferSample {
     /// light sample ω0 lies in the light domain and reaches the fiber; the path's estimate of
     /// `∫ T(ω0, ω1) f(ω0) dω0 / p(ω1)` for any f is `Σ weight · f(ω0)`.
     pub lights: Vec<(DVec3, Rgb)>,
-    /// Per entry of `lights`, the forward chains' share of its weight (the TT lobe's share of
-    /// every event's scattering on the way, [`TransferPart::ForwardChains`]) before the
-    /// sampler's part is taken.
+    /// Per entry of `lights`, the forward chains' share of its weight before the sampler's
+    /// part is taken ([`TransferPart::ForwardChains`]): all of it when the connection and every
+    /// continuation before it took a fiber's TT lobe ([`ColourFreeSample::forward`]), none
+    /// otherwise. The walk chooses lobes as a one-sample estimator, so the expected share is
+    /// the TT lobe's share of every event's scattering on the way.
     pub forward: Vec<Rgb>,
     pub segment: u32,
 }
@@ -525,6 +530,11 @@ pub struct TransferSampler {
     yarn_materials: Vec<Material>,
     /// Material slot of each yarn (`Yarn::material`), for the colour-free walk.
     yarn_slots: Vec<u32>,
+    /// Material slots (one above the largest of `yarn_slots`).
+    slot_count: usize,
+    /// The colours of each yarn's material ([`Material::colour_variables`]: τ and C_R), at
+    /// which [`Self::sample`] weighs the colour-free walk.
+    yarn_colours: Vec<(Rgb, Rgb)>,
     midpoints: Vec<DVec3>,
     /// Unit tangent of each segment (the fiber frame [`FiberOffset`] is taken in).
     tangents: Vec<DVec3>,
@@ -567,6 +577,8 @@ impl TransferSampler {
             exposed_starts: false,
             yarn_materials: yarn_materials.to_vec(),
             yarn_slots: exemplar.yarns.iter().map(|y| y.material).collect(),
+            slot_count: exemplar.yarns.iter().map(|y| y.material as usize + 1).max().unwrap_or(0),
+            yarn_colours: yarn_materials.iter().map(Material::colour_variables).collect(),
             midpoints,
             fibers: fiber_ids,
             light_domain,
@@ -684,78 +696,42 @@ impl TransferSampler {
         }
     }
 
-    /// Path `path` of a cell with segments `cell_segments` (nonempty), from stream `stream`.
+    /// Path `path` of a cell with segments `cell_segments` (nonempty), from stream `stream`:
+    /// the colour-free walk ([`Self::sample_colour_free`]) weighed exactly at the sampler's own
+    /// materials' colours.
     ///
     /// The path leaves μ_k toward a uniform ω1 (pdf 1/4π, the segment's own fiber ignored on
-    /// the first ray) and walks the fabric as the path tracer does (fiber scattering sampled
-    /// for each continuation, Russian roulette by throughput from the fourth event). At every
+    /// the first ray) and walks the fabric (each continuation's lobe chosen and sampled without
+    /// the colours, Russian roulette on the colour-free weight from the fourth event). At every
     /// fiber event it draws its own light direction ω0 from that fiber's scattering function
-    /// (the density the event weighs light with) and casts a shadow ray: the event's
-    /// contribution is `throughput · S cos θ0 / p(ω0)` where the ray escapes and ω0 is in the
-    /// domain. The paper instead draws one uniform ω0 per path; the fiber lobes are narrow, so
-    /// a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's image mean
-    /// moved by ±8% between seeds). With [`Self::with_part`], only that part's connections
+    /// (lobe widths only, the density the event weighs light with) and casts a shadow ray: the
+    /// event's contribution is `throughput · S cos θ0 / p(ω0)` where the ray escapes and ω0 is
+    /// in the domain. The paper instead draws one uniform ω0 per path; the fiber lobes are
+    /// narrow, so a uniform ω0 rarely lands in them and the matrices were noisy (a draft bake's
+    /// image mean moved by ±8% between seeds).
+    ///
+    /// Why the colour-free walk: the recolouring basis (`bake::recolour`) walks the same paths
+    /// and differentiates them in the colours, so a bake and a live recolouring at the same
+    /// colours differ by the basis's approximation alone, not by two draws of the transfer's
+    /// noise (which moved a recoloured picture's mean by up to 6% against its rebake when the
+    /// bake walked with its colours). With [`Self::with_part`], only that part's connections
     /// are kept (the same paths and random numbers either way).
     #[must_use]
     pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
-        let strata = path_strata(stream, path);
-        let mut rng = pixel_rng(stream, path);
-        let (k, view, mut hit) = self.first_hit(cell_segments, &strata, &mut rng);
-        let inv_p1 = 4.0 * std::f64::consts::PI;
-        let mut lights = Vec::new();
-        let mut forward_shares = Vec::new();
-        let fibers = &self.scene;
-        let mut dir = view;
-        let mut throughput = Rgb::ONE;
-        // The TT lobe's share of `throughput` (TransferPart::ForwardChains).
-        let mut forward = Rgb::ONE;
-        for event in 1..=MAX_DEPTH {
-            let Some(h) = hit else { break };
-            let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
-            let material = &self.yarn_materials[h.yarn as usize];
-            let wo = -dir;
-            let u_light = light_uniforms(event, &strata, &mut rng);
-            let kept = self.part == TransferPart::All || {
-                let lobe = match material {
-                    Material::Fiber(f) if event == 1 => f.sampled_lobe(t, wo, u_light),
-                    _ => None,
-                };
-                self.part.holds(event, lobe)
-            };
-            if kept
-                && let Some((to_light, pdf)) = material.sample(t, n, wo, u_light)
-                && self.in_domain(to_light)
-            {
-                let f = material.eval_cos(t, n, to_light, wo);
-                if f != Rgb::ZERO
-                    && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber))
-                {
-                    let scale = inv_p1 / pdf;
-                    let share = forward * material.eval_cos_tt(t, to_light, wo) * scale;
-                    lights.push((to_light, self.part.share(throughput * f * scale, share)));
-                    forward_shares.push(share);
-                }
+        let mut walk = ColourFreeSample::default();
+        self.sample_colour_free(cell_segments, stream, path, self.slot_count, &mut walk);
+        let mut lights = Vec::with_capacity(walk.lights.len());
+        let mut forward_shares = Vec::with_capacity(walk.lights.len());
+        for (((&(to_light, _, _), &all), &(event, lobe)), &forward) in
+            walk.lights.iter().zip(&walk.own).zip(&walk.event_lobe).zip(&walk.forward)
+        {
+            if self.part.holds(event, lobe) {
+                let share = if forward { all } else { Rgb::ZERO };
+                lights.push((to_light, self.part.share(all, share)));
+                forward_shares.push(share);
             }
-            let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
-            else {
-                break;
-            };
-            let f = material.eval_cos(t, n, wi, wo);
-            if f == Rgb::ZERO || !(pdf > 0.0 && pdf.is_finite()) {
-                break;
-            }
-            throughput *= f / pdf;
-            forward *= material.eval_cos_tt(t, wi, wo) / pdf;
-            dir = wi;
-            hit = fibers.closest_hit(position.as_vec3(), wi.as_vec3(), f32::INFINITY, Some(h.fiber));
-            let before = throughput.max_element();
-            if !russian_roulette(event, &mut throughput, &mut rng) {
-                break;
-            }
-            // Roulette divides the whole throughput by its survival; the share goes with it.
-            forward *= throughput.max_element() / before;
         }
-        TransferSample { view, lights, forward: forward_shares, segment: k }
+        TransferSample { view: walk.view, lights, forward: forward_shares, segment: walk.segment }
     }
 }
 
@@ -782,6 +758,14 @@ pub struct ColourFreeSample {
     /// share [`TransferSampler::sample`] splits off exactly, at any colours: a forward chain's
     /// colour factors are its τ's alone.
     pub forward: Vec<bool>,
+    /// Per light connection, its weight at the sampler's own materials' colours, exactly: the
+    /// colour-free weight times τ per TT event and `(C_R + (1 − C_R) m) / (C_R,0 + (1 − C_R,0) m)`
+    /// per R event, each at its yarn's colours (what [`TransferSampler::sample`] keeps).
+    pub own: Vec<Rgb>,
+    /// Per light connection, the event it was made at (1 = the path's first fiber event) and
+    /// the lobe its light direction was drawn from (`None` on a Lambertian surface), what
+    /// [`TransferPart`] sorts connections by.
+    pub event_lobe: Vec<(u32, Option<Lobe>)>,
     /// The segment k the path starts at (as [`TransferSample::segment`]): its tangent is the
     /// fiber frame of the lobes' shapes ([`FiberOffset`]).
     pub segment: u32,
@@ -813,6 +797,8 @@ impl TransferSampler {
         out.tt_events.clear();
         out.r_log_derivative.clear();
         out.forward.clear();
+        out.own.clear();
+        out.event_lobe.clear();
         out.slots = slots;
         let strata = path_strata(stream, path);
         let mut rng = pixel_rng(stream, path);
@@ -826,14 +812,20 @@ impl TransferSampler {
         let mut tt_total = 0_u32;
         let mut tt_events = vec![0_u32; slots];
         let mut r_log = vec![0.0_f64; slots];
+        // The weight's colour factors at the sampler's own colours (ColourFreeSample::own).
+        let mut own = Rgb::ONE;
         // Whether every continuation so far was a fiber's TT lobe (ColourFreeSample::forward).
         let mut chain = true;
         let r0 = COLOUR_FREE_C_R;
+        // An R event's colour factor at the yarn's C_R over the walk's.
+        let r_ratio =
+            |c_r: Rgb, schlick: f64| (c_r + (Rgb::ONE - c_r) * schlick) / (r0 + (1.0 - r0) * schlick);
         for event in 1..=MAX_DEPTH {
             let Some(h) = hit else { break };
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
             let material = &self.yarn_materials[h.yarn as usize];
             let slot = self.yarn_slots[h.yarn as usize] as usize;
+            let (tau, c_r) = self.yarn_colours[h.yarn as usize];
             let wo = -dir;
             let u_light = light_uniforms(event, &strata, &mut rng);
             if let Some(e) = material.sample_colour_free(t, n, wo, u_light)
@@ -843,19 +835,21 @@ impl TransferSampler {
                 let at = out.lights.len() * slots;
                 out.tt_events.extend_from_slice(&tt_events);
                 out.r_log_derivative.extend_from_slice(&r_log);
-                let light_weight = match e.lobe {
+                let (light_weight, colours) = match e.lobe {
                     Lobe::Tt => {
                         out.tt_events[at + slot] += 1;
-                        weight * e.weight * inv_p1
+                        (weight * e.weight * inv_p1, tau)
                     }
                     Lobe::R => {
                         let rho = r0 + (1.0 - r0) * e.schlick;
                         out.r_log_derivative[at + slot] += (1.0 - e.schlick) / rho;
-                        weight * e.weight * rho * inv_p1
+                        (weight * e.weight * rho * inv_p1, r_ratio(c_r, e.schlick))
                     }
                 };
                 out.lights.push((e.dir, light_weight, tt_total + u32::from(e.lobe == Lobe::Tt)));
                 out.forward.push(chain && e.lobe == Lobe::Tt && material.is_transmissive());
+                out.own.push(own * colours * light_weight);
+                out.event_lobe.push((event, material.is_transmissive().then_some(e.lobe)));
             }
             let Some(e) = material.sample_colour_free(t, n, wo, [rng.random(), rng.random(), rng.random()])
             else {
@@ -865,12 +859,14 @@ impl TransferSampler {
             match e.lobe {
                 Lobe::Tt => {
                     weight *= e.weight;
+                    own *= tau;
                     tt_total += 1;
                     tt_events[slot] += 1;
                 }
                 Lobe::R => {
                     let rho = r0 + (1.0 - r0) * e.schlick;
                     weight *= e.weight * rho;
+                    own *= r_ratio(c_r, e.schlick);
                     r_log[slot] += (1.0 - e.schlick) / rho;
                 }
             }

@@ -97,9 +97,10 @@ impl Stage {
 /// 3: images at `visibility_points` points along each segment, 4: the kept bits and rays from
 /// the centroid of the fiber's upper half; transfer 5: the fiber lobes,
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
-/// azimuth as a Fourier series with its odd part toward the fabric's top; volume 3: touching
+/// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
+/// walk weighed at the materials' colours, the recolouring basis's paths; volume 3: touching
 /// occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 6, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 7, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
