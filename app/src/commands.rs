@@ -913,15 +913,15 @@ pub fn bench_recolor(
     );
     if same_paths {
         println!(
-            "\n| colourway | live vs the same paths exactly: image mean | per-pixel RMS | the same paths vs the rebake \
-             (colour-free against colour-aware walks): image mean |"
+            "\n| colourway | live vs the same paths at C_R's first order: image mean | per-pixel RMS | the same paths \
+             vs the rebake (C_R's first order against exact): image mean |"
         );
         println!("|---|---|---|---|");
         for line in &same_lines {
             println!("{line}");
         }
         println!(
-            "the recolouring's own error (live against its own paths at the new colours): worst image mean {:.2}% \
+            "the basis's curves alone (live against its own paths at C_R's first order): worst image mean {:.2}% \
              (target 2%), per-pixel RMS at most {:.2}%",
             100.0 * worst_own_mean,
             100.0 * worst_own_rms
@@ -931,7 +931,7 @@ pub fn bench_recolor(
 }
 
 /// `preview` (a material preview of `inputs`) with its IIRTF replaced by the recolouring
-/// basis's own paths evaluated exactly at `inputs`' colours.
+/// basis's own paths evaluated at `inputs`' colours, exactly in τ and to first order in C_R.
 fn same_paths_bake(
     inputs: &twill_precompute::bake::pipeline::BakeInputs<'_>,
     mut preview: Baked,
@@ -964,8 +964,8 @@ pub struct RecolorRun {
     pub iirtf_paths: Option<usize>,
     /// Where to write each colourway's live and rebaked pictures (`None`: nowhere).
     pub images: Option<PathBuf>,
-    /// Also compare with the basis's own paths evaluated exactly at each colourway
-    /// (`twill_precompute::bake::recolour::same_paths_iirtf`).
+    /// Also compare with the basis's own paths evaluated at each colourway to first order in
+    /// C_R (`twill_precompute::bake::recolour::same_paths_iirtf`).
     pub same_paths: bool,
 }
 

@@ -209,17 +209,17 @@ enum BenchCommand {
         colourways: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// IIRTF paths per cell of the basis and the rebakes (default: the quality's), to see
-        /// the recolouring's own error below the transfer's noise.
+        /// IIRTF paths per cell of the basis and the rebakes (default: the quality's).
         #[arg(long)]
         iirtf_paths: Option<usize>,
         /// Also write each colourway's live and rebaked pictures (PNG) into this folder, to
         /// look at side by side.
         #[arg(long)]
         images: Option<PathBuf>,
-        /// Also render each colourway from the basis's own paths evaluated exactly at its
-        /// colours (a rebake without path noise between it and the live picture): the live
-        /// picture's own error, apart from the transfer's noise (one basis pass per colourway).
+        /// Also render each colourway from the basis's own paths evaluated at its colours
+        /// exactly in τ and to first order in C_R, as the basis holds C_R (the rebake walks the
+        /// same paths and weighs C_R exactly): splits the live picture's error into the basis's
+        /// curves and its first order in C_R (one basis pass per colourway).
         #[arg(long)]
         same_paths: bool,
     },
