@@ -535,6 +535,8 @@ pub struct TransferSampler {
     /// The colours of each yarn's material ([`Material::colour_variables`]: τ and C_R), at
     /// which [`Self::sample`] weighs the colour-free walk.
     yarn_colours: Vec<(Rgb, Rgb)>,
+    /// Whether [`Self::sample`] takes the colour-free walk ([`walks_colour_free`]).
+    walks_colour_free: bool,
     midpoints: Vec<DVec3>,
     /// Unit tangent of each segment (the fiber frame [`FiberOffset`] is taken in).
     tangents: Vec<DVec3>,
@@ -579,6 +581,7 @@ impl TransferSampler {
             yarn_slots: exemplar.yarns.iter().map(|y| y.material).collect(),
             slot_count: exemplar.yarns.iter().map(|y| y.material as usize + 1).max().unwrap_or(0),
             yarn_colours: yarn_materials.iter().map(Material::colour_variables).collect(),
+            walks_colour_free: walks_colour_free(&yarn_materials[..exemplar.yarns.len()]),
             midpoints,
             fibers: fiber_ids,
             light_domain,
@@ -714,10 +717,15 @@ impl TransferSampler {
     /// and differentiates them in the colours, so a bake and a live recolouring at the same
     /// colours differ by the basis's approximation alone, not by two draws of the transfer's
     /// noise (which moved a recoloured picture's mean by up to 6% against its rebake when the
-    /// bake walked with its colours). With [`Self::with_part`], only that part's connections
+    /// bake walked with its colours). Yarns whiter than [`COLOUR_FREE_MAX_TAU`] take a walk
+    /// that follows their colours instead ([`walks_colour_free`]), whose weights stay bounded.
+    /// With [`Self::with_part`], only that part's connections
     /// are kept (the same paths and random numbers either way).
     #[must_use]
     pub fn sample(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
+        if !self.walks_colour_free {
+            return self.sample_colour_aware(cell_segments, stream, path);
+        }
         let mut walk = ColourFreeSample::default();
         self.sample_colour_free(cell_segments, stream, path, self.slot_count, &mut walk);
         let mut lights = Vec::with_capacity(walk.lights.len());
@@ -732,6 +740,72 @@ impl TransferSampler {
             }
         }
         TransferSample { view: walk.view, lights, forward: forward_shares, segment: walk.segment }
+    }
+
+    /// [`Self::sample`] for yarns too white for the colour-free walk ([`COLOUR_FREE_MAX_TAU`]):
+    /// the walk follows the colours, as the path tracer does (each continuation's lobe chosen
+    /// by its share of the scattering at the yarn's colours, Russian roulette by throughput),
+    /// and the forward chains' share is split off every connection exactly (the TT lobe's share
+    /// of each event's scattering on the way).
+    fn sample_colour_aware(&self, cell_segments: &[u32], stream: u64, path: u64) -> TransferSample {
+        let strata = path_strata(stream, path);
+        let mut rng = pixel_rng(stream, path);
+        let (k, view, mut hit) = self.first_hit(cell_segments, &strata, &mut rng);
+        let inv_p1 = 4.0 * std::f64::consts::PI;
+        let mut lights = Vec::new();
+        let mut forward_shares = Vec::new();
+        let fibers = &self.scene;
+        let mut dir = view;
+        let mut throughput = Rgb::ONE;
+        // The TT lobe's share of `throughput` (TransferPart::ForwardChains).
+        let mut forward = Rgb::ONE;
+        for event in 1..=MAX_DEPTH {
+            let Some(h) = hit else { break };
+            let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
+            let material = &self.yarn_materials[h.yarn as usize];
+            let wo = -dir;
+            let u_light = light_uniforms(event, &strata, &mut rng);
+            let kept = self.part == TransferPart::All || {
+                let lobe = match material {
+                    Material::Fiber(f) if event == 1 => f.sampled_lobe(t, wo, u_light),
+                    _ => None,
+                };
+                self.part.holds(event, lobe)
+            };
+            if kept
+                && let Some((to_light, pdf)) = material.sample(t, n, wo, u_light)
+                && self.in_domain(to_light)
+            {
+                let f = material.eval_cos(t, n, to_light, wo);
+                if f != Rgb::ZERO
+                    && !fibers.any_hit(position.as_vec3(), to_light.as_vec3(), f32::INFINITY, Some(h.fiber))
+                {
+                    let scale = inv_p1 / pdf;
+                    let share = forward * material.eval_cos_tt(t, to_light, wo) * scale;
+                    lights.push((to_light, self.part.share(throughput * f * scale, share)));
+                    forward_shares.push(share);
+                }
+            }
+            let Some((wi, pdf)) = material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()])
+            else {
+                break;
+            };
+            let f = material.eval_cos(t, n, wi, wo);
+            if f == Rgb::ZERO || !(pdf > 0.0 && pdf.is_finite()) {
+                break;
+            }
+            throughput *= f / pdf;
+            forward *= material.eval_cos_tt(t, wi, wo) / pdf;
+            dir = wi;
+            hit = fibers.closest_hit(position.as_vec3(), wi.as_vec3(), f32::INFINITY, Some(h.fiber));
+            let before = throughput.max_element();
+            if !russian_roulette(event, &mut throughput, &mut rng) {
+                break;
+            }
+            // Roulette divides the whole throughput by its survival; the share goes with it.
+            forward *= throughput.max_element() / before;
+        }
+        TransferSample { view, lights, forward: forward_shares, segment: k }
     }
 }
 
@@ -884,6 +958,22 @@ impl TransferSampler {
             weight *= roulette.x / sampled;
         }
     }
+}
+
+/// The largest TT factor τ = (1 − C_R) C_TT for which [`TransferSampler::sample`] takes the
+/// colour-free walk: the walk chooses R with probability at least 0.1, so a TT event's weight
+/// at the yarn's colours is about `τ / 0.9` of its survival's, and above 0.9 the weights of long
+/// paths grow geometrically (a unit-albedo furnace's paths, hundreds of events long, came back
+/// as pixels 3.5 times the exact answer).
+pub const COLOUR_FREE_MAX_TAU: f64 = 0.9;
+
+/// Whether a bake of these yarn materials walks the colour-free paths the recolouring basis
+/// differentiates (every yarn's τ at most [`COLOUR_FREE_MAX_TAU`] in every channel: every
+/// preset) or, for whiter yarns, a walk that follows the colours (another estimator of the
+/// same transfer).
+#[must_use]
+pub fn walks_colour_free(yarn_materials: &[Material]) -> bool {
+    yarn_materials.iter().all(|m| m.colour_variables().0.max_element() <= COLOUR_FREE_MAX_TAU)
 }
 
 /// A uniform direction on the unit sphere from two uniforms.
@@ -1303,6 +1393,33 @@ mod tests {
         // The shift differs between cells, so their points do too.
         let (a, b) = (path_strata(cell_stream(7, 0), 3), path_strata(cell_stream(7, 1), 3));
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() > 1e-9), "{a:?} {b:?}");
+    }
+
+    #[test]
+    fn presets_walk_colour_free_and_white_yarns_follow_their_colours() {
+        // Every preset's yarns lie below the colour-free walk's limit, so their bakes walk the
+        // recolouring basis's paths; a unit-albedo fiber (the furnace) does not.
+        for preset in crate::fabric::presets::fabric_presets() {
+            let materials: Vec<Material> = [preset.warp_material, preset.weft_material]
+                .iter()
+                .map(|d| Material::from_desc(d).unwrap())
+                .collect();
+            assert!(walks_colour_free(&materials), "{}", preset.name);
+        }
+        let crate::bcsdf::MaterialDesc::Fiber(cotton) = fabric_preset("default").unwrap().warp_material
+        else {
+            panic!("the default warp is a fiber");
+        };
+        let white = |c_tt| {
+            let desc = crate::bcsdf::MaterialDesc::Fiber(crate::bcsdf::FiberParams {
+                c_r: Rgb::ZERO,
+                c_tt,
+                ..cotton
+            });
+            Material::from_desc(&desc).unwrap()
+        };
+        assert!(!walks_colour_free(&[white(Rgb::new(0.2, 1.0, 0.5))]));
+        assert!(walks_colour_free(&[white(Rgb::splat(COLOUR_FREE_MAX_TAU))]));
     }
 
     #[test]

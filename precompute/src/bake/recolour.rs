@@ -1597,12 +1597,13 @@ mod tests {
         // The transfer stage and the recolouring basis walk the same paths: at C_R = C_R,0 (where
         // the same-paths IIRTF's first order in C_R is exact) a bake at any colours is the
         // same-paths IIRTF at them, entry for entry, lobes and folds included (a lobe bake at
-        // order 0 keeps lobes in every cell; order 1 without lobes holds whole matrices). Off
-        // C_R,0 the bake weighs each R event exactly, the same-paths IIRTF to first order.
+        // order 0 keeps lobes in every cell; order 1 without lobes holds whole matrices), for
+        // every τ up to `COLOUR_FREE_MAX_TAU` (whiter yarns take another walk). Off C_R,0 the
+        // bake weighs each R event exactly, the same-paths IIRTF to first order.
         let colour = |c_tt: [f64; 3]| (Rgb::splat(COLOUR_FREE_C_R), Rgb::from_array(c_tt));
         for s in [settings(300, 1), lobe_settings(300, 0)] {
             let (exemplar, grid, materials) = tiny_fabric(&s);
-            let m = with_colours(&materials, &[colour([0.2, 0.5, 0.9]), colour([0.95, 0.7, 0.05])]);
+            let m = with_colours(&materials, &[colour([0.2, 0.5, 0.9]), colour([0.94, 0.7, 0.05])]);
             let direct = direct_bake(&exemplar, &grid, &m, &s);
             let same = same_paths_iirtf(&exemplar, &m, &grid, &s, &slot_colours(&m), &Cancel::new()).unwrap();
             assert_eq!(direct.cells.len(), same.cells.len());

@@ -263,9 +263,17 @@ impl FiberScattering {
         (total > 0.0).then(|| w_r / total)
     }
 
+    /// The lobe [`Self::sample`] draws from with these uniforms (`u[0]` chooses it); `None`
+    /// when both lobes are black.
+    #[must_use]
+    pub fn sampled_lobe(&self, tangent: DVec3, fixed: DVec3, u: [f64; 3]) -> Option<Lobe> {
+        let (theta_f, _) = FiberFrame::new(tangent).angles(fixed);
+        self.choose_lobe(theta_f, u[0]).map(|(lobe, _)| lobe)
+    }
+
     /// The lobe `u0` chooses when the fixed direction is at longitudinal angle `theta_f`, with
-    /// the probability of R; `None` when both lobes are black (the choice [`Self::sample`]
-    /// makes).
+    /// the probability of R; `None` when both lobes are black. The one choice of
+    /// [`Self::sample`] and [`Self::sampled_lobe`].
     fn choose_lobe(&self, theta_f: f64, u0: f64) -> Option<(Lobe, f64)> {
         let p_r = self.lobe_probability_r(theta_f.cos())?;
         Some((if u0 < p_r { Lobe::R } else { Lobe::Tt }, p_r))
