@@ -727,9 +727,13 @@ fn hard_zero_albedo_fibers() {
     // image (single and multiple) must stay below 1e-3 of the white fabric's image under the
     // same light. Inside the weave light meets fibers at every angle, and the Schlick term's
     // mean over incident angles (cosine-weighted, ∫(1 − cos θ)^5 cos θ dθ / ∫ cos θ dθ) is
-    // a = 0.025: one bounce scales transfer by a, two by a², so the zero-albedo bake's largest
-    // transfer entry must be at most 2a of the white bake's (measured 0.022). GPU/CPU is
-    // judged against MEAN_FLOOR here (the image is 1e-6).
+    // a = 0.025: one bounce scales transfer by a, two by a², so the zero-albedo bake's
+    // transfer (the sum of its entries' magnitudes over every cell) must be at most 2a of the
+    // white bake's. The sum, not the largest entry: the zero-albedo bake walks the colour-free
+    // paths (which choose the TT lobe 90% of the time, and it carries nothing here) and the
+    // white one follows its colours (`bake::iirtf::walks_colour_free`), so their largest entries
+    // are maxima of unequal noise (the zero-albedo one's measured 0.052 of the white's, the
+    // sums' 0.0066). GPU/CPU is judged against MEAN_FLOOR here (the image is 1e-6).
     let light = [directional([0.0, 0.0, 1.0], 3.0)];
     let zero = scene(Materials::Zero, 2.0, true, &ortho_camera(30.0), &light);
     let white = scene(Materials::White, 2.0, true, &ortho_camera(30.0), &light);
@@ -744,7 +748,8 @@ fn hard_zero_albedo_fibers() {
             .cells
             .iter()
             .flat_map(|c| c.matrix.iter().flatten())
-            .fold(0.0, |m: f64, v| m.max(f64::from(v.abs())))
+            .map(|v| f64::from(v.abs()))
+            .sum::<f64>()
     };
     let (sz, sw) = (size(baked(Materials::Zero)), size(baked(Materials::White)));
     let n = 100_000;
@@ -756,7 +761,7 @@ fn hard_zero_albedo_fibers() {
     }
     let a = num / den;
     eprintln!(
-        "zero albedo: largest transfer entry {sz:.3e} vs white {sw:.3e} (ratio {:.4}, 2a = {:.4})",
+        "zero albedo: transfer (sum of magnitudes) {sz:.3e} vs white {sw:.3e} (ratio {:.4}, 2a = {:.4})",
         sz / sw,
         2.0 * a
     );
