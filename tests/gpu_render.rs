@@ -962,19 +962,15 @@ fn live_recolouring_writes_fiber_lobes_in_place() {
 /// - the same picture as the material preview evaluated from the basis and uploaded through the
 ///   whole-bake path (`bake_material_preview` + `update_fabric`): the in-place splice of the
 ///   f16 cells, the C_S rows and the materials is exact;
-/// - against a full rebake at those colours, 32 x 32, 16 spp, measured (2026-11-26, IIRTF path
-///   starts stratified): image mean R / G / B +4.33% / +4.76% / +3.65%, per-pixel RMS difference
-///   24.0% of the rebake's mean, where two rebakes that differ only in their seed differ by
-///   43.2% (draft: 96 paths per cell, so both pictures' multiple scattering is noisy). With
-///   independent path starts (2026-11-25) these were +4.23% / +1.64% / −1.68% and 34.6%: one
-///   colourway's means move by a few points with the paths drawn, and over 12 colourways
-///   (`twill bench recolor --quality draft --colourways 12 --size 96x96 --spp 4`) the worst
-///   image-mean difference fell from 10.9% to 5.4% and the mean signed one went from −4.5% to
-///   +1.9% with the stratified starts. Re-measured with exposed path starts
-///   (`BakeSettings::exposed_starts`, 2026-11-26): image mean −3.31% / −2.08% / −0.76%, per-pixel
-///   RMS 26.2% against a seed-to-seed 33.8% (the basis walks the same exposed starts as the
-///   rebake). One-sided bands of 1 point on the means and 2 on the per-pixel figure, which must
-///   also stay within the seed-to-seed difference (the method's own per-pixel noise).
+/// - against a full rebake at those colours, 32 x 32, 16 spp. Since the transfer stage walks
+///   the basis's own colour-free paths (2026-11-27), the two differ by the basis's
+///   approximation alone: image mean R / G / B +0.11% / +0.11% / −0.10%, per-pixel RMS
+///   difference 1.09% of the rebake's mean, where two rebakes that differ only in their seed
+///   differ by 43.2% (draft: 96 paths per cell, so the transfer itself is noisy). When the bake
+///   walked with its colours (another draw of that noise) these were −3.31% / −2.08% / −0.76%
+///   and 26.2% (2026-11-26, exposed starts; +4.2% / +1.6% / −1.7% and 34.6% with independent
+///   starts a day earlier). One-sided bands of half a point on the means and one on the
+///   per-pixel figure, which must also stay within the seed-to-seed difference.
 #[test]
 fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     use twill_precompute::Rgb;
@@ -1046,7 +1042,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     };
     let (ours, theirs) = (live.mean(), rebaked.mean());
     let mut failures = Vec::new();
-    for (channel, measured) in [(0, -0.0331), (1, -0.0208), (2, -0.0076)] {
+    for (channel, measured) in [(0, 0.0011), (1, 0.0011), (2, -0.0010)] {
         let error = ours[channel] / theirs[channel] - 1.0;
         eprintln!(
             "channel {channel}: live {:.5}, rebake {:.5}, {:+.2}%",
@@ -1055,14 +1051,14 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
             100.0 * error
         );
         if let Err(e) =
-            twill_tests::check_band(&format!("image mean, channel {channel}"), error, measured, 0.01)
+            twill_tests::check_band(&format!("image mean, channel {channel}"), error, measured, 0.005)
         {
             failures.push(e);
         }
     }
     let (live_rms, floor) = (rms(&live, &rebaked), rms(&reseeded, &rebaked));
     eprintln!("per-pixel RMS: live {:.2}%, seed to seed {:.2}%", 100.0 * live_rms, 100.0 * floor);
-    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.262, 0.02) {
+    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.0109, 0.01) {
         failures.push(e);
     }
     if live_rms > floor {
