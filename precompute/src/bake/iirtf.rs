@@ -961,11 +961,13 @@ impl TransferSampler {
 }
 
 /// The largest TT factor τ = (1 − C_R) C_TT for which [`TransferSampler::sample`] takes the
-/// colour-free walk: the walk chooses R with probability at least 0.1, so a TT event's weight
-/// at the yarn's colours is about `τ / 0.9` of its survival's, and above 0.9 the weights of long
-/// paths grow geometrically (a unit-albedo furnace's paths, hundreds of events long, came back
-/// as pixels 3.5 times the exact answer).
-pub const COLOUR_FREE_MAX_TAU: f64 = 0.9;
+/// colour-free walk: the roulette's own factor, [`COLOUR_FREE_ROULETTE_ALBEDO`], the whitest
+/// yarn the walk is made for. The walk chooses R with probability at least 0.1, so a TT event's
+/// weight at the yarn's colours is about `τ / 0.9` of its survival's: up to 1.06 at this τ,
+/// where a path's escape keeps its length in check, while at τ = 1 (a unit-albedo furnace, whose
+/// paths run to hundreds of events) the weights grew geometrically and came back as pixels 3.5
+/// times the exact answer.
+pub const COLOUR_FREE_MAX_TAU: f64 = COLOUR_FREE_ROULETTE_ALBEDO;
 
 /// Whether a bake of these yarn materials walks the colour-free paths the recolouring basis
 /// differentiates (every yarn's τ at most [`COLOUR_FREE_MAX_TAU`] in every channel: every
