@@ -1894,7 +1894,8 @@ mod tests {
 
     /// Diagnostic: the default fabric at interactive settings, the transfer from light
     /// direction L to view direction V summed over cells (`Σ a[j0, j1] Y_j0(L) Y_j1(V)`), by the
-    /// bake's colour-aware walk and by the basis's colour-free paths evaluated exactly, for
+    /// colour-aware walk (`IirtfOptions::colour_aware_walk`) and by the basis's colour-free paths
+    /// evaluated at the colours (C_R to first order), for
     /// directions of the default scene (its sun, its camera) and the zenith.
     #[test]
     #[ignore = "diagnostic"]
@@ -1961,7 +1962,13 @@ mod tests {
             }
             let m = if colours.is_empty() { materials.clone() } else { with_colours(&materials, &colours) };
             let slot = slot_colours(&m);
-            let direct = direct_bake(&exemplar, &grid, &m, &s);
+            // The walk that follows the colours (a bake takes it only for yarns whiter than
+            // `COLOUR_FREE_MAX_TAU`).
+            let (_, yarns) =
+                yarn_materials(&BakeInputs { exemplar: &exemplar, materials: &m, settings: s }).unwrap();
+            let options = IirtfOptions { colour_aware_walk: true, ..IirtfOptions::default() };
+            let direct =
+                bake_iirtf(&exemplar, &yarns, &grid, &s, &options, &Cancel::new(), &no_progress).unwrap();
             let same = same_paths_iirtf(&exemplar, &m, &grid, &s, &slot, &Cancel::new()).unwrap();
             for (what, l, v) in directions {
                 let ((a, sa), (b, sb)) = (transfer(&same, l, v), transfer(&direct, l, v));

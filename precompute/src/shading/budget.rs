@@ -382,7 +382,8 @@ fn with_transfer_part(scene: &Scene, baked: &Baked, part: TransferPart) -> Resul
     let inputs =
         BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings: baked.settings };
     let (_, yarn_materials) = yarn_materials(&inputs)?;
-    let options = IirtfOptions { light_domain: baked.transfer.iirtf.light_domain, part };
+    let options =
+        IirtfOptions { light_domain: baked.transfer.iirtf.light_domain, part, colour_aware_walk: false };
     let iirtf = bake_iirtf(
         &scene.exemplar,
         &yarn_materials,
