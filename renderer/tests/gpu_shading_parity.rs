@@ -767,15 +767,16 @@ fn quadrature_cases(baked: &Baked, offsets: usize) -> Vec<Case> {
 }
 
 /// How far GPU values are from CPU ones, each relative to its own case: the largest
-/// `|gpu − cpu|` over `max(max |cpu|, floor × the largest |cpu| of the case's segment)` (the
-/// floor keeps values near zero from dividing by nothing), and the cases above `bound`,
-/// labelled. Asserts every GPU value is finite and that some cases carry light.
+/// `|gpu − cpu|` over `max(max |cpu|, floor.0 × the largest |cpu| of the case's segment,
+/// floor.1 × the largest |cpu| of all cases)` (the floors keep values near zero from dividing
+/// by nothing), and the cases above `bound`, labelled. Asserts every GPU value is finite and
+/// that some cases carry light.
 fn relative_parity(
     name: &str,
     cases: &[Case],
     gpu: &[[f32; 4]],
     cpu: &[Rgb],
-    floor: f64,
+    floor: (f64, f64),
     bound: f64,
 ) -> Vec<String> {
     let mut scales: HashMap<u32, f64> = HashMap::new();
@@ -784,6 +785,7 @@ fn relative_parity(
         let scale = scales.entry(case.segment).or_insert(0.0);
         *scale = scale.max(c.abs().max_element());
     }
+    let largest = scales.values().fold(0.0_f64, |m, &v| m.max(v));
     let (mut worst, mut worst_case) = (0.0_f64, String::new());
     let mut failures = Vec::new();
     for ((case, g), c) in cases.iter().zip(gpu).zip(cpu) {
@@ -793,7 +795,7 @@ fn relative_parity(
             case.segment
         );
         let g = Vec3::new(g[0], g[1], g[2]).as_dvec3();
-        let denominator = c.abs().max_element().max(floor * scales[&case.segment]);
+        let denominator = c.abs().max_element().max(floor.0 * scales[&case.segment]).max(floor.1 * largest);
         if denominator == 0.0 {
             assert_eq!(g, DVec3::ZERO, "{name}: GPU light where the CPU has none");
             continue;
@@ -921,7 +923,7 @@ fn lobe_quadrature_matches_its_rust_twin() {
                 &subset,
                 &gpu_subset,
                 &cpu_subset,
-                1e-4,
+                (1e-4, 0.0),
                 QUADRATURE_BOUND,
             ));
         }
@@ -951,13 +953,21 @@ fn lobes_case(input: vec4<f32>) -> vec4<f32> {
 /// inverse's entries (up to 1.6e3) carry f32 rounding of the light's SH into the strengths.
 const LOBES_BOUND: f64 = 3e-3;
 
+/// Below this fraction of the grid's largest lobe value a case is judged against it rather
+/// than against itself: such values are near-cancellations of a lobe strength's SH sum, whose
+/// f32 rounding scales with its terms (carried through the upper-hemisphere fit's inverse), not
+/// with the sum. With the colour-free transfer walk's bake (2026-11-27) one silk segment whose
+/// every case is below 4e-7 of the grid's largest value had a case at 3.9e-3 of itself (1.2e-7
+/// against the grid's 0.34).
+const LOBES_GRID_FLOOR: f64 = 1e-6;
+
 /// The fiber-lobe term (`shade_fiber_lobes`, shared/shading.wgsl) against its twin
 /// `shading::multiple::lobe_scattering` on the silk satin's lobe bake, over the grid of the other
 /// functions (12 segments, 17 view directions including ±t and grazing, light axes over the
 /// sphere and the hard ones, including a light grazing the fabric plane), for directional
 /// lights and SG lights of λ 2, 30, 300 and 2000, at points of the cell lattice (lobes
 /// interpolated between cells). Each case within LOBES_BOUND of its own value (floored at 1e-4
-/// of its segment's largest), and within the other functions' tolerance (2e-3 of the segment's
+/// of its segment's largest and LOBES_GRID_FLOOR of the grid's), and within the other functions' tolerance (2e-3 of the segment's
 /// largest value + 1e-6); NaN or Inf fails.
 #[test]
 fn fiber_lobes_match_their_rust_twin() {
@@ -998,7 +1008,9 @@ fn fiber_lobes_match_their_rust_twin() {
             .expect("lobe scattering")
         })
         .collect();
-    let mut failures = relative_parity("fiber lobes", &lobe_cases, &gpu_lobes, &cpu_lobes, 1e-4, LOBES_BOUND);
+    let floors = (1e-4, LOBES_GRID_FLOOR);
+    let mut failures =
+        relative_parity("fiber lobes", &lobe_cases, &gpu_lobes, &cpu_lobes, floors, LOBES_BOUND);
     let cpu_some: Vec<Option<Rgb>> = cpu_lobes.iter().copied().map(Some).collect();
     failures.extend(compare("fiber lobes", &lobe_cases, &gpu_lobes, &cpu_some));
     for f in failures.iter().take(20) {
