@@ -535,9 +535,6 @@ pub struct TransferSampler {
     yarn_slots: Vec<u32>,
     /// Material slots (one above the largest of `yarn_slots`).
     slot_count: usize,
-    /// The colours of each yarn's material ([`Material::colour_variables`]: τ and C_R), at
-    /// which [`Self::sample`] weighs the colour-free walk.
-    yarn_colours: Vec<(Rgb, Rgb)>,
     /// Whether [`Self::sample`] takes the colour-free walk ([`walks_colour_free`]).
     walks_colour_free: bool,
     midpoints: Vec<DVec3>,
@@ -583,7 +580,6 @@ impl TransferSampler {
             yarn_materials: yarn_materials.to_vec(),
             yarn_slots: exemplar.yarns.iter().map(|y| y.material).collect(),
             slot_count: exemplar.yarns.iter().map(|y| y.material as usize + 1).max().unwrap_or(0),
-            yarn_colours: yarn_materials.iter().map(Material::colour_variables).collect(),
             walks_colour_free: walks_colour_free(&yarn_materials[..exemplar.yarns.len()]),
             midpoints,
             fibers: fiber_ids,
@@ -910,7 +906,8 @@ impl TransferSampler {
             let (position, t, n) = (h.position.as_dvec3(), h.tangent.as_dvec3(), h.normal.as_dvec3());
             let material = &self.yarn_materials[h.yarn as usize];
             let slot = self.yarn_slots[h.yarn as usize] as usize;
-            let (tau, c_r) = self.yarn_colours[h.yarn as usize];
+            // The colours at which `own` weighs the walk (never read by the walk itself).
+            let (tau, c_r) = material.colour_variables();
             let wo = -dir;
             let u_light = light_uniforms(event, &strata, &mut rng);
             if let Some(e) = material.sample_colour_free(t, n, wo, u_light)

@@ -1447,9 +1447,19 @@ mod tests {
         materials: &[MaterialDesc],
         s: &BakeSettings,
     ) -> Iirtf {
+        direct_bake_with(exemplar, grid, materials, s, IirtfOptions::default())
+    }
+
+    fn direct_bake_with(
+        exemplar: &crate::fabric::Exemplar,
+        grid: &CellGrid,
+        materials: &[MaterialDesc],
+        s: &BakeSettings,
+        options: IirtfOptions,
+    ) -> Iirtf {
         let inputs = BakeInputs { exemplar, materials, settings: *s };
         let (_, yarns) = yarn_materials(&inputs).unwrap();
-        bake_iirtf(exemplar, &yarns, grid, s, &IirtfOptions::default(), &Cancel::new(), &no_progress).unwrap()
+        bake_iirtf(exemplar, &yarns, grid, s, &options, &Cancel::new(), &no_progress).unwrap()
     }
 
     /// Each channel's (0, 0) entry summed over cells, with its standard error.
@@ -1964,11 +1974,8 @@ mod tests {
             let slot = slot_colours(&m);
             // The walk that follows the colours (a bake takes it only for yarns whiter than
             // `COLOUR_FREE_MAX_TAU`).
-            let (_, yarns) =
-                yarn_materials(&BakeInputs { exemplar: &exemplar, materials: &m, settings: s }).unwrap();
             let options = IirtfOptions { colour_aware_walk: true, ..IirtfOptions::default() };
-            let direct =
-                bake_iirtf(&exemplar, &yarns, &grid, &s, &options, &Cancel::new(), &no_progress).unwrap();
+            let direct = direct_bake_with(&exemplar, &grid, &m, &s, options);
             let same = same_paths_iirtf(&exemplar, &m, &grid, &s, &slot, &Cancel::new()).unwrap();
             for (what, l, v) in directions {
                 let ((a, sa), (b, sb)) = (transfer(&same, l, v), transfer(&direct, l, v));
