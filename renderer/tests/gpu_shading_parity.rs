@@ -604,7 +604,7 @@ fn wrapped_normal(mean_deg: f64, sigma_deg: f64) -> Vec<f32> {
 }
 
 /// The offset distributions the quadrature is compared over, named: none (uniform), a sharp
-/// one (σ 1.5°, so sharp that 12 terms ring below zero and the clamp acts), a broad one (σ 15°),
+/// one (σ 1.5°, so sharp that the cut series rings below zero and the clamp acts), a broad one (σ 15°),
 /// a two-sided one, and the silk bake's own brightest cell's forward and reflected shapes (its
 /// sums over the lobe's total, as `FiberLobe::angles` takes them).
 fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
@@ -829,8 +829,11 @@ fn relative_parity(
 /// cosine and clamped at zero) had reached 4.4e-3 where the sum cancels.
 /// That is the f64 function's own conditioning, not the shader's arithmetic: moving t, ωo or ξ
 /// by 1e-7 (f32 rounding) moves the f64 values by up to 9.5e-4 (an axis 1e-3 off t with κ 50;
-/// grazing views through the 1° R lobe's Gn).
-const QUADRATURE_BOUND: f64 = 1.5e-3;
+/// grazing views through the 1° R lobe's Gn). With 24 longitudinal terms (2026-11-27, ninth
+/// session): 1.73e-3 on the silk's forward shape viewed along the fiber (ωo = −t), 0.3e-4 to
+/// 4.6e-4 on every other distribution. There the window lies in the tail of that sharp series,
+/// a remainder of 24 terms of order one, which f32 sums less closely than 12.
+const QUADRATURE_BOUND: f64 = 2.5e-3;
 
 /// The WGSL `lobe_quadrature` (shared/shading.wgsl) against `shading::gamma::lobe_quadrature`
 /// on the silk satin's fibers (β_R 1°, β_TT 10°, γ_TT 20°: narrow) and the default cotton's

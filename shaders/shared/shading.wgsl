@@ -679,9 +679,10 @@ fn lobe_longitudinal(angles: ptr<function, LobeAngles>, delta_theta: f32) -> f32
 // uniform (1 / 2 pi against v); S_TT's von Mises about phi = pi convolved with v is
 // lobe_tt_azimuth at phi_o - phi' (in omega_o-space, -phi'), with tt_ratios the fiber's
 // bessel_i_ratios(kappa_TT) (FiberConstants::tt_ratios, which the caller computes once). The
-// theta_i integral per lobe X is the LOBE_NODES-point Gauss-Legendre rule over
+// theta_i integral per lobe X is the composite LOBE_NODES-point Gauss-Legendre rule over
 // the lobe's Gaussian exp(-lambda_X (theta_i + theta_o)^2) out to LOBE_WINDOW deviations either
-// side, clipped to [-pi/2, pi/2], with p, cos(theta_i), Gn and Fresnel exact at each node. The
+// side, clipped to [-pi/2, pi/2], in equal panels no wider than LOBE_PANEL_WIDTH, with p,
+// cos(theta_i), Gn and Fresnel exact at each node. The
 // interval is held in the offset theta_i + theta_o (the twin's theta_i minus its centre), which
 // f32 keeps exact where the window is not clipped.
 fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>, space: OmegaOSpace, xi: vec3<f32>, angles: ptr<function, LobeAngles>) -> vec3<f32> {
@@ -704,19 +705,22 @@ fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>,
         if (hi <= lo) {
             continue;
         }
-        let mid = 0.5 * (hi + lo);
-        let half = 0.5 * (hi - lo);
+        let panels = clamp(ceil((hi - lo) / LOBE_PANEL_WIDTH), 1.0, 8.0);
+        let half = 0.5 * (hi - lo) / panels;
         let norm = sqrt(lambda_lobe / PI);
         var sum = 0.0;
         var fresnel_sum = vec3<f32>(0.0);
-        for (var k = 0u; k < LOBE_NODES; k++) {
-            let offset = mid + half * nodes[k];
-            let theta = offset - space.theta_o;
-            let c = cos(theta);
-            let term = c * norm * exp(-lambda_lobe * offset * offset) * lobe_longitudinal(angles, theta - axis.theta)
-                / gn_eval(f.material, lobe, -theta) * (weights[k] * half);
-            sum += term;
-            fresnel_sum += fresnel(f, c) * term;
+        for (var panel = 0u; panel < u32(panels); panel++) {
+            let mid = lo + (2.0 * f32(panel) + 1.0) * half;
+            for (var k = 0u; k < LOBE_NODES; k++) {
+                let offset = mid + half * nodes[k];
+                let theta = offset - space.theta_o;
+                let c = cos(theta);
+                let term = c * norm * exp(-lambda_lobe * offset * offset) * lobe_longitudinal(angles, theta - axis.theta)
+                    / gn_eval(f.material, lobe, -theta) * (weights[k] * half);
+                sum += term;
+                fresnel_sum += fresnel(f, c) * term;
+            }
         }
         if (lobe == LOBE_R) {
             out += fresnel_sum / (2.0 * PI);

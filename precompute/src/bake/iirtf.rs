@@ -136,10 +136,13 @@ pub struct CellTransfer {
 /// highest the SH rotation and the GPU hold.
 pub const LOBE_SH_ORDER: usize = crate::sh::EULER_MAX_ORDER;
 
-/// Fourier terms of a lobe's longitudinal shape: enough for offsets of about 15 degrees (a
-/// chain of transmissions through silk spreads 10 degrees per fiber; the R cones are sharper,
-/// but the shaded fiber's own lobe averages them; 40 terms changed nothing measured).
-pub const LOBE_FOURIER_TERMS: usize = 12;
+/// Fourier terms of a lobe's longitudinal shape. The series is Jackson-smoothed
+/// (`shading::gamma::jackson_factor`) so that it stays a density, and the smoothing kernel is
+/// about 180°/(K+1) wide: at 12 terms its 14° of blur spread the sharp arrival offsets of
+/// raking light on the silk satin and held its multiple scattering 67–97% bright (silk 24 and
+/// 59 of the accuracy run); at 24 terms, 7°, 49% (`docs/BENCHMARKS.md`). A chain of
+/// transmissions through silk spreads about 10 degrees per fiber.
+pub const LOBE_FOURIER_TERMS: usize = 24;
 
 /// Fourier terms of a lobe's azimuthal shape, about the light's azimuth around the fiber: a
 /// forward fan is about 20 degrees wide on silk, and the shaded fiber's own TT lobe (a von
