@@ -11,8 +11,8 @@
 //! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
 //! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
 //! binding. Fiber lobes (`BakeSettings::fiber_lobes`) are packed per cell by
-//! `CellTransfer::pack_lobes` ([`LOBE_PACKED_FLOATS`] f32s, 2,960 bytes: 79% of the f16 IIRTF's
-//! 6 n² bytes at SH order 4, 21% at order 6, n = (L+1)²), so they stay f32; a bake without them
+//! `CellTransfer::pack_lobes` ([`LOBE_PACKED_FLOATS`] f32s, 3,920 bytes: 105% of the f16 IIRTF's
+//! 6 n² bytes at SH order 4, 27% at order 6, n = (L+1)²), so they stay f32; a bake without them
 //! binds one zeroed vec4. The C_G table is packed at its own order (`BakeSettings::light_sh_order`,
 //! which is above the transfer's with fiber lobes), which the header carries (`cg_order`).
 //! Every buffer is checked against the adapter's `max_storage_buffer_binding_size`

@@ -144,11 +144,13 @@ pub const LOBE_SH_ORDER: usize = crate::sh::EULER_MAX_ORDER;
 /// transmissions through silk spreads about 10 degrees per fiber.
 pub const LOBE_FOURIER_TERMS: usize = 24;
 
-/// Fourier terms of a lobe's azimuthal shape, about the light's azimuth around the fiber: a
-/// forward fan is about 20 degrees wide on silk, and the shaded fiber's own TT lobe (a von
-/// Mises density, whose coefficients fall as `e^{−k²/2κ}`) leaves little past k = 10 on the
-/// presets.
-pub const LOBE_AZIMUTH_TERMS: usize = 12;
+/// Fourier terms of a lobe's azimuthal shape, about the light's azimuth around the fiber, at
+/// each elevation node: a forward fan is about 20 degrees wide on silk. Jackson-smoothed like
+/// the longitudinal series, so its kernel is about 7° wide at 24 terms; at 12 terms its 14°
+/// held the silk's raking multiple scattering about 8 points brighter (silk 24 and 59 of the
+/// accuracy run, `docs/BENCHMARKS.md`), though the shaded fiber's own TT lobe (a von Mises
+/// density, whose coefficients fall as `e^{−k²/2κ}`) smooths it again.
+pub const LOBE_AZIMUTH_TERMS: usize = 24;
 
 /// Light elevations (`z` of the light's direction, 0 at the horizon to 1 overhead) at which a
 /// lobe keeps its azimuthal shape: evenly spaced nodes, between which the shape is

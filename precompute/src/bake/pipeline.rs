@@ -99,14 +99,14 @@ impl Stage {
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
 /// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
 /// walk weighed at the materials' colours, the recolouring basis's paths, 8: 24 longitudinal
-/// Fourier terms; volume 3: touching occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 8, 1, 1, 1, 3];
+/// Fourier terms, 9: 24 azimuthal ones; volume 3: touching occupancy and the segments' capsules).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 9, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
 /// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms; 8: 24 longitudinal
-/// terms per lobe shape).
-pub const BAKE_LAYOUT_VERSION: u32 = 8;
+/// terms per lobe shape; 9: 24 azimuthal terms per elevation node).
+pub const BAKE_LAYOUT_VERSION: u32 = 9;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -486,8 +486,9 @@ pub fn recolour_basis(
 /// lobes, `RecolourBasis::forward_lobe`; 9: their per-cell fold, the forward chains' own matrix;
 /// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
 /// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell; 11: the shapes' azimuthal
-/// Fourier terms; 12: 24 longitudinal terms per shape).
-const RECOLOUR_VERSION: u32 = 12;
+/// Fourier terms; 12: 24 longitudinal terms per shape; 13: 24 azimuthal
+/// terms per elevation node).
+const RECOLOUR_VERSION: u32 = 13;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {

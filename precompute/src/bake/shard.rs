@@ -51,8 +51,8 @@ pub const MAX_SHARDS: usize = 4096;
 /// visibility points per segment, and `e{i}.images` that many images per segment; 4: each
 /// shape opens with its azimuthal Fourier terms; 5: the same layout, its IIRTF cells from the
 /// colour-free walk, so that parts of two walks never merge into one bake; 6: 24 longitudinal
-/// terms per shape).
-pub const PART_LAYOUT_VERSION: u32 = 6;
+/// terms per shape; 7: 24 azimuthal terms per elevation node).
+pub const PART_LAYOUT_VERSION: u32 = 7;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -172,7 +172,7 @@ impl LobeAngles {
     /// factors ([`jackson_factor`]): cut after K terms, the series of a sharp density rings
     /// below zero (an offset 5° wide, cut at 12 terms, loses a third of its mass to the
     /// clamp), while the series smoothed by a non-negative kernel about 180°/(K+1) wide is
-    /// itself a density (7° for the longitudinal series' 24 terms, 14° for the azimuth's 12).
+    /// itself a density (7° for both series' 24 terms).
     #[must_use]
     pub fn from_means(longitudinal: &[f64], azimuth: &[f64]) -> Self {
         Self { fourier: jackson_smoothed(longitudinal), azimuth: jackson_smoothed(azimuth) }
