@@ -104,7 +104,7 @@ pub fn prelude() -> String {
             LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS,
             LOBE_LONGITUDINAL_AT, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, TOWARD_UP_WIDTH,
         };
-        use twill_precompute::shading::gamma::{LOBE_NODES, LOBE_PANEL_WIDTH, LOBE_WINDOW};
+        use twill_precompute::shading::gamma::{LOBE_MAX_PANELS, LOBE_NODES, LOBE_PANEL_WIDTH, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
         let _ =
             writeln!(out, "const LOBE_SH_COUNT: u32 = {}u;", twill_precompute::sh::sh_count(LOBE_SH_ORDER));
@@ -154,6 +154,7 @@ pub fn prelude() -> String {
         #[allow(clippy::cast_possible_truncation)]
         let panel_width = LOBE_PANEL_WIDTH as f32;
         let _ = writeln!(out, "const LOBE_PANEL_WIDTH: f32 = {panel_width:?};");
+        let _ = writeln!(out, "const LOBE_MAX_PANELS: u32 = {LOBE_MAX_PANELS}u;");
         let _ = writeln!(out, "const LOBE_NODES: u32 = {LOBE_NODES}u;");
         let pairs = twill_precompute::quadrature::gauss_legendre_pairs(LOBE_NODES);
         for (name, values) in [

@@ -829,7 +829,7 @@ fn relative_parity(
 /// cosine and clamped at zero) had reached 4.4e-3 where the sum cancels.
 /// That is the f64 function's own conditioning, not the shader's arithmetic: moving t, ωo or ξ
 /// by 1e-7 (f32 rounding) moves the f64 values by up to 9.5e-4 (an axis 1e-3 off t with κ 50;
-/// grazing views through the 1° R lobe's Gn). With 24 longitudinal terms (2026-11-27, ninth
+/// grazing views through the 1° R lobe's Gn). With 24 longitudinal terms (2026-11-27, tenth
 /// session): 1.73e-3 on the silk's forward shape viewed along the fiber (ωo = −t), 0.3e-4 to
 /// 4.6e-4 on every other distribution. There the window lies in the tail of that sharp series,
 /// a remainder of 24 terms of order one, which f32 sums less closely than 12.
@@ -970,8 +970,8 @@ const LOBES_GRID_FLOOR: f64 = 1e-6;
 /// sphere and the hard ones, including a light grazing the fabric plane), for directional
 /// lights and SG lights of λ 2, 30, 300 and 2000, at points of the cell lattice (lobes
 /// interpolated between cells). Each case within LOBES_BOUND of its own value (floored at 1e-4
-/// of its segment's largest and LOBES_GRID_FLOOR of the grid's), and within the other functions' tolerance (2e-3 of the segment's
-/// largest value + 1e-6); NaN or Inf fails.
+/// of its segment's largest and LOBES_GRID_FLOOR of the grid's), and within the other
+/// functions' tolerance (2e-3 of the segment's largest value + 1e-6); NaN or Inf fails.
 #[test]
 fn fiber_lobes_match_their_rust_twin() {
     let Some(gpu) = Gpu::for_test("fiber_lobes_match_their_rust_twin") else { return };

@@ -705,7 +705,7 @@ fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>,
         if (hi <= lo) {
             continue;
         }
-        let panels = clamp(ceil((hi - lo) / LOBE_PANEL_WIDTH), 1.0, 8.0);
+        let panels = clamp(ceil((hi - lo) / LOBE_PANEL_WIDTH), 1.0, f32(LOBE_MAX_PANELS));
         let half = 0.5 * (hi - lo) / panels;
         let norm = sqrt(lambda_lobe / PI);
         var sum = 0.0;

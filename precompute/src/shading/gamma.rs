@@ -250,6 +250,10 @@ pub const LOBE_NODES: usize = 12;
 /// about 9° (the R lobes of silk and cotton) still takes one panel.
 pub const LOBE_PANEL_WIDTH: f64 = 1.6;
 
+/// Most panels [`lobe_quadrature`] takes: a guard, since a window is at most π wide (two
+/// panels of [`LOBE_PANEL_WIDTH`]).
+pub const LOBE_MAX_PANELS: u32 = 8;
+
 static LOBE_LEGENDRE: std::sync::LazyLock<Vec<(f64, f64)>> =
     std::sync::LazyLock::new(|| crate::quadrature::gauss_legendre_pairs(LOBE_NODES));
 
@@ -267,10 +271,10 @@ pub fn jackson_factor(k: usize, terms: usize) -> f64 {
 }
 
 /// Panels of [`lobe_quadrature`]'s composite rule over a window `width` radians wide: the
-/// fewest no wider than [`LOBE_PANEL_WIDTH`], at least one (a window is at most π wide).
+/// fewest no wider than [`LOBE_PANEL_WIDTH`], at least one and at most [`LOBE_MAX_PANELS`].
 #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
 fn lobe_panels(width: f64) -> u32 {
-    (width / LOBE_PANEL_WIDTH).ceil().clamp(1.0, 8.0) as u32
+    (width / LOBE_PANEL_WIDTH).ceil().clamp(1.0, f64::from(LOBE_MAX_PANELS)) as u32
 }
 
 /// `∫ L(ωi) S(ωi, ωo) cos θi dωi` for the unit lobe `angles` about unit `xi` ([`LobeAngles`]),
