@@ -40,7 +40,10 @@
 //! and beside them 4′, the method without its clamp at zero (on this ladder the radiance shaded
 //! is multiple scattering alone, so the clamp acts on it). Truncated SH and
 //! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
-//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. With
+//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. 4″ is 4′ with the
+//! clamp taken on each pixel's mean over its samples instead of on each sample (the same
+//! samples, so its mean lies between 4′ and 4): what the clamp would add if the renderer
+//! accumulated its samples unclamped and clamped the pixel. With
 //! [`BudgetSettings::split_transfer`], 4a–4c split 4′ by light transport
 //! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
 //! peaked around the light's direction), its reflection (a cone about its axis) and light
@@ -205,9 +208,14 @@ pub fn error_budget(
     progress("references");
 
     let mut rungs = Vec::new();
-    let mut push = |component: Component, name: String, film: &Film, seconds: f64| {
+    let mut push = |component: Component, name: String, film: &Film, seconds: f64, clamp_mean: bool| {
         let reference = if component == Component::Single { &single_reference } else { &multiple_reference };
-        let (mean, variance) = (film.mean(), film.variance_of_mean());
+        let (mut mean, variance) = (film.mean(), film.variance_of_mean());
+        if clamp_mean {
+            for p in &mut mean.pixels {
+                *p = p.max(Rgb::ZERO);
+            }
+        }
         progress(&name);
         rungs.push(measure(
             component,
@@ -237,7 +245,7 @@ pub fn error_budget(
         let film = single_by_light_sampling(scene, settings, |hit, dir| {
             shadow_ray_visible(scene, baked, hit, dir, origin)
         })?;
-        push(Component::Single, name, &film, t.elapsed().as_secs_f64());
+        push(Component::Single, name, &film, t.elapsed().as_secs_f64(), false);
     }
     let n = baked.settings.svf_resolution;
     let t = Instant::now();
@@ -246,7 +254,7 @@ pub fn error_budget(
     let film = single_by_light_sampling(scene, settings, |hit, dir| {
         images.lookup(visibility_image_of(baked, hit), dir)
     })?;
-    push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
+    push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64(), false);
     let t = Instant::now();
     let film = single_by_light_sampling(scene, settings, |hit, dir| {
         ssdf_lookup(&baked.visibility.ssdf, visibility_image_of(baked, hit), dir) > 0.0
@@ -259,6 +267,7 @@ pub fn error_budget(
         ),
         &film,
         t.elapsed().as_secs_f64(),
+        false,
     );
     let t = Instant::now();
     let film = render_flat_with(
@@ -279,13 +288,14 @@ pub fn error_budget(
         ),
         &film,
         t.elapsed().as_secs_f64(),
+        false,
     );
     let voxel_hits = PrimaryHits::Voxels;
     let voxels = "the GPU's primary hits (fibers of the voxels walked)";
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, options)?;
-    push(Component::Single, format!("6 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
+    push(Component::Single, format!("6 the method on {voxels}"), &film, t.elapsed().as_secs_f64(), false);
 
     // Multiple scattering.
     let fibers = &scene.path_scene.fibers;
@@ -301,7 +311,7 @@ pub fn error_budget(
             let origin = if at_hit { fibers.world_position_f64(hit) } else { midpoint(hit) };
             Ok(indirect_light(scene, hit, origin, wo, rng))
         })?;
-        push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
+        push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64(), false);
     }
     if settings.split_transfer {
         for (part, name) in [
@@ -315,7 +325,7 @@ pub fn error_budget(
             let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
                 Ok(indirect_light_part(scene, hit, midpoint(hit), wo, part, rng))
             })?;
-            push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
+            push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64(), false);
         }
     }
     let grid = &baked.transfer.cells;
@@ -337,7 +347,12 @@ pub fn error_budget(
         let t = Instant::now();
         let options = MethodOptions { interpolate_transfer, clamp_at_zero, primary: PrimaryHits::Exact };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
-        push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
+        let seconds = t.elapsed().as_secs_f64();
+        push(Component::Multiple, name, &film, seconds, false);
+        if !clamp_at_zero {
+            let name = "4'' the method with its clamp on each pixel's mean, not on each sample".to_string();
+            push(Component::Multiple, name, &film, seconds, true);
+        }
     }
     if settings.split_transfer {
         for (part, name) in [
@@ -358,13 +373,13 @@ pub fn error_budget(
                 settings.seed,
                 options,
             )?;
-            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
+            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64(), false);
         }
     }
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
-    push(Component::Multiple, format!("5 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
+    push(Component::Multiple, format!("5 the method on {voxels}"), &film, t.elapsed().as_secs_f64(), false);
     Ok(Budget {
         rungs,
         width,
