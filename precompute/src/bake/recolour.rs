@@ -2389,7 +2389,7 @@ mod tests {
 
     #[test]
     fn broad_forward_light_folds_and_sharp_keeps_its_lobes_as_in_a_direct_bake() {
-        // At SH order 4 a cell keeps its lobes from λ 5 on. The tiny fabric's cotton chains are
+        // At SH order 4 a cell keeps its lobes from λ 3 on. The tiny fabric's cotton chains are
         // broad (λ 2.3–2.5 in its 4 cells, measured) and fold; with the silk satin's TT lobe
         // they are sharp (8.9–10.3) and keep them; a direct bake's λ differ from the basis's by
         // their paths' noise (up to 20% at 1,000 paths, measured), well inside these margins.
