@@ -2250,17 +2250,18 @@ mod tests {
 
     #[test]
     fn the_same_paths_iirtf_keeps_and_folds_the_lobes_as_the_basis_does() {
-        // Warp cotton, weft with the silk's TT lobe, SH order 4 (threshold λ 5). On the diagonal
-        // the basis is exact up to its curves: the same paths reweighed must make the basis's
-        // fold decision in every cell and give its matrix and lobes. At τ 0.25 the cells' λ are
-        // about 0.9 to 1.2 of the threshold: some fold, some keep their lobes. Off the diagonal
+        // Warp cotton, weft with the silk's TT lobe, SH order 6 (threshold λ 5.6; at order 4 it
+        // is 3, below every cell here). On the diagonal the basis is exact up to its curves: the
+        // same paths reweighed must make the basis's fold decision in every cell and give its
+        // matrix and lobes. At τ 0.25 the cells' λ are about 4.5 to 6: some fold, some keep
+        // their lobes. Off the diagonal
         // the whole transfer (the matrix's (0, 0) where a cell folds, `Y_0` times both lobes'
         // strength (0) where it keeps them) must be the test's own reweighing of every
         // connection: the split and the fold drop nothing. Measured worst gaps on the diagonal
-        // (at 400 paths, 3 cells kept and 1 folded): 1.1e-3 of the cell's whole constant term in
-        // the matrix, 8.5e-4 of it over Y_0 in the strengths and cosine, 3.2e-4 of 3 / Y_0²
+        // (at 400 paths, 1 cell kept and 3 folded): 1.3e-3 of the cell's whole constant term in
+        // the matrix, 8.2e-4 of it over Y_0 in the strengths and cosine, 3.3e-4 of 3 / Y_0²
         // times it in the shapes.
-        let s = small_cell_settings(400, 4);
+        let s = small_cell_settings(400, 6);
         let (exemplar, grid, materials) = tiny_fabric(&s);
         let materials = with_silk_tt(&materials, &[1]);
         let basis =
@@ -2453,16 +2454,17 @@ mod tests {
 
     #[test]
     fn cell_transfer_and_write_cell_give_the_basis_entries_at_its_fold_decision() {
-        // Warp cotton, weft with the silk's TT lobe, SH order 4 (threshold λ 5). The colours
-        // move the decision (measured, the basis's λ per cell against the threshold): at the
-        // bake's own colours the forward light is broad (about 0.6–0.9) and every cell folds;
-        // with the cotton warp near black only the silk's chains are left (1.7–3.1) and every
-        // cell keeps its lobes; at τ 0.25 in both slots the cells differ (0.9–1.2). Whatever the
+        // Warp cotton, weft with the silk's TT lobe, SH order 6 (threshold λ 5.6; at order 4 it
+        // is 3, below every cell here). The colours move the decision (measured, the basis's λ
+        // per cell): at the bake's own colours the forward light is broad (about 3–4.5) and
+        // every cell folds; with the cotton warp near black only the silk's chains are left
+        // (8.5–15.5) and every cell keeps its lobes; at τ 0.25 in both slots the cells differ
+        // (4.5–6). Whatever the
         // decision, the basis's IIRTF and its GPU layouts must be its own entries: a folded
         // cell's matrix entry e its entry e with its error, no lobes; a kept one a zero matrix
         // with zero errors and the lobes' entries (the shapes summed over channels), written
         // for the GPU as `CellTransfer::pack_lobes` writes them.
-        let s = small_cell_settings(400, 4);
+        let s = small_cell_settings(400, 6);
         let (exemplar, grid, materials) = tiny_fabric(&s);
         let materials = with_silk_tt(&materials, &[1]);
         let basis =
@@ -2481,7 +2483,7 @@ mod tests {
                 let cell = &basis.cells[c];
                 let prepared = cell.prepare(&colours);
                 let entry = |e: usize| cell.entry(e, &prepared);
-                let folds = forward_lobe_folds(4, entry(layout.forward().start).0, entry(layout.cosine()).0);
+                let folds = forward_lobe_folds(6, entry(layout.forward().start).0, entry(layout.cosine()).0);
                 if let Some(expected) = expected {
                     assert_eq!(folds, expected, "{label}, cell {c}");
                 }
