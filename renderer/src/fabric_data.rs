@@ -68,7 +68,7 @@ pub struct FabricHeaderGpu {
     /// (`BakeSettings::light_sh_order`).
     pub cg_order: u32,
     /// Visibility points per segment (`VisibilityData::points`): `pca_coefficients` and
-    /// `sos_weights` hold that many images per segment.
+    /// `sum_of_sg` hold that many images per segment.
     pub visibility_points: u32,
     /// `u32` words per binary visibility image in `visibility_bits` (`BakeSettings::
     /// visibility_bits`), 0 when the bake kept none (local visibility is then the PCA SSDF's
@@ -119,11 +119,9 @@ pub struct SegmentGpu {
     pub midpoint: [f32; 3],
     pub half_length: f32,
     pub cell: u32,
-    /// The sum-of-SGs rotation, shared by the segment's visibility points.
-    pub sos_rotation: f32,
     /// Fiber radius (cm): the capsule eye rays test.
     pub radius: f32,
-    pub pad: u32,
+    pub pad: [u32; 2],
 }
 const _: () = assert!(size_of::<SegmentGpu>() == 48);
 
@@ -159,7 +157,9 @@ pub struct FabricArrays {
     pub materials: Vec<MaterialGpu>,
     pub pca_basis: Vec<f32>,
     pub pca_coefficients: Vec<f32>,
-    pub sos_weights: Vec<f32>,
+    /// Per image and SG (`[image * sos_count + q]`): the weight's f32 bits and the axis
+    /// (`SumOfSgVisibility::packed_axes`, two snorm16s of its octahedral map).
+    pub sum_of_sg: Vec<[u32; 2]>,
     /// The binary visibility images (`VisibilityData::bits`), image after image in global
     /// image order, `header.visibility_words` words each (bit `p % 32` of word `p / 32` is
     /// pixel `p`); one zero word when the bake kept none.
@@ -267,7 +267,7 @@ impl FabricArrays {
             materials: Vec::new(),
             pca_basis: Vec::new(),
             pca_coefficients: Vec::new(),
-            sos_weights: Vec::new(),
+            sum_of_sg: Vec::new(),
             visibility_bits: Vec::new(),
             iirtf: Vec::new(),
             cell_flags: Vec::new(),
@@ -368,9 +368,8 @@ impl FabricArrays {
                     midpoint: [x, y, z],
                     half_length,
                     cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
-                    sos_rotation: baked.visibility.sum_of_sg.rotation(k * visibility_points),
                     radius: baked.volume.segments.radius[k],
-                    pad: 0,
+                    pad: [0; 2],
                 });
             }
             if let Some(slot) = baked.materials.iter().position(|m| matches!(m, MaterialDesc::Lambert { .. }))
@@ -382,7 +381,10 @@ impl FabricArrays {
             out.pca_basis.extend_from_slice(ssdf.mean());
             out.pca_basis.extend_from_slice(ssdf.components());
             out.pca_coefficients.extend_from_slice(ssdf.all_coefficients());
-            out.sos_weights.extend_from_slice(baked.visibility.sum_of_sg.all_weights());
+            let sos = &baked.visibility.sum_of_sg;
+            out.sum_of_sg.extend(
+                sos.all_weights().iter().zip(sos.all_packed_axes()).map(|(w, axis)| [w.to_bits(), *axis]),
+            );
             if let Some(bits) = &baked.visibility.bits {
                 if bits.resolution != settings.svf_resolution {
                     return Err(FabricDataError::Inconsistent(format!(
@@ -501,7 +503,7 @@ impl FabricArrays {
             ("materials", bytemuck::cast_slice(&self.materials)),
             ("pca_basis", bytemuck::cast_slice(&self.pca_basis)),
             ("pca_coefficients", bytemuck::cast_slice(&self.pca_coefficients)),
-            ("sos_weights", bytemuck::cast_slice(&self.sos_weights)),
+            ("sum_of_sg", bytemuck::cast_slice(&self.sum_of_sg)),
             ("iirtf", bytemuck::cast_slice(&self.iirtf)),
             ("cs_table", bytemuck::cast_slice(&self.cs_table)),
             ("cg_table", bytemuck::cast_slice(&self.cg_table)),

@@ -8,7 +8,8 @@
 //   segments        [segment_offset + local id]
 //   pca_basis       [pca_offset + p] = mean SSDF at pixel p; [pca_offset + (1 + c) * dims + p] = component c
 //   pca_coefficients[image * pca_components + c]
-//   sos_weights     [image * sos_count + q]
+//   sum_of_sg       [image * sos_count + q] = (bitcast<u32>(weight), axis: two snorm16s of its
+//                   octahedral map, unpack_unit_vector)
 //                   image = global segment * visibility_points + point (visibility_image)
 //   visibility_bits [image * visibility_words + p / 32] bit p % 32 = pixel p of the binary
 //                   visibility image (row-major, rows theta), when visibility_words > 0
@@ -52,7 +53,7 @@ struct FabricHeader {
     z_range: vec2<f32>,
     // SH order of the C_G table (cg_table's rows hold cg_order + 1 values).
     cg_order: u32,
-    // Visibility images per segment (VisibilityData::points): pca_coefficients and sos_weights
+    // Visibility images per segment (VisibilityData::points): pca_coefficients and sum_of_sg
     // hold image segment * visibility_points + point.
     visibility_points: u32,
     // u32 words per binary visibility image in visibility_bits; 0 when the bake kept none
@@ -88,11 +89,10 @@ struct SegmentGpu {
     midpoint: vec3<f32>,
     half_length: f32,
     cell: u32,
-    // Shared by the segment's visibility points.
-    sos_rotation: f32,
     // Fiber radius (cm): the capsule eye rays test.
     radius: f32,
     _pad0: u32,
+    _pad1: u32,
 }
 
 struct MaterialGpu {
@@ -116,7 +116,7 @@ struct MaterialGpu {
 @group(1) @binding(5) var<storage, read> materials: array<MaterialGpu>;
 @group(1) @binding(6) var<storage, read> pca_basis: array<f32>;
 @group(1) @binding(7) var<storage, read> pca_coefficients: array<f32>;
-@group(1) @binding(8) var<storage, read> sos_weights: array<f32>;
+@group(1) @binding(8) var<storage, read> sum_of_sg: array<vec2<u32>>;
 @group(1) @binding(9) var<storage, read> iirtf: array<u32>;
 @group(1) @binding(10) var<storage, read> cs_table: array<f32>;
 @group(1) @binding(11) var<storage, read> cg_table: array<f32>;

@@ -347,6 +347,15 @@ fn shade_single_sg_ssdf_erf(e: u32, segment: u32, image: u32, wo: vec3<f32>, axi
     return sg_bcsdf_gamma(fiber_constants(s.material), space, axis, lambda) * (soft / sg_mass_f32(lambda));
 }
 
+// A unit vector from two snorm16s of its octahedral map (sum_of_sg.rs unpack_unit_vector).
+fn unpack_unit_vector(bits: u32) -> vec3<f32> {
+    let p = unpack2x16snorm(bits);
+    let z = 1.0 - abs(p.x) - abs(p.y);
+    let sign = select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
+    let xy = select((1.0 - abs(p.yx)) * sign, p, z >= 0.0);
+    return normalize(vec3<f32>(xy, z));
+}
+
 // Single scattering of a unit-intensity normalized SG light through the sum-of-SGs visibility
 // (visibility.rs sum_of_sg_path): each visibility SG times the light is one sharper SG.
 fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
@@ -356,19 +365,15 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, ax
     let q_count = fabric.sos_count;
     let lambda_svf = fabric.sos_sharpness;
     let inv_mass = 1.0 / sg_mass_f32(lambda_svf);
-    let rot = vec2<f32>(cos(s.sos_rotation), sin(s.sos_rotation));
     var total = vec3<f32>(0.0);
     for (var q = 0u; q < q_count; q++) {
-        let w = sos_weights[image * q_count + q];
+        let sg = sum_of_sg[image * q_count + q];
+        let w = bitcast<f32>(sg.x);
         if (w == 0.0) {
             continue;
         }
-        // Spherical Fibonacci axis q rotated about +z (fibonacci.rs, sum_of_sg.rs).
-        let z = 1.0 - f32(2u * q + 1u) / f32(q_count);
-        let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
-        let phi = 2.0 * PI * fract(f32(q) * 0.6180339887498949);
-        let base = vec2<f32>(r * cos(phi), r * sin(phi));
-        let sg_axis = vec3<f32>(rot.x * base.x - rot.y * base.y, rot.y * base.x + rot.x * base.y, z);
+        // The SG's axis, at the centroid of the visible directions it holds (sum_of_sg.rs).
+        let sg_axis = unpack_unit_vector(sg.y);
         let p = lambda_svf * sg_axis + lambda * axis;
         let sharpness = length(p);
         let d = sg_axis - axis;

@@ -95,18 +95,20 @@ impl Stage {
 
 /// Code version of each stage, in [`Stage::ALL`] order: part of every cache key (visibility
 /// 3: images at `visibility_points` points along each segment, 4: the kept bits and rays from
-/// the centroid of the fiber's upper half; transfer 5: the fiber lobes,
+/// the centroid of the fiber's upper half, 5: each sum-of-SGs axis at the centroid of its
+/// visible directions; transfer 5: the fiber lobes,
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
 /// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
 /// walk weighed at the materials' colours, the recolouring basis's paths, 8: 24 longitudinal
 /// Fourier terms, 9: 24 azimuthal ones; volume 3: touching occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 4, 9, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 9, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
 /// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms; 8: 24 longitudinal
-/// terms per lobe shape; 9: 24 azimuthal terms per elevation node).
-pub const BAKE_LAYOUT_VERSION: u32 = 9;
+/// terms per lobe shape; 9: 24 azimuthal terms per elevation node; 10: the sum of SGs' packed
+/// axes).
+pub const BAKE_LAYOUT_VERSION: u32 = 10;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -259,6 +261,7 @@ impl Baked {
         expect("visibility (sum of SGs) images", sos.segment_count, images)?;
         expect("sum-of-SG weights", sos.all_weights().len(), images * sos.count)?;
         expect("sum-of-SG rotations", sos.rotations().len(), images)?;
+        expect("sum-of-SG axes", sos.all_packed_axes().len(), images * sos.count)?;
         expect("transfer (IIRTF cells) segments", self.transfer.cells.segment_count(), segments)?;
         expect("IIRTF matrices", self.transfer.iirtf.cells.len(), self.transfer.cells.cell_count())?;
         let order = self.transfer.iirtf.sh_order;

@@ -16,6 +16,19 @@
 //! (largest dot product; ties go to the lower `q`). So the weights add up to the visible solid
 //! angle, and `V^ssg` integrates over the sphere to exactly that (each normalized SG integrates
 //! to 1).
+//!
+//! Axes as stored: each SG stands not at its Fibonacci axis but at the **centroid of the
+//! visible directions it was given** (`Σ Ω_p ω_p` normalized, over its pixels), so the sum
+//! keeps the visibility's first moment as well as its mass. An SG whose Voronoi cell straddles
+//! a visibility edge (the horizon, below which the fabric hides everything) otherwise carried
+//! its visible mass to an axis on the hidden side: where the fiber's scattering grows across
+//! the edge (a backlit eye near the horizon looks along the forward-scattered light, which
+//! comes from below it) single scattering under broad SG lights came out too bright,
+//! +17–19% on the gabardine and the cotton (an SG of λ 2 10° above the horizon, view 75°
+//! opposite; docs/BENCHMARKS.md, "The sum of SGs at its visible directions"). An axis with no
+//! visible pixel keeps its Fibonacci axis (its weight is 0). Axes are stored as octahedral
+//! unit vectors in two 16-bit snorms ([`pack_unit_vector`], about 5e-5 rad apart), which the
+//! GPU unpacks with `unpack2x16snorm`; the rotation angle is then only the fit's.
 
 use std::f64::consts::PI;
 
@@ -46,8 +59,12 @@ pub struct SumOfSgVisibility {
     pub segment_count: usize,
     /// `segments x Q`, row-major, steradians.
     weights: Vec<f32>,
-    /// Rotation about +z of each segment's axes (radians, in [0, 2π)).
+    /// Rotation about +z of each segment's Fibonacci axes (radians, in [0, 2π)): the Voronoi
+    /// cells the fit assigns pixels to.
     rotations: Vec<f32>,
+    /// `segments x Q`, row-major: each SG's axis ([`pack_unit_vector`]), the centroid of the
+    /// visible directions its weight holds.
+    axes: Vec<u32>,
 }
 
 impl SumOfSgVisibility {
@@ -75,10 +92,22 @@ impl SumOfSgVisibility {
         &self.rotations
     }
 
-    /// The axes `ξ_{k,q}` of one segment (the stored f32 angle, widened).
+    /// The axes `ξ_{k,q}` of one segment, unpacked ([`unpack_unit_vector`]).
     #[must_use]
     pub fn axes(&self, segment: usize) -> Vec<DVec3> {
-        rotated_axes(self.count, f64::from(self.rotations[segment]))
+        self.packed_axes(segment).iter().map(|&a| unpack_unit_vector(a)).collect()
+    }
+
+    /// The packed axes of one segment ([`pack_unit_vector`]).
+    #[must_use]
+    pub fn packed_axes(&self, segment: usize) -> &[u32] {
+        &self.axes[segment * self.count..(segment + 1) * self.count]
+    }
+
+    /// All packed axes, `segments x Q` row-major.
+    #[must_use]
+    pub fn all_packed_axes(&self) -> &[u32] {
+        &self.axes
     }
 
     /// `V^ssg_k(dir) = Σ_q w_q G(dir; ξ_q, λ) / M(λ)` for unit `dir`.
@@ -117,11 +146,49 @@ pub fn rotated_axes(count: usize, angle: f64) -> Vec<DVec3> {
     axes
 }
 
+/// A unit vector as two 16-bit snorms (x in the low half): its octahedral map (Meyer et al.
+/// 2010), the lower hemisphere folded over the diagonals. Decoded by [`unpack_unit_vector`] and
+/// by WGSL's `unpack2x16snorm` (`shading.wgsl`, `unpack_unit_vector`) within about 5e-5 rad.
+#[must_use]
+pub fn pack_unit_vector(v: DVec3) -> u32 {
+    let v = v / (v.x.abs() + v.y.abs() + v.z.abs());
+    let sign = |x: f64| if x >= 0.0 { 1.0 } else { -1.0 };
+    let (x, y) = if v.z >= 0.0 {
+        (v.x, v.y)
+    } else {
+        ((1.0 - v.y.abs()) * sign(v.x), (1.0 - v.x.abs()) * sign(v.y))
+    };
+    #[allow(clippy::cast_possible_truncation)]
+    let snorm = |x: f64| u32::from((x.clamp(-1.0, 1.0) * 32767.0).round() as i16 as u16);
+    snorm(x) | (snorm(y) << 16)
+}
+
+/// The unit vector of [`pack_unit_vector`]'s bits.
+#[must_use]
+pub fn unpack_unit_vector(bits: u32) -> DVec3 {
+    #[allow(clippy::cast_possible_truncation)]
+    let snorm = |b: u32| (f64::from(b as u16 as i16) / 32767.0).max(-1.0);
+    let (x, y) = (snorm(bits & 0xffff), snorm(bits >> 16));
+    let z = 1.0 - x.abs() - y.abs();
+    let sign = |x: f64| if x >= 0.0 { 1.0 } else { -1.0 };
+    let (x, y) = if z >= 0.0 { (x, y) } else { ((1.0 - y.abs()) * sign(x), (1.0 - x.abs()) * sign(y)) };
+    DVec3::new(x, y, z).normalize()
+}
+
 /// The weights of one segment in f64: solid angle of the visible pixels nearest each axis.
 #[must_use]
 pub fn segment_weights(images: &VisibilityImages, segment: usize, axes: &[DVec3]) -> Vec<f64> {
+    segment_fit(images, segment, axes).0
+}
+
+/// The weights of one segment ([`segment_weights`]) and where each SG stands: the centroid of
+/// the visible directions nearest its axis (`Σ Ω_p ω_p` normalized), or the axis itself where
+/// there are none.
+#[must_use]
+pub fn segment_fit(images: &VisibilityImages, segment: usize, axes: &[DVec3]) -> (Vec<f64>, Vec<DVec3>) {
     let n = images.resolution;
     let mut weights = vec![0.0; axes.len()];
+    let mut moments = vec![DVec3::ZERO; axes.len()];
     for row in 0..n {
         let omega = pixel_solid_angle(n, row);
         for col in 0..n {
@@ -137,9 +204,15 @@ pub fn segment_weights(images: &VisibilityImages, segment: usize, axes: &[DVec3]
                 }
             }
             weights[best.1] += omega;
+            moments[best.1] += omega * dir;
         }
     }
-    weights
+    let centroids = moments
+        .iter()
+        .zip(axes)
+        .map(|(m, &axis)| if m.length_squared() > 0.0 { m.normalize() } else { axis })
+        .collect();
+    (weights, centroids)
 }
 
 /// Sum-of-SGs weights of every image, in parallel (checks `cancel` before each image). The
@@ -159,15 +232,22 @@ pub fn fit_weights(
     let points = points.max(1);
     let rotations: Vec<f32> = (0..segments).map(|k| rotation_angle(seed, k / points) as f32).collect();
     let mut weights = vec![0.0_f32; segments * count];
-    weights.par_chunks_mut(count).enumerate().try_for_each(|(k, out)| {
-        cancel.check()?;
-        let axes = rotated_axes(count, f64::from(rotations[k]));
-        for (o, w) in out.iter_mut().zip(segment_weights(images, k, &axes)) {
-            *o = w as f32;
-        }
-        Ok::<(), Cancelled>(())
-    })?;
-    Ok(SumOfSgVisibility { count, sharpness, segment_count: segments, weights, rotations })
+    let mut packed_axes = vec![0_u32; segments * count];
+    weights.par_chunks_mut(count).zip(packed_axes.par_chunks_mut(count)).enumerate().try_for_each(
+        |(k, (weights_out, axes_out))| {
+            cancel.check()?;
+            let fibonacci = rotated_axes(count, f64::from(rotations[k]));
+            let (w, centroids) = segment_fit(images, k, &fibonacci);
+            for (o, w) in weights_out.iter_mut().zip(w) {
+                *o = w as f32;
+            }
+            for (o, c) in axes_out.iter_mut().zip(centroids) {
+                *o = pack_unit_vector(c);
+            }
+            Ok::<(), Cancelled>(())
+        },
+    )?;
+    Ok(SumOfSgVisibility { count, sharpness, segment_count: segments, weights, rotations, axes: packed_axes })
 }
 
 #[cfg(test)]
