@@ -119,9 +119,12 @@ pub struct SegmentGpu {
     pub midpoint: [f32; 3],
     pub half_length: f32,
     pub cell: u32,
+    /// The sum-of-SGs rotation of its Fibonacci axes, shared by the segment's visibility
+    /// points.
+    pub sos_rotation: f32,
     /// Fiber radius (cm): the capsule eye rays test.
     pub radius: f32,
-    pub pad: [u32; 2],
+    pub pad: u32,
 }
 const _: () = assert!(size_of::<SegmentGpu>() == 48);
 
@@ -368,8 +371,9 @@ impl FabricArrays {
                     midpoint: [x, y, z],
                     half_length,
                     cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
+                    sos_rotation: baked.visibility.sum_of_sg.rotation(k * visibility_points),
                     radius: baked.volume.segments.radius[k],
-                    pad: [0; 2],
+                    pad: 0,
                 });
             }
             if let Some(slot) = baked.materials.iter().position(|m| matches!(m, MaterialDesc::Lambert { .. }))

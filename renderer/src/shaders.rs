@@ -98,6 +98,14 @@ pub fn prelude() -> String {
         "const UPPER_FIT_MIN_ORDER: u32 = {}u;",
         twill_precompute::upper_fit::UPPER_FIT_MIN_ORDER
     );
+    // Where the sum of SGs stands (shading::visibility::sos_centroid_share).
+    #[allow(clippy::cast_possible_truncation)]
+    for (name, value) in [
+        ("SOS_CENTROIDS_ONLY_BELOW", twill_precompute::shading::visibility::SOS_CENTROIDS_ONLY_BELOW as f32),
+        ("SOS_FIBONACCI_ONLY_ABOVE", twill_precompute::shading::visibility::SOS_FIBONACCI_ONLY_ABOVE as f32),
+    ] {
+        let _ = writeln!(out, "const {name}: f32 = {value:?};");
+    }
     // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
     {
         use twill_precompute::bake::iirtf::{

@@ -89,10 +89,11 @@ struct SegmentGpu {
     midpoint: vec3<f32>,
     half_length: f32,
     cell: u32,
+    // The sum of SGs' Fibonacci axes' rotation, shared by the segment's visibility points.
+    sos_rotation: f32,
     // Fiber radius (cm): the capsule eye rays test.
     radius: f32,
     _pad0: u32,
-    _pad1: u32,
 }
 
 struct MaterialGpu {

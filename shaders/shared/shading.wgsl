@@ -365,6 +365,8 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, ax
     let q_count = fabric.sos_count;
     let lambda_svf = fabric.sos_sharpness;
     let inv_mass = 1.0 / sg_mass_f32(lambda_svf);
+    let centroid_share = sos_centroid_share(lambda, q_count);
+    let rot = vec2<f32>(cos(s.sos_rotation), sin(s.sos_rotation));
     var total = vec3<f32>(0.0);
     for (var q = 0u; q < q_count; q++) {
         let sg = sum_of_sg[image * q_count + q];
@@ -372,16 +374,49 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, ax
         if (w == 0.0) {
             continue;
         }
-        // The SG's axis, at the centroid of the visible directions it holds (sum_of_sg.rs).
-        let sg_axis = unpack_unit_vector(sg.y);
-        let p = lambda_svf * sg_axis + lambda * axis;
-        let sharpness = length(p);
-        let d = sg_axis - axis;
-        let loss = lambda_svf * lambda * dot(d, d) / (lambda_svf + lambda + sharpness);
-        let product_axis = select(sg_axis, p / sharpness, sharpness > 0.0);
-        total += sg_bcsdf_gamma(f, space, product_axis, sharpness) * (w * inv_mass * exp(-loss));
+        // The SG at the centroid of the visible directions it holds (sum_of_sg.rs) for lights
+        // broader than a cell, at its Fibonacci axis rotated about +z (fibonacci.rs) for
+        // narrower ones, both between (visibility.rs sos_centroid_share).
+        if (centroid_share > 0.0) {
+            total += sum_of_sg_term(f, space, unpack_unit_vector(sg.y), axis, lambda) * (w * centroid_share);
+        }
+        if (centroid_share < 1.0) {
+            let z = 1.0 - f32(2u * q + 1u) / f32(q_count);
+            let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
+            let phi = 2.0 * PI * fract(f32(q) * 0.6180339887498949);
+            let base = vec2<f32>(r * cos(phi), r * sin(phi));
+            let fibonacci = vec3<f32>(rot.x * base.x - rot.y * base.y, rot.y * base.x + rot.x * base.y, z);
+            total += sum_of_sg_term(f, space, fibonacci, axis, lambda) * (w * (1.0 - centroid_share));
+        }
     }
-    return total / sg_mass_f32(lambda);
+    return total * inv_mass / sg_mass_f32(lambda);
+}
+
+// One visibility SG (unit axis, sharpness fabric.sos_sharpness, unit weight and mass) times the
+// light, scattered: Γ of their product SG times its scale (visibility.rs sum_of_sg_path).
+fn sum_of_sg_term(f: FiberConstants, space: OmegaOSpace, sg_axis: vec3<f32>, axis: vec3<f32>, lambda: f32) -> vec3<f32> {
+    let lambda_svf = fabric.sos_sharpness;
+    let p = lambda_svf * sg_axis + lambda * axis;
+    let sharpness = length(p);
+    let d = sg_axis - axis;
+    let loss = lambda_svf * lambda * dot(d, d) / (lambda_svf + lambda + sharpness);
+    let product_axis = select(sg_axis, p / sharpness, sharpness > 0.0);
+    return sg_bcsdf_gamma(f, space, product_axis, sharpness) * exp(-loss);
+}
+
+// visibility.rs sos_centroid_share: 1 while the light covers SOS_CENTROIDS_ONLY_BELOW cells'
+// worth or more, 0 from a light of one cell (SOS_FIBONACCI_ONLY_ABOVE), 1 − smoothstep of the
+// log ratio between.
+fn sos_centroid_share(lambda: f32, q_count: u32) -> f32 {
+    let ratio = 2.0 * lambda / f32(max(q_count, 1u));
+    if (!(ratio > SOS_CENTROIDS_ONLY_BELOW)) {
+        return 1.0;
+    }
+    if (ratio >= SOS_FIBONACCI_ONLY_ABOVE) {
+        return 0.0;
+    }
+    let x = log(ratio / SOS_CENTROIDS_ONLY_BELOW) / log(SOS_FIBONACCI_ONLY_ABOVE / SOS_CENTROIDS_ONLY_BELOW);
+    return 1.0 - x * x * (3.0 - 2.0 * x);
 }
 
 // z_l(lambda) of the normalized SG from the C_G table (bake::tables::CgTable::lookup).

@@ -28,7 +28,9 @@
 //! opposite; docs/BENCHMARKS.md, "The sum of SGs at its visible directions"). An axis with no
 //! visible pixel keeps its Fibonacci axis (its weight is 0). Axes are stored as octahedral
 //! unit vectors in two 16-bit snorms ([`pack_unit_vector`], about 5e-5 rad apart), which the
-//! GPU unpacks with `unpack2x16snorm`; the rotation angle is then only the fit's.
+//! GPU unpacks with `unpack2x16snorm`. For lights narrower than a cell the SGs stand at their
+//! Fibonacci axes instead (`shading::visibility::sos_centroid_share`), so the rotation angle
+//! is kept too.
 
 use std::f64::consts::PI;
 
@@ -96,6 +98,14 @@ impl SumOfSgVisibility {
     #[must_use]
     pub fn axes(&self, segment: usize) -> Vec<DVec3> {
         self.packed_axes(segment).iter().map(|&a| unpack_unit_vector(a)).collect()
+    }
+
+    /// The Fibonacci axes of one segment (its rotation's), the cells the fit assigned pixels to:
+    /// where the SGs stand for lights narrower than a cell
+    /// (`shading::visibility::sos_centroid_share`).
+    #[must_use]
+    pub fn fibonacci_axes(&self, segment: usize) -> Vec<DVec3> {
+        rotated_axes(self.count, f64::from(self.rotations[segment]))
     }
 
     /// The packed axes of one segment ([`pack_unit_vector`]).

@@ -8,7 +8,8 @@
 //!   fraction toward ω_d (bilinear), else the hard step `H(d_k(ω_d))` of the PCA SSDF
 //!   (`VisibilityData::visibility`).
 //! - Normalized SG light (axis ξ, sharpness λ, intensity I; radiance `I G(ω; ξ, λ)/M(λ)`):
-//!   `V_glo · I/M(λ) · [w_sos · SOS + w_ssdf · V_k(ξ, λ) Γ(ξ, λ, ωo)]`, `V_k(ξ, λ)` the kept
+//!   `V_glo · I/M(λ) · [w_sos · SOS + w_ssdf · V_k(ξ, λ) Γ(ξ, λ, ωo)]` (SOS at the SGs'
+//!   centroids and Fibonacci axes by `sos_centroid_share`), `V_k(ξ, λ)` the kept
 //!   binary image's visible fraction toward ξ, else `½ erfc(−sqrt(λ/2) d_k(ξ))`
 //!   (`VisibilityData::soft_visibility`), with
 //!   `(w_sos, w_ssdf) = sg_path_weights(λ)` and SOS the sum-of-SGs path
@@ -21,7 +22,7 @@ use glam::DVec3;
 
 use super::bcsdf::{FiberConstants, fiber_eval_cos};
 use super::gamma::gamma;
-use super::visibility::{sg_path_weights, sum_of_sg_path};
+use super::visibility::{sg_path_weights, sos_centroid_share, sum_of_sg_path};
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::pipeline::{Baked, VisibilityData};
@@ -72,18 +73,15 @@ pub fn single_scattering_sg(
     let mut integral = Rgb::ZERO;
     if w_sos > 0.0 {
         let sos = &visibility.sum_of_sg;
-        let path = sum_of_sg_path(
-            fiber,
-            gn,
-            t,
-            wo,
-            &sos.axes(image),
-            sos.weights(image),
-            sos.sharpness,
-            axis,
-            sharpness,
-        );
-        integral += path * w_sos;
+        let centroid_share = sos_centroid_share(sharpness, sos.count);
+        for (share, axes) in [(centroid_share, sos.axes(image)), (1.0 - centroid_share, sos.fibonacci_axes(image))]
+        {
+            if share > 0.0 {
+                let path =
+                    sum_of_sg_path(fiber, gn, t, wo, &axes, sos.weights(image), sos.sharpness, axis, sharpness);
+                integral += path * (w_sos * share);
+            }
+        }
     }
     if w_ssdf > 0.0 {
         let soft = visibility.soft_visibility(image, axis, sharpness);

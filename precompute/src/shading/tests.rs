@@ -613,7 +613,8 @@ fn shading_gamma_is_finite_and_non_negative_in_every_degenerate_configuration() 
 // Visibility paths.
 
 use super::visibility::{
-    bits_lookup, erf_soft_visibility, sg_path_weights, ssdf_lookup, ssdf_step_visibility, sum_of_sg_path,
+    bits_lookup, erf_soft_visibility, sg_path_weights, sos_centroid_share, ssdf_lookup, ssdf_step_visibility,
+    sum_of_sg_path,
 };
 use crate::fibonacci::spherical_fibonacci;
 use crate::sg::sg_mass;
@@ -627,6 +628,28 @@ fn shading_sg_path_weights_blend_linearly_between_100_and_200() {
     assert_eq!(sg_path_weights(200.0), (0.0, 1.0));
     assert_eq!(sg_path_weights(1e5), (0.0, 1.0));
     assert_eq!(sg_path_weights(f64::NAN), (1.0, 0.0));
+}
+
+#[test]
+fn shading_sum_of_sgs_stands_at_centroids_for_lights_broader_than_eight_cells() {
+    // At Q = 64 a cell is 4π/64 sr and an SG light of sharpness λ about 2π/λ: the light covers
+    // 8 cells at λ 4 and one at λ 32.
+    for lambda in [0.0, 1e-4, 2.0, 4.0] {
+        assert_eq!(sos_centroid_share(lambda, 64), 1.0, "λ {lambda}");
+    }
+    for lambda in [32.0, 58.0, 1e5, f64::INFINITY] {
+        assert_eq!(sos_centroid_share(lambda, 64), 0.0, "λ {lambda}");
+    }
+    assert_eq!(sos_centroid_share(f64::NAN, 64), 1.0);
+    assert!((sos_centroid_share(4.0 * 8f64.sqrt(), 64) - 0.5).abs() < 1e-12, "half way in ln λ");
+    assert_eq!(sos_centroid_share(16.0, 256), 1.0, "more SGs, smaller cells: λ 16 covers 8 of 256");
+    // Continuous and falling.
+    let mut last = 1.0;
+    for i in 0..=400 {
+        let share = sos_centroid_share(2.0 * 20f64.powf(f64::from(i) / 400.0), 64);
+        assert!(share <= last && last - share < 0.02, "{i}: {last} -> {share}");
+        last = share;
+    }
 }
 
 #[test]
