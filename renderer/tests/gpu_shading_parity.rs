@@ -437,8 +437,10 @@ fn compare_bake(gpu: &Gpu, label: &str, baked: &Baked) -> Vec<String> {
     eprintln!("{label}, single, directional: {occluded} occluded and {visible} visible cases");
     assert!(occluded > 0 && visible > 0, "the grid must include occluded and visible cases");
 
-    // SG single scattering: sum-of-SGs (λ ≤ 100), blend (150), erf-SSDF or the kept bits (≥ 200).
-    let sg_cases = cases(baked, &[1e-4, 8.0, 100.0, 150.0, 300.0, 1e5]);
+    // SG single scattering: sum-of-SGs (λ ≤ 100: at the SGs' centroids for broad lights, at
+    // their Fibonacci axes for sharp ones, both between, `sos_centroid_share`), blend (150),
+    // erf-SSDF or the kept bits (≥ 200).
+    let sg_cases = cases(baked, &[1e-4, 2.0, 8.0, 16.0, 40.0, 100.0, 150.0, 300.0, 1e5]);
     let gpu_sg = run(
         "vec4<f32>(select(0.0, 1.0, input.y < 200.0) * shade_single_sg_sum_of_sg(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * (1.0 - clamp((input.y - 100.0) / 100.0, 0.0, 1.0)) + select(0.0, 1.0, input.y > 100.0) * shade_single_sg_ssdf_erf(0u, u32(input.x), case_image(input), case_wo(input), case_axis(input), input.y) * clamp((input.y - 100.0) / 100.0, 0.0, 1.0), 0.0)",
         &sg_cases,
