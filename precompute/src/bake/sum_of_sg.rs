@@ -163,11 +163,8 @@ pub fn rotated_axes(count: usize, angle: f64) -> Vec<DVec3> {
 pub fn pack_unit_vector(v: DVec3) -> u32 {
     let v = v / (v.x.abs() + v.y.abs() + v.z.abs());
     let sign = |x: f64| if x >= 0.0 { 1.0 } else { -1.0 };
-    let (x, y) = if v.z >= 0.0 {
-        (v.x, v.y)
-    } else {
-        ((1.0 - v.y.abs()) * sign(v.x), (1.0 - v.x.abs()) * sign(v.y))
-    };
+    let (x, y) =
+        if v.z >= 0.0 { (v.x, v.y) } else { ((1.0 - v.y.abs()) * sign(v.x), (1.0 - v.x.abs()) * sign(v.y)) };
     #[allow(clippy::cast_possible_truncation)]
     let snorm = |x: f64| u32::from((x.clamp(-1.0, 1.0) * 32767.0).round() as i16 as u16);
     snorm(x) | (snorm(y) << 16)

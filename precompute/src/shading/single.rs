@@ -74,11 +74,21 @@ pub fn single_scattering_sg(
     if w_sos > 0.0 {
         let sos = &visibility.sum_of_sg;
         let centroid_share = sos_centroid_share(sharpness, sos.count);
-        for (share, axes) in [(centroid_share, sos.axes(image)), (1.0 - centroid_share, sos.fibonacci_axes(image))]
+        for (share, axes) in
+            [(centroid_share, sos.axes(image)), (1.0 - centroid_share, sos.fibonacci_axes(image))]
         {
             if share > 0.0 {
-                let path =
-                    sum_of_sg_path(fiber, gn, t, wo, &axes, sos.weights(image), sos.sharpness, axis, sharpness);
+                let path = sum_of_sg_path(
+                    fiber,
+                    gn,
+                    t,
+                    wo,
+                    &axes,
+                    sos.weights(image),
+                    sos.sharpness,
+                    axis,
+                    sharpness,
+                );
                 integral += path * (w_sos * share);
             }
         }

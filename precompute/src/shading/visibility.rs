@@ -83,13 +83,14 @@ pub const SOS_FIBONACCI_ONLY_ABOVE: f64 = 1.0;
 #[must_use]
 pub fn sos_centroid_share(lambda: f64, count: usize) -> f64 {
     let ratio = 2.0 * lambda / count.max(1) as f64;
-    if !(ratio > SOS_CENTROIDS_ONLY_BELOW) {
+    if ratio.is_nan() || ratio <= SOS_CENTROIDS_ONLY_BELOW {
         return 1.0;
     }
     if ratio >= SOS_FIBONACCI_ONLY_ABOVE {
         return 0.0;
     }
-    let x = (ratio / SOS_CENTROIDS_ONLY_BELOW).ln() / (SOS_FIBONACCI_ONLY_ABOVE / SOS_CENTROIDS_ONLY_BELOW).ln();
+    let x =
+        (ratio / SOS_CENTROIDS_ONLY_BELOW).ln() / (SOS_FIBONACCI_ONLY_ABOVE / SOS_CENTROIDS_ONLY_BELOW).ln();
     1.0 - x * x * (3.0 - 2.0 * x)
 }
 
