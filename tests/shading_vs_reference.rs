@@ -569,6 +569,25 @@ fn assert_exact_rung_matches_the_path_tracer(budget: &Budget, component: Compone
     );
 }
 
+/// A 2 cm flat swatch of the gabardine on its ground, seen orthographically (0.4 cm high, 24 ×
+/// 24) from `eye` toward the origin under one SG light of unit intensity, and its interactive
+/// bake: the scenes of the budget's regression tests, named `name` in their errors.
+fn gabardine_swatch_baked(name: &str, eye: [f64; 3], axis: [f64; 3], sharpness: f64) -> (Scene, Baked) {
+    let text = format!(
+        "[fabric]\npreset = \"gabardine_twill\"\n[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n\
+         [camera]\nprojection = \"orthographic\"\neye = {eye:?}\ntarget = [0.0, 0.0, 0.0]\nup = [0, 0, 1]\n\
+         height_cm = 0.4\n[[lights]]\ntype = \"sg\"\naxis = {axis:?}\nsharpness = {sharpness:?}\n\
+         intensity = [1.0, 1.0, 1.0]\n[render]\nwidth = 24\nheight = 24\nspp = 16\nmax_depth = 64\nseed = 1\n"
+    );
+    let scene = SceneFile::parse(&text, std::path::Path::new(name))
+        .expect("the scene parses")
+        .build()
+        .expect("the scene builds");
+    let inputs = scene.bake_inputs(Quality::Interactive.settings());
+    let baked = bake(&inputs[0], None, &Cancel::new(), &|_, _| {}).expect("interactive bake").baked;
+    (scene, baked)
+}
+
 /// The gabardine's forward chains (light transmitted fiber after fiber, peaked about the
 /// light's direction) ring in SH matrices of order 4, so its cells hold them as fiber lobes
 /// (`iirtf::forward_lobe_min_sharpness`, λ 3 at order 4). While they folded below λ 5 (until
@@ -582,19 +601,13 @@ fn assert_exact_rung_matches_the_path_tracer(budget: &Budget, component: Compone
 /// at λ 5 this test measured −31.5% and −54.8% and failed).
 #[test]
 fn gabardine_forward_chains_keep_their_lobes_at_a_grazing_front_lit_view() {
-    use std::path::Path;
     use twill_precompute::shading::budget::{BudgetSettings, error_budget};
-    let text = "[fabric]\npreset = \"gabardine_twill\"\n[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n\
-                [camera]\nprojection = \"orthographic\"\neye = [-0.5546, 0.1544, 0.1692]\n\
-                target = [0.0, 0.0, 0.0]\nup = [0, 0, 1]\nheight_cm = 0.4\n\
-                [[lights]]\ntype = \"sg\"\naxis = [-0.6053, -0.0389, 0.7951]\nsharpness = 638.5\n\
-                intensity = [1.0, 1.0, 1.0]\n[render]\nwidth = 24\nheight = 24\nspp = 16\nmax_depth = 64\nseed = 1\n";
-    let scene = SceneFile::parse(text, Path::new("gabardine_grazing.toml"))
-        .expect("the scene parses")
-        .build()
-        .expect("the scene builds");
-    let inputs = scene.bake_inputs(Quality::Interactive.settings());
-    let baked = bake(&inputs[0], None, &Cancel::new(), &|_, _| {}).expect("interactive bake").baked;
+    let (scene, baked) = gabardine_swatch_baked(
+        "gabardine_grazing.toml",
+        [-0.5546, 0.1544, 0.1692],
+        [-0.6053, -0.0389, 0.7951],
+        638.5,
+    );
     let cells = &baked.transfer.iirtf.cells;
     let lobes = cells.iter().filter(|c| c.has_lobes()).count();
     let nonempty = cells.iter().filter(|c| c.paths > 0).count();
@@ -643,19 +656,13 @@ const MEASURED_4_UNCLAMPED: f64 = -0.208;
 /// would fail).
 #[test]
 fn a_broad_sg_light_at_the_horizon_keeps_its_sum_of_sgs_on_the_visible_side() {
-    use std::path::Path;
     use twill_precompute::shading::budget::{BudgetSettings, error_budget};
-    let text = "[fabric]\npreset = \"gabardine_twill\"\n[swatch]\nsize_cm = [2.0, 2.0]\nground = true\n\
-                [camera]\nprojection = \"orthographic\"\neye = [0.0, 0.5796, 0.1553]\n\
-                target = [0.0, 0.0, 0.0]\nup = [0, 0, 1]\nheight_cm = 0.4\n\
-                [[lights]]\ntype = \"sg\"\naxis = [-0.1710, -0.9698, 0.1736]\nsharpness = 2.0\n\
-                intensity = [1.0, 1.0, 1.0]\n[render]\nwidth = 24\nheight = 24\nspp = 16\nmax_depth = 64\nseed = 1\n";
-    let scene = SceneFile::parse(text, Path::new("gabardine_broad_sg_at_the_horizon.toml"))
-        .expect("the scene parses")
-        .build()
-        .expect("the scene builds");
-    let inputs = scene.bake_inputs(Quality::Interactive.settings());
-    let baked = bake(&inputs[0], None, &Cancel::new(), &|_, _| {}).expect("interactive bake").baked;
+    let (scene, baked) = gabardine_swatch_baked(
+        "gabardine_broad_sg_at_the_horizon.toml",
+        [0.0, 0.5796, 0.1553],
+        [-0.1710, -0.9698, 0.1736],
+        2.0,
+    );
     let settings =
         BudgetSettings { spp: 16, reference_spp: 128, light_samples: 8, seed: 3, split_transfer: false };
     let budget = error_budget(&scene, &baked, &settings, &|_| {}).expect("budget");
