@@ -261,16 +261,26 @@ pub fn fit_weights(
 mod tests {
     use super::*;
 
-    fn full_images(n: usize, segments: usize) -> VisibilityImages {
+    /// `segments` images of `n × n` pixels, pixel (r, c) of image k visible where
+    /// `visible(k, r, c)`.
+    fn images_where(
+        n: usize,
+        segments: usize,
+        visible: impl Fn(usize, usize, usize) -> bool,
+    ) -> VisibilityImages {
         let mut images = VisibilityImages::new(n, segments);
         for k in 0..segments {
             for r in 0..n {
                 for c in 0..n {
-                    images.set(k, r, c, true);
+                    images.set(k, r, c, visible(k, r, c));
                 }
             }
         }
         images
+    }
+
+    fn full_images(n: usize, segments: usize) -> VisibilityImages {
+        images_where(n, segments, |_, _, _| true)
     }
 
     #[test]
@@ -285,15 +295,7 @@ mod tests {
     #[test]
     fn weights_add_up_to_the_visible_solid_angle() {
         // Half-visible images with a ragged edge.
-        let n = 32;
-        let mut images = VisibilityImages::new(n, 5);
-        for k in 0..5 {
-            for r in 0..n {
-                for c in 0..n {
-                    images.set(k, r, c, (r + c * (k + 1)) % 7 < 3 + k % 3);
-                }
-            }
-        }
+        let images = images_where(32, 5, |k, r, c| (r + c * (k + 1)) % 7 < 3 + k % 3);
         for k in 0..5 {
             let axes = rotated_axes(32, rotation_angle(3, k));
             let sum: f64 = segment_weights(&images, k, &axes).iter().sum();
@@ -420,14 +422,7 @@ mod tests {
         // rotations: every SG with weight stands above the horizon, though some Fibonacci axes
         // of cells that straddle it lie below, and each stands at its pixels' centroid.
         let n = 48;
-        let mut images = VisibilityImages::new(n, 6);
-        for k in 0..6 {
-            for r in 0..n {
-                for c in 0..n {
-                    images.set(k, r, c, pixel_direction(n, r, c).z > 0.0);
-                }
-            }
-        }
+        let images = images_where(n, 6, |_, r, c| pixel_direction(n, r, c).z > 0.0);
         let sos = fit_weights(&images, 64, 128.0, 5, 1, &Cancel::new()).unwrap();
         let mut straddling = 0;
         for k in 0..6 {

@@ -74,10 +74,9 @@ pub fn single_scattering_sg(
     if w_sos > 0.0 {
         let sos = &visibility.sum_of_sg;
         let centroid_share = sos_centroid_share(sharpness, sos.count);
-        for (share, axes) in
-            [(centroid_share, sos.axes(image)), (1.0 - centroid_share, sos.fibonacci_axes(image))]
-        {
+        for (share, at_centroids) in [(centroid_share, true), (1.0 - centroid_share, false)] {
             if share > 0.0 {
+                let axes = if at_centroids { sos.axes(image) } else { sos.fibonacci_axes(image) };
                 let path = sum_of_sg_path(
                     fiber,
                     gn,
