@@ -1044,12 +1044,15 @@ pub fn bench_raycast(
         file.path.display()
     );
     for (k, exemplar) in built.exemplars().iter().enumerate() {
+        let built_at = std::time::Instant::now();
         let fibers = FiberScene::new(exemplar, swatch_extent(side_cm))
             .map_err(|e| anyhow::anyhow!("exemplar {k}: {e}"))?;
         println!(
-            "exemplar {k}: {} segments, {} BVH capsules",
+            "exemplar {k}: {} segments, {} capsules (with the period's border copies), grid {}, built in {:.0} ms",
             exemplar.segment_count(),
-            fibers.primitive_count()
+            fibers.primitive_count(),
+            fibers.grid_summary(),
+            built_at.elapsed().as_secs_f64() * 1e3
         );
         println!("  {:<14} {:>14} {:>14} {:>8}", "rays", "closest hit", "any hit", "hit");
         for (family, set) in [

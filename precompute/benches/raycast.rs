@@ -30,7 +30,7 @@ fn bench(c: &mut Criterion) {
             100.0 * hits.count() as f64 / set.len() as f64
         };
         eprintln!(
-            "{name}: {} segments, {} BVH capsules, {:.1} % of camera and {:.1} % of scatter rays hit",
+            "{name}: {} segments, {} capsules, {:.1} % of camera and {:.1} % of scatter rays hit",
             exemplar.segment_count(),
             scene.primitive_count(),
             hit_fraction(&camera),

@@ -11,7 +11,8 @@
 //! How the test works, in a frame centred at the segment midpoint (so the numbers are of the
 //! order of the segment length, not of the scene coordinates):
 //! 1. Move the ray origin to the point of the ray closest to the centre (`t_c`); if that point is
-//!    farther than `half_length + radius` the capsule's bounding sphere is missed (early out).
+//!    farther than `half_length + radius` the capsule's bounding sphere is missed (early out);
+//!    if the ray's line passes the axis farther than `radius`, so is the infinite cylinder.
 //!    Solving from this point keeps the quadratic well conditioned for far origins.
 //! 2. Enter the infinite cylinder around the axis (a quadratic in `t`, solved in the numerically
 //!    stable form). A ray parallel to the axis has no quadratic; it is inside the cylinder or
@@ -103,18 +104,19 @@ impl Capsule {
         if p2 > reach * reach {
             return None;
         }
-        // Origins near the capsule: reject those inside. (Far ones cannot be inside, and for
-        // them the offset is too large for the test to be precise.)
-        if (ray_origin - self.center).length_squared() <= 1.0001 * reach * reach && self.contains(ray_origin)
-        {
+        // The line passes the axis farther than the radius: it misses the infinite cylinder,
+        // which holds the capsule (|p · (d × u)| / |d × u| is the distance between the lines).
+        let w = dir.cross(u);
+        let qa = w.length_squared();
+        let pw = p.dot(w);
+        if qa > 1e-12 && pw * pw > r * r * qa {
             return None;
         }
-        // Infinite cylinder, from p: |p_perp + s d_perp|^2 = r^2.
+        // Infinite cylinder, from p: |p_perp + s d_perp|^2 = r^2 (|d_perp|² = |d × u|² = qa).
         let pu = p.dot(u);
         let du = dir.dot(u);
         let p_perp = p - pu * u;
         let d_perp = dir - du * u;
-        let qa = d_perp.length_squared();
         let qc = p_perp.length_squared() - r * r;
         // Axial coordinate at the cylinder entry; +-inf for a ray parallel to the axis.
         let (s_cyl, y_entry) = if qa > 1e-12 {
@@ -152,6 +154,13 @@ impl Capsule {
         };
         let t = t_c + s;
         if !(t >= 0.0 && t < t_max) {
+            return None;
+        }
+        // An origin inside the capsule sees no entry. (A convex capsule's entry then lies behind
+        // it, so only origins within the shell around the surface get here. Far origins cannot be
+        // inside, and for them the offset is too large for the test to be precise.)
+        if (ray_origin - self.center).length_squared() <= 1.0001 * reach * reach && self.contains(ray_origin)
+        {
             return None;
         }
         let segment_param = if h > 0.0 { (0.5 + 0.5 * y / h).clamp(0.0, 1.0) } else { 0.5 };

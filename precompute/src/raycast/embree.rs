@@ -6,7 +6,7 @@
 //! segment becomes one curve of its own (two vertices `(x, y, z, r)`, both caps), in every copy
 //! of a periodic exemplar whose period cell lies within one period of the swatch rectangle
 //! ([`copies`]), either all in one BVH ([`Layout::Explicit`]) or as one BVH of the exemplar
-//! instanced per copy ([`Layout::Instanced`], a two-level BVH: the nearest to [`FiberScene`],
+//! instanced per copy ([`Layout::Instanced`], a two-level BVH: the nearest to [`FiberScene`]'s walk,
 //! which walks the copies of one wrapped period). Rays are not clipped to the swatch here, so a
 //! hit on a capsule sticking out of the rectangle counts, where ours would not: the measured hit
 //! fractions say how much that matters. Closest hit is `rtcIntersect1`, any hit `rtcOccluded1`,

@@ -6,22 +6,23 @@
 //! - A periodic exemplar is stored once, *wrapped into one period cell*: each segment is moved by
 //!   a whole number of periods so its midpoint lies in `[0, px) x [0, py)`, and segments whose
 //!   capsule crosses the cell border are also stored shifted by one period (about 5 % extra for
-//!   fiber-scale segments). One `obvhs` compressed wide BVH (CWBVH) is built over these capsules;
-//!   it then holds *every* capsule of the infinite periodic fabric that overlaps a cell.
+//!   fiber-scale segments). One uniform voxel grid ([`grid`]) bins these capsules; it then holds
+//!   *every* capsule of the infinite periodic fabric that overlaps a cell.
 //! - A ray is clipped to the fabric slab (the exemplar's z range) and, for a finite swatch, to the
 //!   swatch rectangle; then a 2D DDA walks the period cells its xy projection crosses, nearest
-//!   first. In each cell the BVH is traversed with the piece of the ray inside that cell, in
-//!   cell-local coordinates (the cell offset is subtracted in f64 before converting to f32, so
-//!   precision does not degrade far from the origin). Hits in a cell's piece are exact closest
-//!   hits, so the walk stops at the first cell with a hit.
+//!   first. In each cell the grid is walked (a 3D DDA over its voxels) with the piece of the ray
+//!   inside that cell, in cell-local coordinates (the cell offset is subtracted in f64 before
+//!   converting to f32, so precision does not degrade far from the origin). Hits in a cell's
+//!   piece are exact closest hits, so the walk stops at the first cell with a hit.
 //! - A finite swatch is "the infinite periodic fabric clipped to a rectangle": because the ray is
 //!   clipped to the rectangle before the walk, no hit lies outside it and the edges are clean
 //!   straight cuts (the cut fibers are open there: a ray entering a fiber through the cut sees
 //!   what lies behind it).
-//! - `Tiling::AsIs` exemplars are one BVH over the fibers as given, traversed once.
-//! - `obvhs` clamps the near distance of its box test to `1e-4` (its units). The BVH is therefore
-//!   built and traversed in units of `2^-16` cm (an exact power-of-two scale), which makes that
-//!   clamp `1.5e-9` cm, far below the fiber radius. Capsules are intersected in centimetres.
+//! - `Tiling::AsIs` exemplars are one grid over the fibers as given, walked once.
+//! - Why a grid and not a BVH: fibers are capsules of one radius spread evenly through a thin
+//!   slab, which a uniform grid with empty-space jumps walks in fewer instructions than a
+//!   general BVH (obvhs's CWBVH was 1.6x slower on closest hits; docs/BENCHMARKS.md, "Fiber ray
+//!   casting").
 //!
 //! Rays whose origin is inside a capsule do not hit it (see [`capsule`]). `ignore_fiber` skips
 //! every segment of one fiber id in every copy: the path tracer passes the fiber a scattered ray
@@ -31,6 +32,7 @@
 pub mod capsule;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod grid;
 mod mean_free_path;
 pub mod testing;
 pub mod throughput;
@@ -39,17 +41,8 @@ pub use mean_free_path::{MeanFreePath, mean_free_path};
 
 use crate::fabric::{Exemplar, Segment, Tiling};
 use capsule::{Capsule, CapsuleHit};
-use glam::{DVec2, DVec3, UVec2, Vec2, Vec3, Vec3A};
-use obvhs::{
-    aabb::Aabb,
-    bvh2::reinsertion::ReinsertionOptimizer,
-    cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh},
-    ploc::{PlocBuilder, PlocSearchDistance, SortPrecision},
-    ray::Ray,
-};
+use glam::{DVec2, DVec3, Vec2, Vec3};
 
-/// Scale from centimetres to BVH units (a power of two, so scaling is exact).
-const BVH_SCALE: f32 = 65536.0;
 /// Each cell's ray piece is extended by this much (cm) so that a hit exactly on a cell border
 /// is not lost to rounding between the two cells.
 const CELL_OVERLAP: f64 = 1e-6;
@@ -101,14 +94,14 @@ pub struct Hit {
     pub tile: [i32; 2],
 }
 
-/// Hot per-primitive data, in BVH order.
+/// Hot per-primitive data, in Morton order of the capsules' centres.
 #[derive(Debug, Clone, Copy)]
 struct Primitive {
     capsule: Capsule,
     fiber: u32,
 }
 
-/// Cold per-primitive data, in BVH order.
+/// Cold per-primitive data, in the same order.
 #[derive(Debug, Clone, Copy)]
 struct PrimitiveInfo {
     segment: u32,
@@ -123,13 +116,13 @@ enum Layout {
     AsIs { lo: DVec3, hi: DVec3 },
 }
 
-/// A fabric ready for ray casting: an exemplar, its BVH and how it is tiled.
+/// A fabric ready for ray casting: an exemplar, its voxel grid and how it is tiled.
 #[derive(Debug)]
 pub struct FiberScene {
     segments: Vec<Segment>,
     primitives: Vec<Primitive>,
     infos: Vec<PrimitiveInfo>,
-    bvh: CwBvh,
+    grid: grid::CapsuleGrid,
     layout: Layout,
     /// z range of the fibers including their radius, padded by [`CELL_OVERLAP`].
     z_range: (f64, f64),
@@ -177,13 +170,24 @@ impl FiberScene {
                 }
             }
         };
-        let (bvh, order) = build_bvh(&placed);
-        let primitives = order
+        // Primitives in the order of their capsules' centres along a Morton curve, so that the
+        // capsules one voxel lists lie near each other in memory.
+        let order = morton_order(&placed);
+        let primitives: Vec<Primitive> = order
             .iter()
             .map(|&i| Primitive { capsule: placed[i as usize].0, fiber: placed[i as usize].2 })
             .collect();
         let infos = order.iter().map(|&i| placed[i as usize].1).collect();
-        Ok(Self { segments, primitives, infos, bvh, layout, z_range })
+        let (box_lo, box_hi) = match layout {
+            Layout::AsIs { lo, hi } => (lo.as_vec3(), hi.as_vec3()),
+            Layout::Periodic { period, .. } => (
+                Vec3::new(0.0, 0.0, z_range.0 as f32),
+                Vec3::new(period.x as f32, period.y as f32, z_range.1 as f32),
+            ),
+        };
+        let capsules: Vec<Capsule> = primitives.iter().map(|p| p.capsule).collect();
+        let grid = grid::CapsuleGrid::new(&capsules, box_lo, box_hi);
+        Ok(Self { segments, primitives, infos, grid, layout, z_range })
     }
 
     /// The exemplar's segments (what [`Hit::segment`] indexes).
@@ -216,10 +220,16 @@ impl FiberScene {
         ((self.z_range.0 + CELL_OVERLAP) as f32, (self.z_range.1 - CELL_OVERLAP) as f32)
     }
 
-    /// Number of capsules in the BVH (segments plus the border copies of a periodic scene).
+    /// Number of capsules in the grid (segments plus the border copies of a periodic scene).
     #[must_use]
     pub fn primitive_count(&self) -> usize {
         self.primitives.len()
+    }
+
+    /// A line describing the voxel grid (for reports).
+    #[must_use]
+    pub fn grid_summary(&self) -> String {
+        self.grid.summary()
     }
 
     /// The copy at the centre of the scene: `[0, 0]` unless the swatch is a rectangle.
@@ -361,7 +371,7 @@ impl FiberScene {
         }
     }
 
-    /// Traverses the BVH with the ray piece `t_from..t_to` in the frame of the cell at `offset`.
+    /// Walks the grid with the ray piece `t_from..t_to` in the frame of the cell at `offset`.
     fn trace_piece(
         &self,
         o: DVec3,
@@ -409,7 +419,7 @@ impl FiberScene {
 
     /// Closest (or, with `any`, first found) capsule entry with `0 <= t < t_max` of the ray piece
     /// from `origin`, in cell-local coordinates, skipping capsules that contain the ray's true
-    /// origin `ray_origin`; returns the primitive index in BVH order.
+    /// origin `ray_origin`; returns the primitive index.
     #[inline]
     fn traverse(
         &self,
@@ -420,29 +430,13 @@ impl FiberScene {
         ignore: u32,
         any: bool,
     ) -> Option<(u32, CapsuleHit)> {
-        let ray = Ray::new(Vec3A::from(origin * BVH_SCALE), Vec3A::from(dir), 0.0, t_max * BVH_SCALE);
-        let mut traverse_ray = ray;
-        let mut best_t = t_max;
-        let mut best: Option<(u32, CapsuleHit)> = None;
-        let mut state = self.bvh.new_traversal(ray.direction);
-        let mut node;
-        // (`break` inside the macro would only leave its inner loop; leave the labelled block.)
-        'traversal: {
-            obvhs::traverse!(self.bvh, node, state, node.intersect_ray(&traverse_ray, state.oct_inv4), {
-                let prim = &self.primitives[state.primitive_id as usize];
-                if prim.fiber != ignore
-                    && let Some(h) = prim.capsule.intersect_piece(origin, dir, best_t, ray_origin)
-                {
-                    best_t = h.t;
-                    best = Some((state.primitive_id, h));
-                    traverse_ray.tmax = h.t * BVH_SCALE;
-                    if any {
-                        break 'traversal;
-                    }
-                }
-            });
-        }
-        best
+        self.grid.walk(origin, dir, t_max, any, |item, best_t| {
+            let prim = &self.primitives[item as usize];
+            if prim.fiber == ignore {
+                return None;
+            }
+            prim.capsule.intersect_piece(origin, dir, best_t, ray_origin)
+        })
     }
 }
 
@@ -483,37 +477,31 @@ fn place_periodic(s: &Segment, index: u32, period: Vec2, out: &mut Vec<(Capsule,
     }
 }
 
-/// PLOC + reinsertion + CWBVH conversion over the capsules' boxes (in BVH units); returns the
-/// BVH and, for each primitive slot in BVH order, the index into `placed`.
-fn build_bvh(placed: &[(Capsule, PrimitiveInfo, u32)]) -> (CwBvh, Vec<u32>) {
-    if placed.is_empty() {
-        return (CwBvh::default(), Vec::new());
-    }
-    let aabbs: Vec<Aabb> = placed
+/// The indices of `placed` sorted by the Morton code of their capsules' centres (10 bits per
+/// axis over the capsules' box).
+fn morton_order(placed: &[(Capsule, PrimitiveInfo, u32)]) -> Vec<u32> {
+    let (lo, hi) = placed.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), (c, _, _)| {
+        (lo.min(c.center), hi.max(c.center))
+    });
+    let scale = 1023.0 / (hi - lo).max(Vec3::splat(1e-12));
+    let spread = |v: u32| {
+        // Bits of a 10-bit value moved to every third position.
+        let mut x = u64::from(v) & 0x3ff;
+        x = (x | x << 16) & 0x0300_00ff;
+        x = (x | x << 8) & 0x0300_f00f;
+        x = (x | x << 4) & 0x030c_30c3;
+        (x | x << 2) & 0x0924_9249
+    };
+    let mut keyed: Vec<(u64, u32)> = placed
         .iter()
-        .map(|(c, _, _)| {
-            let half = (c.axis * c.half_length).abs() + c.radius;
-            let center = Vec3A::from(c.center);
-            // Pad by a few ulps so rounding in the scaled box test never clips a capsule.
-            let pad = Vec3A::from(half) * 1e-5 + 1e-9;
-            Aabb::new(
-                (center - Vec3A::from(half) - pad) * BVH_SCALE,
-                (center + Vec3A::from(half) + pad) * BVH_SCALE,
-            )
+        .enumerate()
+        .map(|(i, (c, _, _))| {
+            let q = ((c.center - lo) * scale).round().as_uvec3();
+            (spread(q.x) | spread(q.y) << 1 | spread(q.z) << 2, i as u32)
         })
         .collect();
-    let params = obvhs::BvhBuildParams::medium_build();
-    let mut bvh2 = PlocBuilder::with_capacity(aabbs.len()).build(
-        PlocSearchDistance::Medium,
-        &aabbs,
-        (0..aabbs.len() as u32).collect(),
-        SortPrecision::U64,
-        params.search_depth_threshold,
-    );
-    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-    let bvh = bvh2_to_cwbvh(&bvh2, 3, true, false);
-    let order = bvh.primitive_indices.clone();
-    (bvh, order)
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
 }
 
 #[cfg(test)]

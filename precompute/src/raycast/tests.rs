@@ -1,4 +1,4 @@
-//! Scene tests: BVH + tiling against brute force, swatch clipping, mean free path.
+//! Scene tests: the voxel grid + tiling against brute force, swatch clipping, mean free path.
 
 #![allow(clippy::float_cmp)] // exact equality is the point: determinism, exact zeros.
 
@@ -103,7 +103,7 @@ fn random_ray(rng: &mut Pcg64, period: f32, slab: (f32, f32), kind: u32) -> (Vec
 }
 
 #[test]
-fn bvh_closest_hit_matches_brute_force_over_copies() {
+fn grid_closest_hit_matches_brute_force_over_copies() {
     let ex = tiny_weave();
     let scene = FiberScene::new(&ex, Extent::Unbounded).unwrap();
     assert!(scene.primitive_count() > ex.segment_count());
@@ -150,6 +150,54 @@ fn bvh_closest_hit_matches_brute_force_over_copies() {
     }
     assert!(hits > rays / 3, "{hits}");
     assert!(mismatches <= 1, "{mismatches} hit/miss disagreements");
+}
+
+/// Rays along the grid's axes and in its planes (direction components exactly zero), from
+/// inside the slab and from just above it: the DDA's degenerate steps and its box clipping.
+#[test]
+fn rays_along_the_axes_and_in_the_planes_match_brute_force() {
+    let ex = tiny_weave();
+    let scene = FiberScene::new(&ex, Extent::Unbounded).unwrap();
+    let period = scene.period().unwrap().x;
+    let slab = scene.slab();
+    let mut rng = Pcg64::seed_from_u64(21);
+    let mut hits = 0;
+    let directions = [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::NEG_Z, Vec3::Z];
+    for n in 0..1200 {
+        let o = Vec3::new(
+            rng.random_range(-period..period),
+            rng.random_range(-period..period),
+            if n % 5 == 0 { slab.1 + 1e-3 } else { rng.random_range(slab.0..slab.1) },
+        );
+        let d = if n % 3 == 0 {
+            // In a coordinate plane: one zero component.
+            let a = rng.random::<f32>() * std::f32::consts::TAU;
+            match n % 2 {
+                0 => Vec3::new(a.cos(), a.sin(), 0.0),
+                _ => Vec3::new(a.cos(), 0.0, -a.sin().abs()),
+            }
+        } else {
+            directions[n % directions.len()]
+        };
+        let t_max = 3.0 * period;
+        let got = scene.closest_hit(o, d, t_max, None);
+        let want = brute_force(&ex, o.as_dvec3(), d.as_dvec3(), f64::from(t_max), None);
+        match (got, want) {
+            (Some(g), Some(w)) => {
+                hits += 1;
+                assert!(
+                    (f64::from(g.t) - w.0).abs() < 2e-6 * (1.0 + w.0),
+                    "ray {n} {o} {d}: t {} vs {}",
+                    g.t,
+                    w.0
+                );
+            }
+            (None, None) => {}
+            (g, w) => panic!("ray {n} {o} {d}: {g:?} vs {w:?}"),
+        }
+        assert_eq!(scene.any_hit(o, d, t_max, None), want.is_some(), "ray {n}");
+    }
+    assert!(hits > 300, "{hits}");
 }
 
 #[test]
