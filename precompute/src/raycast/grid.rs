@@ -4,8 +4,10 @@
 //! How it works:
 //! - Fibers are thin capsules of nearly one radius, spread evenly through a thin slab: the case
 //!   a uniform grid suits best. The grid spans the capsules' box (one period cell of a periodic
-//!   exemplar, padded by [`BOX_PAD`]); its voxels are cubes of about [`VOXEL_PER_RADIUS`] fiber
-//!   radii (grown if the grid would pass [`MAX_VOXELS`]).
+//!   exemplar, padded by [`BOX_PAD`]); its voxels are cubes sized for [`VOXELS_PER_CAPSULE`]
+//!   voxels per capsule, at most [`VOXEL_PER_RADIUS`] fiber radii (grown if the grid would pass
+//!   [`MAX_VOXELS`]). Sized by density rather than by radius alone, the gabardine's thick, dense
+//!   fibers get voxels of 1.2 radii instead of 3 (closest hits 1.25 → 1.7 M rays/s).
 //! - Each voxel lists the capsules that may overlap it, in one compressed array (`starts` into
 //!   `items`). A capsule is listed in a voxel of its box if its axis segment passes within the
 //!   radius plus the voxel's half diagonal of the voxel's centre and meets the voxel grown by
@@ -25,7 +27,9 @@ use glam::{UVec3, Vec3};
 
 use super::capsule::{Capsule, CapsuleHit};
 
-/// Voxel edge in fiber radii (of the largest radius among the capsules).
+/// Voxels per capsule over the grid's box (what sizes the voxels).
+pub const VOXELS_PER_CAPSULE: f32 = 8.0;
+/// The largest voxel edge, in fiber radii (of the capsules' median radius).
 pub const VOXEL_PER_RADIUS: f32 = 3.0;
 /// The grid never has more voxels than this; its voxels grow instead.
 const MAX_VOXELS: usize = 1 << 24;
@@ -58,9 +62,13 @@ impl CapsuleGrid {
     #[must_use]
     pub fn new(capsules: &[Capsule], lo: Vec3, hi: Vec3) -> Self {
         let (lo, hi) = (lo - BOX_PAD, hi + BOX_PAD);
-        let radius = capsules.iter().map(|c| c.radius).fold(0.0_f32, f32::max);
+        let radius = typical_radius(capsules);
         let extent = (hi - lo).max(Vec3::splat(1e-6));
-        let mut voxel = (VOXEL_PER_RADIUS * radius).max(extent.max_element() / 4096.0);
+        // Voxels for about VOXELS_PER_CAPSULE per capsule over the box, and no larger than
+        // VOXEL_PER_RADIUS radii (a fabric that fills little of its box).
+        let by_density =
+            (extent.x * extent.y * extent.z / (VOXELS_PER_CAPSULE * capsules.len().max(1) as f32)).cbrt();
+        let mut voxel = by_density.min(VOXEL_PER_RADIUS * radius).max(extent.max_element() / 4096.0);
         let dims_for = |voxel: f32| (extent / voxel).ceil().max(Vec3::ONE).as_uvec3();
         while {
             let d = dims_for(voxel);
@@ -271,6 +279,17 @@ impl CapsuleGrid {
             t_next[axis] += t_delta[axis];
         }
     }
+}
+
+/// The median capsule radius (0 for none): a few thick fibers among thin ones must not make
+/// every voxel coarse.
+fn typical_radius(capsules: &[Capsule]) -> f32 {
+    let mut radii: Vec<f32> = capsules.iter().map(|c| c.radius).collect();
+    if radii.is_empty() {
+        return 0.0;
+    }
+    let middle = radii.len() / 2;
+    *radii.select_nth_unstable_by(middle, f32::total_cmp).1
 }
 
 /// Whether the axis segment of `capsule` meets the box `lo..hi` (slab clipping of its
