@@ -381,15 +381,20 @@ fn shade_single_sg_sum_of_sg(e: u32, segment: u32, image: u32, wo: vec3<f32>, ax
             total += sum_of_sg_term(f, space, unpack_unit_vector(sg.y), axis, lambda) * (w * centroid_share);
         }
         if (centroid_share < 1.0) {
-            let z = 1.0 - f32(2u * q + 1u) / f32(q_count);
-            let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
-            let phi = 2.0 * PI * fract(f32(q) * 0.6180339887498949);
-            let base = vec2<f32>(r * cos(phi), r * sin(phi));
-            let fibonacci = vec3<f32>(rot.x * base.x - rot.y * base.y, rot.y * base.x + rot.x * base.y, z);
-            total += sum_of_sg_term(f, space, fibonacci, axis, lambda) * (w * (1.0 - centroid_share));
+            total += sum_of_sg_term(f, space, rotated_fibonacci_axis(q, q_count, rot), axis, lambda) * (w * (1.0 - centroid_share));
         }
     }
     return total * inv_mass / sg_mass_f32(lambda);
+}
+
+// Point q of count on the spherical Fibonacci lattice, turned about +z by the angle whose
+// (cos, sin) is rot (sum_of_sg.rs rotated_axes: fibonacci.rs spherical_fibonacci, rotate_about_z).
+fn rotated_fibonacci_axis(q: u32, count: u32, rot: vec2<f32>) -> vec3<f32> {
+    let z = 1.0 - f32(2u * q + 1u) / f32(count);
+    let r = sqrt(max((1.0 - z) * (1.0 + z), 0.0));
+    let phi = 2.0 * PI * fract(f32(q) * 0.6180339887498949);
+    let base = vec2<f32>(r * cos(phi), r * sin(phi));
+    return vec3<f32>(rot.x * base.x - rot.y * base.y, rot.y * base.x + rot.x * base.y, z);
 }
 
 // One visibility SG (unit axis, sharpness fabric.sos_sharpness, unit weight and mass) times the

@@ -200,15 +200,15 @@ impl CapsuleGrid {
         let dims = [self.dims.x as i32, self.dims.y as i32, self.dims.z as i32];
         let step = [step_of(dir.x), step_of(dir.y), step_of(dir.z)];
         let (o, d, lo, iv) = (origin.to_array(), dir.to_array(), self.lo.to_array(), inv.to_array());
-        let mut t_next = [0.0_f32; 3];
-        let mut t_delta = [0.0_f32; 3];
+        // Where the ray crosses voxel face `face` (in voxels from `lo`) of axis `a`.
+        let face_t = |a: usize, face: i32| (lo[a] + face as f32 * self.voxel - o[a]) * iv[a];
+        // The face a ray moving along axis `a` leaves voxel `c` by.
+        let exit_face = |a: usize, c: i32| c + i32::from(step[a] > 0);
+        let mut t_next = [f32::INFINITY; 3];
+        let mut t_delta = [f32::INFINITY; 3];
         for a in 0..3 {
-            if d[a] == 0.0 {
-                t_next[a] = f32::INFINITY;
-                t_delta[a] = f32::INFINITY;
-            } else {
-                let boundary = lo[a] + (cell[a] + i32::from(step[a] > 0)) as f32 * self.voxel;
-                t_next[a] = (boundary - o[a]) * iv[a];
+            if step[a] != 0 {
+                t_next[a] = face_t(a, exit_face(a, cell[a]));
                 t_delta[a] = self.voxel * iv[a].abs();
             }
         }
@@ -227,8 +227,7 @@ impl CapsuleGrid {
                 let mut axis = 0;
                 for a in 0..3 {
                     if step[a] != 0 {
-                        let face = cell[a] + step[a] * reach + i32::from(step[a] > 0);
-                        let t = (lo[a] + face as f32 * self.voxel - o[a]) * iv[a];
+                        let t = face_t(a, exit_face(a, cell[a] + step[a] * reach));
                         if t < t_out {
                             t_out = t;
                             axis = a;
@@ -250,8 +249,7 @@ impl CapsuleGrid {
                         return best;
                     }
                     if step[a] != 0 {
-                        let boundary = lo[a] + (cell[a] + i32::from(step[a] > 0)) as f32 * self.voxel;
-                        t_next[a] = (boundary - o[a]) * iv[a];
+                        t_next[a] = face_t(a, exit_face(a, cell[a]));
                     }
                 }
                 index = cell[0] + stride[1] * cell[1] + stride[2] * cell[2];

@@ -94,14 +94,7 @@ pub struct Hit {
     pub tile: [i32; 2],
 }
 
-/// Hot per-primitive data, in Morton order of the capsules' centres.
-#[derive(Debug, Clone, Copy)]
-struct Primitive {
-    capsule: Capsule,
-    fiber: u32,
-}
-
-/// Cold per-primitive data, in the same order.
+/// Per-primitive data read only on a hit, in the order of [`FiberScene::capsules`].
 #[derive(Debug, Clone, Copy)]
 struct PrimitiveInfo {
     segment: u32,
@@ -120,7 +113,10 @@ enum Layout {
 #[derive(Debug)]
 pub struct FiberScene {
     segments: Vec<Segment>,
-    primitives: Vec<Primitive>,
+    /// Every capsule the grid bins, in Morton order of their centres.
+    capsules: Vec<Capsule>,
+    /// The fiber of each capsule (checked on a hit, for `ignore_fiber`).
+    fibers: Vec<u32>,
     infos: Vec<PrimitiveInfo>,
     grid: grid::CapsuleGrid,
     layout: Layout,
@@ -173,10 +169,8 @@ impl FiberScene {
         // Primitives in the order of their capsules' centres along a Morton curve, so that the
         // capsules one voxel lists lie near each other in memory.
         let order = morton_order(&placed);
-        let primitives: Vec<Primitive> = order
-            .iter()
-            .map(|&i| Primitive { capsule: placed[i as usize].0, fiber: placed[i as usize].2 })
-            .collect();
+        let capsules: Vec<Capsule> = order.iter().map(|&i| placed[i as usize].0).collect();
+        let fibers = order.iter().map(|&i| placed[i as usize].2).collect();
         let infos = order.iter().map(|&i| placed[i as usize].1).collect();
         let (box_lo, box_hi) = match layout {
             Layout::AsIs { lo, hi } => (lo.as_vec3(), hi.as_vec3()),
@@ -185,9 +179,8 @@ impl FiberScene {
                 Vec3::new(period.x as f32, period.y as f32, z_range.1 as f32),
             ),
         };
-        let capsules: Vec<Capsule> = primitives.iter().map(|p| p.capsule).collect();
         let grid = grid::CapsuleGrid::new(&capsules, box_lo, box_hi);
-        Ok(Self { segments, primitives, infos, grid, layout, z_range })
+        Ok(Self { segments, capsules, fibers, infos, grid, layout, z_range })
     }
 
     /// The exemplar's segments (what [`Hit::segment`] indexes).
@@ -223,7 +216,7 @@ impl FiberScene {
     /// Number of capsules in the grid (segments plus the border copies of a periodic scene).
     #[must_use]
     pub fn primitive_count(&self) -> usize {
-        self.primitives.len()
+        self.capsules.len()
     }
 
     /// A line describing the voxel grid (for reports).
@@ -295,7 +288,7 @@ impl FiberScene {
     /// Clips the ray to the slab (and rectangle), then walks the cells; see the module docs.
     fn walk(&self, origin: DVec3, dir: DVec3, t_max: f64, ignore: Option<u32>, any: bool) -> Option<Hit> {
         let d = dir.try_normalize()?;
-        if !origin.is_finite() || self.primitives.is_empty() || t_max.is_nan() {
+        if !origin.is_finite() || self.capsules.is_empty() || t_max.is_nan() {
             return None;
         }
         let mut span = (0.0, t_max);
@@ -391,7 +384,6 @@ impl FiberScene {
         let (index, capsule_hit) =
             self.traverse(local_origin, ray_origin, dir, t_len, ignore.unwrap_or(u32::MAX), any)?;
         let info = self.infos[index as usize];
-        let prim = &self.primitives[index as usize];
         let tile = [cell[0] + info.shift[0], cell[1] + info.shift[1]];
         let cell_local = local_origin + capsule_hit.t * dir;
         let shift = match self.layout {
@@ -408,10 +400,10 @@ impl FiberScene {
             position,
             local_position,
             normal: capsule_hit.normal,
-            tangent: prim.capsule.axis,
+            tangent: self.capsules[index as usize].axis,
             segment_param: capsule_hit.segment_param,
             segment: info.segment,
-            fiber: prim.fiber,
+            fiber: self.fibers[index as usize],
             yarn: info.yarn,
             tile,
         })
@@ -431,11 +423,10 @@ impl FiberScene {
         any: bool,
     ) -> Option<(u32, CapsuleHit)> {
         self.grid.walk(origin, dir, t_max, any, |item, best_t| {
-            let prim = &self.primitives[item as usize];
-            if prim.fiber == ignore {
-                return None;
-            }
-            prim.capsule.intersect_piece(origin, dir, best_t, ray_origin)
+            // The ignored fiber is checked on a hit only: dropping a hit leaves the best `t` as
+            // skipping the test would.
+            let hit = self.capsules[item as usize].intersect_piece(origin, dir, best_t, ray_origin)?;
+            (self.fibers[item as usize] != ignore).then_some(hit)
         })
     }
 }
