@@ -161,20 +161,20 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
     }
     if (ENABLE_MULTIPLE) {
-        // A truncated SH product can ring below zero where little light arrives; radiance
-        // cannot, so the radiance shaded (single and multiple scattering together, not the
-        // multiple-scattering term alone: a clamp lifts the mean where it acts) is clamped per
-        // channel (shading::render::shade_segment, the CPU twin); `radiance` already holds the
-        // fiber lobes.
+        // A truncated SH product can ring below zero where little light arrives. The sample
+        // goes into the accumulation signed: the tone map and the readback clamp each pixel's
+        // mean at zero (shading::render::ClampAtZero::PixelMean, the CPU twin), so ringing that
+        // changes sign between a pixel's samples cancels instead of lifting the mean;
+        // `radiance` already holds the fiber lobes.
         if (ENABLE_FRAME_TRANSFER) {
             var coeffs: array<vec3<f32>, 49>;
             for (var j = 0u; j < fabric.sh_count; j++) {
                 coeffs[j] = vec3<f32>(0.0);
             }
             frame_transferred_at(e, segment, p, &coeffs);
-            radiance = max(radiance + multiple_from_transferred(segment, wo, &coeffs), vec3<f32>(0.0));
+            radiance += multiple_from_transferred(segment, wo, &coeffs);
         } else {
-            radiance = max(radiance + shade_multiple(e, segment, p, wo, &c_in), vec3<f32>(0.0));
+            radiance += shade_multiple(e, segment, p, wo, &c_in);
         }
     }
     let index = id.y * width + id.x;

@@ -495,12 +495,13 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
     assert_eq!(budget.rungs.len(), 14);
-    // The clamp at zero on the same samples: on each sample (4) lifts the mean at least as
-    // much as on each pixel's mean (4″), which lifts it at least as much as no clamp (4′).
+    // The clamp at zero on the same samples: on each sample (4″) lifts the mean at least as
+    // much as on each pixel's mean (4, the method), which lifts it at least as much as no
+    // clamp (4′).
     let multiple = |prefix: &str| {
         budget.rung(Component::Multiple, prefix).map(|r| r.relative_error_of_mean).expect("a multiple rung")
     };
-    let (per_sample, per_pixel, none) = (multiple("4 "), multiple("4'' "), multiple("4' "));
+    let (per_sample, per_pixel, none) = (multiple("4'' "), multiple("4 "), multiple("4' "));
     assert!(
         per_sample >= per_pixel - 1e-12 && per_pixel >= none - 1e-12,
         "clamps on each sample {per_sample:+.5}, each pixel {per_pixel:+.5}, none {none:+.5}"

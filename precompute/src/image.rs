@@ -127,6 +127,15 @@ impl Film {
         Image { width: self.width, height: self.height, pixels }
     }
 
+    /// Clamps each pixel's mean at zero per channel (a negative sum becomes zero). The sums of
+    /// squares stay, so [`Film::variance_of_mean`] of a clamped pixel is its samples' second
+    /// moment about zero: no smaller than their variance.
+    pub fn clamp_means_at_zero(&mut self) {
+        for s in &mut self.sum {
+            *s = s.max(Rgb::ZERO);
+        }
+    }
+
     /// Samples taken at pixel `(x, y)`.
     #[must_use]
     pub fn samples_at(&self, x: usize, y: usize) -> u32 {

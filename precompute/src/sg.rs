@@ -241,6 +241,76 @@ pub fn sg_upper_fraction(axis_z: f64, lambda: f64) -> f64 {
     if z >= 0.0 { upper } else { 1.0 - upper }
 }
 
+/// A normalized SG's power above the plane z = 0, as `(share, first moment)`: the share is
+/// [`sg_upper_fraction`]'s, the moment `∫_{z>0} ω exp(λ(ω·ξ − 1)) dω / M(λ)` (a vector; over the
+/// share it is the mean direction of the light above the horizon, whose length is the mean
+/// resultant length R of that part).
+///
+/// How: as [`sg_upper_fraction`], by circles of directions at `t = ω·ξ` about the axis. On
+/// the circle `ω(φ) = t ξ + r (cos φ u + sin φ v)` (`r = √(1 − t²)`, `u` the unit vector in
+/// the plane of ξ and z, perpendicular to ξ and toward +z; so `ω_z = t ξ_z + r cos φ |ξ_xy|`)
+/// the arc above the plane is `|φ| < α`, `α = acos(−t ξ_z / (r |ξ_xy|))`, and its mean over the
+/// whole circle is `(α t ξ + sin α r u) / π`. The circles wholly above the plane (the mass within
+/// `1 − t ≤ 1 − |ξ_xy|`, share `F`) add `F (1 − E[1 − t]) ξ` with the truncated exponential's
+/// mean `E[1 − t] = 1/λ − g / expm1(λ g)`; the mass between is cut into
+/// [`UPPER_FRACTION_NODES`] equal slices taken at their middles. An axis below the plane
+/// takes the whole SG's moment `A(λ) ξ` (`A = coth λ − 1/λ`) less its mirror's part above.
+#[must_use]
+pub fn sg_upper_moment(axis: DVec3, lambda: f64) -> (f64, DVec3) {
+    if axis.z < 0.0 {
+        let mirror = DVec3::new(axis.x, axis.y, -axis.z);
+        let (share, moment) = sg_upper_moment(mirror, lambda);
+        let whole = sg_mean_resultant(lambda) * axis;
+        return (1.0 - share, whole - DVec3::new(moment.x, moment.y, -moment.z));
+    }
+    let s = axis.z.min(1.0);
+    let c = (1.0 - s * s).max(0.0).sqrt();
+    let gap = s * s / (1.0 + c);
+    let cap_mean_t = |g: f64| {
+        // 1 − E[1 − t] over 1 − t ∈ [0, g] with density ∝ exp(−λ(1 − t)).
+        let x = lambda * g;
+        let mean_w = if x < 1e-4 { g * (0.5 - x / 12.0) } else { 1.0 / lambda - g / x.exp_m1() };
+        1.0 - mean_w
+    };
+    if lambda * gap > 20.0 || c == 0.0 {
+        // All of it above the plane (or the axis along z: every circle is level).
+        if c == 0.0 && lambda * gap <= 20.0 {
+            let total = (-2.0 * lambda).exp_m1();
+            let share = if lambda > 0.0 { (-lambda).exp_m1() / total } else { 0.5 };
+            return (share, share * cap_mean_t(1.0) * axis);
+        }
+        return (1.0, sg_mean_resultant(lambda) * axis);
+    }
+    let total = (-2.0 * lambda).exp_m1();
+    let mass_within = |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
+    let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
+    // u: in the plane of ξ and z, perpendicular to ξ, toward +z.
+    let u = (DVec3::Z - s * axis) / c;
+    let (mut share, mut moment) = (0.0, DVec3::ZERO);
+    for i in 0..UPPER_FRACTION_NODES {
+        let m = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
+        let w = sample_one_minus_cos(lambda, 1.0 - m);
+        let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
+        let alpha = (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos();
+        share += alpha / PI;
+        moment += (alpha * t * axis + alpha.sin() * r * u) / PI;
+    }
+    let slice = (bottom - top) / UPPER_FRACTION_NODES as f64;
+    (top + slice * share, top * cap_mean_t(gap) * axis + slice * moment)
+}
+
+/// The mean resultant length of a normalized SG of sharpness `lambda` (a von Mises–Fisher
+/// density): `A(λ) = coth λ − 1/λ`, by its series below λ = 1e-3.
+#[must_use]
+pub fn sg_mean_resultant(lambda: f64) -> f64 {
+    if lambda < 1e-3 {
+        lambda / 3.0 - lambda.powi(3) / 45.0
+    } else {
+        // coth λ = 1 + 2 / expm1(2λ).
+        1.0 + 2.0 / (2.0 * lambda).exp_m1() - 1.0 / lambda
+    }
+}
+
 /// f32 twin of [`sg_upper_fraction`] (`shaders/shared/sg.wgsl`), with [`ln_1p_f32`] and
 /// [`crate::special::expm1_f32`].
 ///
@@ -282,6 +352,46 @@ mod tests {
     use crate::quadrature::gauss_legendre;
     use crate::sh::{ShRotation, sh_index, sh_project};
     use crate::test_support::{gamma_q, random_unit};
+
+    #[test]
+    fn upper_moment_matches_a_product_rule_and_its_limits() {
+        // The share and first moment above the plane by a product rule over the upper
+        // hemisphere (400 x 800 nodes), axes above, in and below the plane, turned in azimuth.
+        let (nodes, weights) = gauss_legendre(400);
+        for lambda in [1e-4, 0.5, 2.0, 8.0, 50.0, 300.0] {
+            for axis_z in [-0.6_f64, -0.1, 0.0, 0.05, 0.2, 0.7, 0.95, 1.0] {
+                let r0 = (1.0 - axis_z * axis_z).sqrt();
+                let axis = DVec3::new(r0 * 0.6, r0 * 0.8, axis_z);
+                let (mut share, mut moment) = (0.0, DVec3::ZERO);
+                for (x, w) in nodes.iter().zip(&weights) {
+                    let z = 0.5 * (x + 1.0);
+                    let r = (1.0 - z * z).sqrt();
+                    for k in 0..800 {
+                        let phi = 2.0 * PI * (f64::from(k) + 0.5) / 800.0;
+                        let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                        let p = 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
+                        share += p;
+                        moment += p * dir;
+                    }
+                }
+                let (got_share, got_moment) = sg_upper_moment(axis, lambda);
+                assert!((got_share - share).abs() < 2e-3, "λ {lambda} ξz {axis_z}: share {got_share} vs {share}");
+                assert!((got_share - sg_upper_fraction(axis_z, lambda)).abs() < 1e-12, "λ {lambda} ξz {axis_z}");
+                assert!(
+                    (got_moment - moment).length() < 2e-3,
+                    "λ {lambda} ξz {axis_z}: moment {got_moment} vs {moment}"
+                );
+            }
+        }
+        // Whole lobes: the von Mises–Fisher mean resultant length along the axis.
+        for lambda in [1e-5, 0.3, 3.0, 30.0, 3e3] {
+            let a = sg_mean_resultant(lambda);
+            let expected = 1.0 / lambda.tanh() - 1.0 / lambda;
+            assert!((a - expected).abs() < 1e-9, "λ {lambda}: {a} vs {expected}");
+            let (share, moment) = sg_upper_moment(DVec3::new(0.0, 0.6, 0.8), lambda.max(200.0));
+            assert!(share == 1.0 && (moment - sg_mean_resultant(lambda.max(200.0)) * DVec3::new(0.0, 0.6, 0.8)).length() < 1e-15);
+        }
+    }
 
     #[test]
     fn upper_fraction_matches_quadrature_closed_forms_and_its_f32_twin() {

@@ -713,8 +713,10 @@ impl Renderer {
         let radiance = if readback == Readback::Everything {
             let accumulated: Vec<[f32; 4]> =
                 crate::gpu::read_buffer(&self.device, &targets.radiance_readback)?;
+            // The shade pass accumulates signed samples; a pixel's mean is clamped at zero
+            // here, as the tone map clamps it (shading::render::ClampAtZero::PixelMean).
             let inv = 1.0 / samples.max(1) as f32;
-            Some(accumulated.iter().map(|p| [p[0] * inv, p[1] * inv, p[2] * inv]).collect())
+            Some(accumulated.iter().map(|p| [p[0], p[1], p[2]].map(|v| (v * inv).max(0.0))).collect())
         } else {
             None
         };

@@ -132,6 +132,7 @@ pub fn prelude() -> String {
             ("AZIMUTH_FADE_ACROSS", twill_precompute::shading::multiple::AZIMUTH_FADE_ACROSS as f32),
             ("TOWARD_UP_WIDTH", TOWARD_UP_WIDTH as f32),
             ("BESSEL_RATIO_GAUSSIAN_ABOVE", twill_precompute::special::BESSEL_RATIO_GAUSSIAN_ABOVE as f32),
+            ("VMF_NEWTON_BELOW", twill_precompute::shading::multiple::VMF_NEWTON_BELOW as f32),
         ] {
             let _ = writeln!(out, "const {name}: f32 = {value:?};");
         }

@@ -1,6 +1,7 @@
 // Spherical Gaussian helpers for the GPU. Twins of precompute/src/special.rs (expm1_f32,
-// ln_1p_f32) and precompute/src/sg.rs (sg_mass_f32, sg_azimuthal_average_f32,
-// sg_upper_fraction_f32): keep them in sync; compared on the GPU by renderer/tests/gpu_parity.rs.
+// ln_1p_f32), precompute/src/sg.rs (sg_mass_f32, sg_azimuthal_average_f32,
+// sg_upper_fraction_f32, sg_upper_moment, sg_mean_resultant) and
+// precompute/src/shading/multiple.rs (sg_above_horizon, vmf_sharpness): keep them in sync; compared on the GPU by renderer/tests/gpu_parity.rs.
 #import shared/special.wgsl
 
 const PI: f32 = 3.14159265358979;
@@ -78,4 +79,108 @@ fn sg_upper_fraction_f32(axis_z: f32, lambda: f32) -> f32 {
         upper = top + (bottom - top) * between / f32(UPPER_FRACTION_NODES);
     }
     return select(1.0 - upper, upper, z >= 0.0);
+}
+
+// The mean resultant length of a normalized SG, coth(lambda) - 1/lambda (sg.rs
+// sg_mean_resultant), by its series below lambda = 1e-2 (where f32 cancels).
+fn sg_mean_resultant_f32(lambda: f32) -> f32 {
+    if (lambda < 1e-2) {
+        return lambda / 3.0 - lambda * lambda * lambda / 45.0;
+    }
+    return 1.0 + 2.0 / expm1_f32(2.0 * lambda) - 1.0 / lambda;
+}
+
+// A normalized SG's power above the plane z = 0 as vec4(first moment, share) (sg.rs
+// sg_upper_moment): by circles of directions about the axis, the arc of each above the plane
+// (its mean over the circle (alpha t xi + sin(alpha) r u) / pi), the circles wholly above in
+// closed form (the truncated exponential's mean), the rest in UPPER_FRACTION_NODES equal
+// slices; an axis below the plane takes the whole SG's moment less its mirror's part above.
+fn sg_upper_moment_f32(axis_in: vec3<f32>, lambda: f32) -> vec4<f32> {
+    let below = axis_in.z < 0.0;
+    let axis = vec3<f32>(axis_in.xy, abs(axis_in.z));
+    let s = min(axis.z, 1.0);
+    let c = sqrt(max(1.0 - s * s, 0.0));
+    let gap = s * s / (1.0 + c);
+    var share = 1.0;
+    var moment = sg_mean_resultant_f32(lambda) * axis;
+    if (!(lambda * gap > 20.0)) {
+        let total = expm1_f32(-2.0 * lambda);
+        var top = 0.5 * gap;
+        var bottom = 0.5 * (1.0 + c);
+        if (lambda > 0.0) {
+            top = expm1_f32(-lambda * gap) / total;
+            bottom = expm1_f32(-lambda * (1.0 + c)) / total;
+        }
+        // 1 - E[1 - t] over the circles wholly above the plane.
+        let x = lambda * gap;
+        var mean_w = gap * (0.5 - x / 12.0);
+        if (x >= 1e-2) {
+            mean_w = 1.0 / lambda - gap / expm1_f32(x);
+        }
+        if (c == 0.0) {
+            share = top;
+            moment = top * (1.0 - mean_w) * axis;
+        } else {
+            let u = (vec3<f32>(0.0, 0.0, 1.0) - s * axis) / c;
+            var arcs = 0.0;
+            var sum = vec3<f32>(0.0);
+            for (var i = 0u; i < UPPER_FRACTION_NODES; i++) {
+                let m = top + (bottom - top) * (f32(i) + 0.5) / f32(UPPER_FRACTION_NODES);
+                var w = clamp(2.0 * m, 0.0, 2.0);
+                if (lambda > 0.0) {
+                    w = clamp(-ln_1p_f32(m * total) / lambda, 0.0, 2.0);
+                }
+                let t = 1.0 - w;
+                let r = sqrt(max(w * (2.0 - w), 0.0));
+                let alpha = acos(clamp(-t * s / max(r * c, 1.17549435e-38), -1.0, 1.0));
+                arcs += alpha / PI;
+                sum += (alpha * t * axis + sin(alpha) * r * u) / PI;
+            }
+            let slice = (bottom - top) / f32(UPPER_FRACTION_NODES);
+            share = top + slice * arcs;
+            moment = top * (1.0 - mean_w) * axis + slice * sum;
+        }
+    }
+    if (below) {
+        let whole = sg_mean_resultant_f32(lambda) * axis_in;
+        return vec4<f32>(whole - vec3<f32>(moment.xy, -moment.z), 1.0 - share);
+    }
+    return vec4<f32>(moment, share);
+}
+
+// A'(lambda) = 1/lambda^2 - 1/sinh^2(lambda) (shading::multiple::sg_mean_resultant_slope), by
+// its series below lambda = 0.05.
+fn sg_mean_resultant_slope_f32(lambda: f32) -> f32 {
+    if (lambda < 0.05) {
+        let l2 = lambda * lambda;
+        return 1.0 / 3.0 - l2 / 15.0 + 2.0 * l2 * l2 / 189.0;
+    }
+    let e = expm1_f32(-2.0 * lambda);
+    return 1.0 / (lambda * lambda) - 4.0 * exp(-2.0 * lambda) / (e * e);
+}
+
+// The von Mises-Fisher sharpness of mean resultant length r (shading::multiple::vmf_sharpness):
+// Banerjee et al.'s r (3 - r^2) / (1 - r^2), then below VMF_NEWTON_BELOW three Newton steps on
+// A(lambda) = r.
+fn vmf_sharpness_f32(r_in: f32) -> f32 {
+    let r = clamp(r_in, 1e-9, 1.0 - 1e-7);
+    var lambda = r * (3.0 - r * r) / (1.0 - r * r);
+    if (lambda < VMF_NEWTON_BELOW) {
+        for (var i = 0; i < 3; i++) {
+            lambda = max(lambda + (r - sg_mean_resultant_f32(lambda)) / sg_mean_resultant_slope_f32(lambda), 1e-9);
+        }
+    }
+    return lambda;
+}
+
+// The SG standing for an SG light's part above the horizon, as vec4(axis, sharpness)
+// (shading::multiple::sg_above_horizon): the mean direction of that part, and the von
+// Mises-Fisher sharpness of its mean resultant length.
+fn sg_above_horizon_f32(axis: vec3<f32>, lambda: f32) -> vec4<f32> {
+    let upper = sg_upper_moment_f32(axis, lambda);
+    let length = length(upper.xyz);
+    if (upper.w < 1e-9 || length < 1e-12) {
+        return vec4<f32>(axis, lambda);
+    }
+    return vec4<f32>(upper.xyz / length, vmf_sharpness_f32(length / upper.w));
 }

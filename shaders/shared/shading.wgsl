@@ -973,6 +973,14 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
     let space = omega_o_space(t, wo);
     // The TT lobe's azimuthal Fourier coefficients, once for both lobes (FiberConstants::tt_ratios).
     let tt_ratios = bessel_i_ratios(f.kappa);
+    // An SG light's shapes follow its part above the horizon (FiberLobe::angles).
+    var shape_dir = dir;
+    var shape_sharpness = sharpness;
+    if (sharpness > 0.0) {
+        let above = sg_above_horizon_f32(dir, sharpness);
+        shape_dir = above.xyz;
+        shape_sharpness = above.w;
+    }
     var out = vec3<f32>(0.0);
     for (var lobe = 0u; lobe < 2u; lobe++) {
         let strength = max(strengths[lobe], vec3<f32>(0.0));
@@ -981,7 +989,7 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
         }
         var axis: vec3<f32>;
         var angles: LobeAngles;
-        if (fiber_lobe_angles(at, lobe, dir, sharpness, t, &axis, &angles)) {
+        if (fiber_lobe_angles(at, lobe, shape_dir, shape_sharpness, t, &axis, &angles)) {
             out += strength * lobe_quadrature(f, tt_ratios, space, axis, &angles);
         }
     }

@@ -39,11 +39,10 @@
 //!
 //! and beside them 4′, the method without its clamp at zero (on this ladder the radiance shaded
 //! is multiple scattering alone, so the clamp acts on it). Truncated SH and
-//! a noisy transfer go negative in places; the clamp (the GPU's too) keeps the image an image
-//! but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. 4″ is 4′ with the
-//! clamp taken on each pixel's mean over its samples instead of on each sample (the same
-//! samples, so its mean lies between 4′ and 4): what the clamp would add if the renderer
-//! accumulated its samples unclamped and clamped the pixel. With
+//! a noisy transfer go negative in places; the clamp of each pixel's mean (the GPU's too) keeps
+//! the image an image but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. 4″
+//! is the clamp taken on each sample instead (the renderers' choice before 2026-11-28; the same
+//! samples, so its mean lies above 4's). With
 //! [`BudgetSettings::split_transfer`], 4a–4c split 4′ by light transport
 //! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
 //! peaked around the light's direction), its reflection (a cone about its axis) and light
@@ -63,7 +62,7 @@ use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
 use super::ShadingError;
-use super::render::{MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
+use super::render::{ClampAtZero, MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use super::visibility::ssdf_lookup;
 use crate::Rgb;
 use crate::bake::Cancel;
@@ -208,14 +207,9 @@ pub fn error_budget(
     progress("references");
 
     let mut rungs = Vec::new();
-    let mut push = |component: Component, name: String, film: &Film, seconds: f64, clamp_mean: bool| {
+    let mut push = |component: Component, name: String, film: &Film, seconds: f64| {
         let reference = if component == Component::Single { &single_reference } else { &multiple_reference };
-        let (mut mean, variance) = (film.mean(), film.variance_of_mean());
-        if clamp_mean {
-            for p in &mut mean.pixels {
-                *p = p.max(Rgb::ZERO);
-            }
-        }
+        let (mean, variance) = (film.mean(), film.variance_of_mean());
         progress(&name);
         rungs.push(measure(
             component,
@@ -245,7 +239,7 @@ pub fn error_budget(
         let film = single_by_light_sampling(scene, settings, |hit, dir| {
             shadow_ray_visible(scene, baked, hit, dir, origin)
         })?;
-        push(Component::Single, name, &film, t.elapsed().as_secs_f64(), false);
+        push(Component::Single, name, &film, t.elapsed().as_secs_f64());
     }
     let n = baked.settings.svf_resolution;
     let t = Instant::now();
@@ -254,7 +248,7 @@ pub fn error_budget(
     let film = single_by_light_sampling(scene, settings, |hit, dir| {
         images.lookup(visibility_image_of(baked, hit), dir)
     })?;
-    push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64(), false);
+    push(Component::Single, format!("4 visibility image {n}x{n}"), &film, t.elapsed().as_secs_f64());
     let t = Instant::now();
     let film = single_by_light_sampling(scene, settings, |hit, dir| {
         ssdf_lookup(&baked.visibility.ssdf, visibility_image_of(baked, hit), dir) > 0.0
@@ -267,7 +261,6 @@ pub fn error_budget(
         ),
         &film,
         t.elapsed().as_secs_f64(),
-        false,
     );
     let t = Instant::now();
     let film = render_flat_with(
@@ -288,14 +281,13 @@ pub fn error_budget(
         ),
         &film,
         t.elapsed().as_secs_f64(),
-        false,
     );
     let voxel_hits = PrimaryHits::Voxels;
     let voxels = "the GPU's primary hits (fibers of the voxels walked)";
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Single, settings.spp, settings.seed, options)?;
-    push(Component::Single, format!("6 the method on {voxels}"), &film, t.elapsed().as_secs_f64(), false);
+    push(Component::Single, format!("6 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
 
     // Multiple scattering.
     let fibers = &scene.path_scene.fibers;
@@ -311,7 +303,7 @@ pub fn error_budget(
             let origin = if at_hit { fibers.world_position_f64(hit) } else { midpoint(hit) };
             Ok(indirect_light(scene, hit, origin, wo, rng))
         })?;
-        push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64(), false);
+        push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
     }
     if settings.split_transfer {
         for (part, name) in [
@@ -325,7 +317,7 @@ pub fn error_budget(
             let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
                 Ok(indirect_light_part(scene, hit, midpoint(hit), wo, part, rng))
             })?;
-            push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64(), false);
+            push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
         }
     }
     let grid = &baked.transfer.cells;
@@ -339,20 +331,20 @@ pub fn error_budget(
         baked.transfer.iirtf.sh_order,
         baked.settings.iirtf_paths_per_cell
     );
-    for (name, interpolate_transfer, clamp_at_zero) in [
-        (format!("3 IIRTF per cell: {cells}"), false, true),
-        ("4 the method: IIRTF interpolated between cells".into(), true, true),
-        ("4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(), true, false),
+    for (name, interpolate_transfer, clamp) in [
+        (format!("3 IIRTF per cell: {cells}"), false, ClampAtZero::PixelMean),
+        ("4 the method: IIRTF interpolated between cells".into(), true, ClampAtZero::PixelMean),
+        (
+            "4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(),
+            true,
+            ClampAtZero::Never,
+        ),
+        ("4'' the method with its clamp on each sample, not on each pixel's mean".into(), true, ClampAtZero::EachSample),
     ] {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer, clamp_at_zero, primary: PrimaryHits::Exact };
+        let options = MethodOptions { interpolate_transfer, clamp, primary: PrimaryHits::Exact };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
-        let seconds = t.elapsed().as_secs_f64();
-        push(Component::Multiple, name, &film, seconds, false);
-        if !clamp_at_zero {
-            let name = "4'' the method with its clamp on each pixel's mean, not on each sample".to_string();
-            push(Component::Multiple, name, &film, seconds, true);
-        }
+        push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
     }
     if settings.split_transfer {
         for (part, name) in [
@@ -364,7 +356,7 @@ pub fn error_budget(
         ] {
             let t = Instant::now();
             let part_baked = with_transfer_part(scene, baked, part)?;
-            let options = MethodOptions { clamp_at_zero: false, ..MethodOptions::default() };
+            let options = MethodOptions { clamp: ClampAtZero::Never, ..MethodOptions::default() };
             let film = render_flat_with(
                 scene,
                 &part_baked,
@@ -373,13 +365,13 @@ pub fn error_budget(
                 settings.seed,
                 options,
             )?;
-            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64(), false);
+            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
         }
     }
     let t = Instant::now();
     let options = MethodOptions { primary: voxel_hits, ..MethodOptions::default() };
     let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
-    push(Component::Multiple, format!("5 the method on {voxels}"), &film, t.elapsed().as_secs_f64(), false);
+    push(Component::Multiple, format!("5 the method on {voxels}"), &film, t.elapsed().as_secs_f64());
     Ok(Budget {
         rungs,
         width,

@@ -59,7 +59,7 @@ use crate::bake::iirtf::{
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
 use crate::pathtrace::Light;
-use crate::sg::sg_upper_fraction;
+use crate::sg::{sg_mean_resultant, sg_upper_fraction, sg_upper_moment};
 use crate::sh::{ShEulerRotation, sh_count, sh_eval};
 use crate::upper_fit::{UPPER_FIT_MIN_ORDER, UpperHemisphereFit};
 
@@ -338,7 +338,10 @@ impl FiberLobe {
         }
         let (axis, sharpness) = match *light {
             Light::Directional { to_light, .. } => (to_light, None),
-            Light::Sg { axis, sharpness, .. } => (axis, Some(sharpness)),
+            Light::Sg { axis, sharpness, .. } => {
+                let (axis, sharpness) = sg_above_horizon(axis, sharpness);
+                (axis, Some(sharpness))
+            }
         };
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
         let longitudinal: Vec<f64> = self.shape[LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total).collect();
@@ -363,6 +366,57 @@ impl FiberLobe {
         }
         debug_assert_eq!(fourier.len(), 2 * LOBE_FOURIER_TERMS);
         Some((axis, LobeAngles { fourier, azimuth }))
+    }
+}
+
+/// The SG that stands for the part of an SG light (unit `axis`, `sharpness`) above the
+/// fabric's horizon, as `(axis, sharpness)`: its axis the mean direction of that part
+/// ([`sg_upper_moment`]), its sharpness the von Mises–Fisher one of the same mean resultant
+/// length R ([`vmf_sharpness`]). Light from below the horizon never reaches the transfer, so a
+/// broad SG low in the sky reaches the fibers from higher up than its axis, and narrower than
+/// itself: its forward chains fan out about that higher direction (a backlit eye near the
+/// horizon sees less of them). A light wholly above the horizon keeps its axis and sharpness;
+/// one wholly below keeps both (it has no strength anyway). Twin: `sg_above_horizon_f32`
+/// (`shaders/shared/sg.wgsl`).
+#[must_use]
+pub fn sg_above_horizon(axis: DVec3, sharpness: f64) -> (DVec3, f64) {
+    let (share, moment) = sg_upper_moment(axis, sharpness);
+    let length = moment.length();
+    if share < 1e-9 || length < 1e-12 {
+        return (axis, sharpness);
+    }
+    (moment / length, vmf_sharpness(length / share))
+}
+
+/// The sharpness λ of the von Mises–Fisher density with mean resultant length `r`
+/// (the inverse of [`sg_mean_resultant`]): Banerjee et al.'s `R (3 − R²) / (1 − R²)` (about
+/// λ + ½ for sharp lobes), then, below λ = 100, three Newton steps on `A(λ) = R` (within
+/// 1e-9 after them). `r` is clamped to [1e-9, 1 − 1e-12].
+#[must_use]
+pub fn vmf_sharpness(r: f64) -> f64 {
+    let r = r.clamp(1e-9, 1.0 - 1e-12);
+    let mut lambda = r * (3.0 - r * r) / (1.0 - r * r);
+    if lambda < VMF_NEWTON_BELOW {
+        for _ in 0..3 {
+            lambda = (lambda + (r - sg_mean_resultant(lambda)) / sg_mean_resultant_slope(lambda)).max(1e-9);
+        }
+    }
+    lambda
+}
+
+/// Below this first guess [`vmf_sharpness`] refines it (above, the guess is within ½%, and the
+/// f32 twin's `1 − A(λ)` has too few digits for Newton).
+pub const VMF_NEWTON_BELOW: f64 = 100.0;
+
+/// `A′(λ) = 1/λ² − 1/sinh² λ`, by its series `1/3 − λ²/15 + 2λ⁴/189` below λ = 0.05.
+fn sg_mean_resultant_slope(lambda: f64) -> f64 {
+    if lambda < 0.05 {
+        let l2 = lambda * lambda;
+        1.0 / 3.0 - l2 / 15.0 + 2.0 * l2 * l2 / 189.0
+    } else {
+        // 1/sinh² λ = 4 e^{−2λ} / expm1(−2λ)².
+        let e = (-2.0 * lambda).exp_m1();
+        1.0 / (lambda * lambda) - 4.0 * (-2.0 * lambda).exp() / (e * e)
     }
 }
 

@@ -97,18 +97,34 @@ pub struct MethodOptions {
     /// Interpolate transfer between cells at the hit point (`true`, the default) or use the
     /// hit segment's own cell (the paper's constant per cell).
     pub interpolate_transfer: bool,
-    /// Clamp the shaded radiance (single plus multiple scattering) at zero per channel and
-    /// sample (`true`, the default and the GPU's choice) or keep negative values (unbiased in
-    /// the mean, but not an image).
-    pub clamp_at_zero: bool,
+    /// Where the shaded radiance (single plus multiple scattering) is clamped at zero.
+    pub clamp: ClampAtZero,
     /// Where camera rays meet the fabric.
     pub primary: PrimaryHits,
 }
 
 impl Default for MethodOptions {
     fn default() -> Self {
-        Self { interpolate_transfer: true, clamp_at_zero: true, primary: PrimaryHits::Exact }
+        Self { interpolate_transfer: true, clamp: ClampAtZero::PixelMean, primary: PrimaryHits::Exact }
     }
+}
+
+/// Where the method's radiance is clamped at zero, per channel. Truncated SH and a noisy
+/// transfer ring below zero in places; radiance cannot, so the picture is clamped, and where
+/// the clamp acts it lifts the mean.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ClampAtZero {
+    /// Each pixel's mean over its samples (the default, and the GPU's: its shade pass adds
+    /// signed samples to the accumulation, the tone map and the readback clamp the mean).
+    /// Ringing that changes sign from sample to sample within a pixel cancels before the
+    /// clamp; only a pixel whose mean is negative is lifted.
+    PixelMean,
+    /// Each sample (before 2026-11-28): lifts the mean wherever any sample rings below zero,
+    /// by 40–60 points on the raking lights of the gabardine and the silk satin
+    /// (docs/BENCHMARKS.md, "The clamp on each pixel's mean").
+    EachSample,
+    /// Nowhere: unbiased in the mean, but not an image.
+    Never,
 }
 
 /// Where a camera ray first meets the fabric.
@@ -152,9 +168,10 @@ pub fn render_flat_with(
     let lights: Vec<(Light, f64, f64)> = scene.path_scene.lights.iter().map(|&l| (l, 1.0, 1.0)).collect();
     let shade_at = |segment: u32, local: DVec3, wo: DVec3| {
         let position = options.interpolate_transfer.then_some(local);
-        shade_segment(baked, segment, Some(local), position, wo, &lights, component, options.clamp_at_zero)
+        let each_sample = options.clamp == ClampAtZero::EachSample;
+        shade_segment(baked, segment, Some(local), position, wo, &lights, component, each_sample)
     };
-    match options.primary {
+    let mut film = match options.primary {
         PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {
             shade_at(hit.segment, hit.local_position.as_dvec3(), wo)
         }),
@@ -167,7 +184,11 @@ pub fn render_flat_with(
                 }
             })
         }
+    }?;
+    if options.clamp == ClampAtZero::PixelMean {
+        film.clamp_means_at_zero();
     }
+    Ok(film)
 }
 
 /// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first fiber the ray

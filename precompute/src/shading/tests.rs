@@ -520,6 +520,57 @@ fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nod
     assert!((lobe.azimuth_means(0.5 * quarter)[0] + 0.5).abs() < 1e-12);
 }
 
+/// The von Mises–Fisher sharpness inverts the mean resultant length (three Newton steps below
+/// λ = 100, Banerjee's guess above), and an SG light's part above the horizon keeps a light
+/// wholly above it, and stands higher and narrower for a broad light low in the sky.
+#[test]
+fn shading_sg_above_horizon_keeps_lights_above_it_and_lifts_broad_low_ones() {
+    use crate::sg::{sg_mean_resultant, sg_upper_moment};
+    use crate::shading::multiple::{sg_above_horizon, vmf_sharpness};
+    for lambda in [1e-3, 0.01, 0.3, 1.0, 2.0, 7.0, 30.0, 90.0] {
+        let got = vmf_sharpness(sg_mean_resultant(lambda));
+        assert!((got / lambda - 1.0).abs() < 1e-9, "λ {lambda}: {got}");
+    }
+    for lambda in [150.0, 2e3, 1e5] {
+        let got = vmf_sharpness(sg_mean_resultant(lambda));
+        assert!((got / lambda - 1.0).abs() < 5e-3, "λ {lambda}: {got}");
+    }
+    // Wholly above the horizon (the plane more than 20 widths away): axis and sharpness kept.
+    for (z, lambda) in [(1.0_f64, 50.0), (0.8, 100.0), (0.3, 2e3), (0.05, 1e5)] {
+        let axis = DVec3::new((1.0 - z * z).sqrt(), 0.0, z);
+        let (got_axis, got_lambda) = sg_above_horizon(axis, lambda);
+        assert!(got_axis.angle_between(axis) < 1e-7, "ξz {z} λ {lambda}: {got_axis}");
+        assert!((got_lambda / lambda - 1.0).abs() < 5e-3, "ξz {z} λ {lambda}: {got_lambda}");
+    }
+    // Broad and low: the mean direction of the part above, higher than the axis; narrower
+    // than the light where the horizon cuts off its far side.
+    for (z, lambda) in [(0.17_f64, 2.0), (0.2, 8.0), (0.05, 30.0), (0.0, 300.0)] {
+        let axis = DVec3::new(0.0, -(1.0 - z * z).sqrt(), z);
+        let (got_axis, got_lambda) = sg_above_horizon(axis, lambda);
+        let (share, moment) = sg_upper_moment(axis, lambda);
+        assert!(got_axis.angle_between(moment) < 1e-7 && got_axis.z > z + 0.01, "ξz {z} λ {lambda}: {got_axis}");
+        let r = moment.length() / share;
+        // Inverted exactly below λ = 100; above, 1 − A(λ) ≈ 1/λ.
+        let inverted = if got_lambda < 100.0 {
+            (sg_mean_resultant(got_lambda) / r - 1.0).abs() < 1e-6
+        } else {
+            (got_lambda * (1.0 - r) - 1.0).abs() < 5e-3
+        };
+        assert!(inverted, "ξz {z} λ {lambda}: {got_lambda}");
+        assert!(got_lambda.is_finite() && got_lambda > 0.0);
+    }
+    // Wholly below: kept (no strength reaches the transfer anyway); no NaN at the limits.
+    let below = DVec3::new(0.0, 0.6, -0.8);
+    assert_eq!(sg_above_horizon(below, 2e3), (below, 2e3));
+    for lambda in [1e-4, 1e5] {
+        for z in [-1.0_f64, 0.0, 1.0] {
+            let axis = DVec3::new((1.0 - z * z).sqrt(), 0.0, z);
+            let (a, l) = sg_above_horizon(axis, lambda);
+            assert!(a.is_finite() && l.is_finite() && l > 0.0, "ξz {z} λ {lambda}: {a} {l}");
+        }
+    }
+}
+
 #[test]
 fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() {
     use crate::bake::iirtf::FiberOffset;
