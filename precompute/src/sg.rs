@@ -375,8 +375,14 @@ mod tests {
                     }
                 }
                 let (got_share, got_moment) = sg_upper_moment(axis, lambda);
-                assert!((got_share - share).abs() < 2e-3, "λ {lambda} ξz {axis_z}: share {got_share} vs {share}");
-                assert!((got_share - sg_upper_fraction(axis_z, lambda)).abs() < 1e-12, "λ {lambda} ξz {axis_z}");
+                assert!(
+                    (got_share - share).abs() < 2e-3,
+                    "λ {lambda} ξz {axis_z}: share {got_share} vs {share}"
+                );
+                assert!(
+                    (got_share - sg_upper_fraction(axis_z, lambda)).abs() < 1e-12,
+                    "λ {lambda} ξz {axis_z}"
+                );
                 assert!(
                     (got_moment - moment).length() < 2e-3,
                     "λ {lambda} ξz {axis_z}: moment {got_moment} vs {moment}"
@@ -389,7 +395,11 @@ mod tests {
             let expected = 1.0 / lambda.tanh() - 1.0 / lambda;
             assert!((a - expected).abs() < 1e-9, "λ {lambda}: {a} vs {expected}");
             let (share, moment) = sg_upper_moment(DVec3::new(0.0, 0.6, 0.8), lambda.max(200.0));
-            assert!(share == 1.0 && (moment - sg_mean_resultant(lambda.max(200.0)) * DVec3::new(0.0, 0.6, 0.8)).length() < 1e-15);
+            assert!(
+                share == 1.0
+                    && (moment - sg_mean_resultant(lambda.max(200.0)) * DVec3::new(0.0, 0.6, 0.8)).length()
+                        < 1e-15
+            );
         }
     }
 

@@ -6,11 +6,11 @@
 //! they print a loud SKIPPED line: skipping is never silent. `scripts/test.sh` installs
 //! lavapipe, so CI always runs them.
 
+use glam::DVec3;
 use twill_precompute::sg::{
     sg_azimuthal_average, sg_azimuthal_average_f32, sg_mass, sg_mass_f32, sg_upper_fraction,
     sg_upper_fraction_f32,
 };
-use glam::DVec3;
 use twill_precompute::shading::multiple::sg_above_horizon;
 use twill_precompute::special::{erf, erf_f32, erfc, erfc_f32, i0e, i0e_f32};
 use twill_renderer::gpu::Gpu;

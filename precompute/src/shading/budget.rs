@@ -41,8 +41,8 @@
 //! is multiple scattering alone, so the clamp acts on it). Truncated SH and
 //! a noisy transfer go negative in places; the clamp of each pixel's mean (the GPU's too) keeps
 //! the image an image but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. 4″
-//! is the clamp taken on each sample instead (the renderers' choice before 2026-11-28; the same
-//! samples, so its mean lies above 4's). With
+//! is the clamp taken on each sample instead (the renderers' choice until the fifteenth
+//! session of 2026-11-27; the same samples, so its mean lies above 4's). With
 //! [`BudgetSettings::split_transfer`], 4a–4c split 4′ by light transport
 //! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
 //! peaked around the light's direction), its reflection (a cone about its axis) and light
@@ -339,7 +339,11 @@ pub fn error_budget(
             true,
             ClampAtZero::Never,
         ),
-        ("4'' the method with its clamp on each sample, not on each pixel's mean".into(), true, ClampAtZero::EachSample),
+        (
+            "4'' the method with its clamp on each sample, not on each pixel's mean".into(),
+            true,
+            ClampAtZero::EachSample,
+        ),
     ] {
         let t = Instant::now();
         let options = MethodOptions { interpolate_transfer, clamp, primary: PrimaryHits::Exact };

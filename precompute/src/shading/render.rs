@@ -119,9 +119,9 @@ pub enum ClampAtZero {
     /// Ringing that changes sign from sample to sample within a pixel cancels before the
     /// clamp; only a pixel whose mean is negative is lifted.
     PixelMean,
-    /// Each sample (before 2026-11-28): lifts the mean wherever any sample rings below zero,
-    /// by 40–60 points on the raking lights of the gabardine and the silk satin
-    /// (docs/BENCHMARKS.md, "The clamp on each pixel's mean").
+    /// Each sample (until the fifteenth session of 2026-11-27): lifts the mean wherever any
+    /// sample rings below zero; on the default cotton under raking light it hid a transfer
+    /// 15–30% too dark (docs/BENCHMARKS.md, "The clamp on each pixel's mean").
     EachSample,
     /// Nowhere: unbiased in the mean, but not an image.
     Never,

@@ -548,7 +548,10 @@ fn shading_sg_above_horizon_keeps_lights_above_it_and_lifts_broad_low_ones() {
         let axis = DVec3::new(0.0, -(1.0 - z * z).sqrt(), z);
         let (got_axis, got_lambda) = sg_above_horizon(axis, lambda);
         let (share, moment) = sg_upper_moment(axis, lambda);
-        assert!(got_axis.angle_between(moment) < 1e-7 && got_axis.z > z + 0.01, "ξz {z} λ {lambda}: {got_axis}");
+        assert!(
+            got_axis.angle_between(moment) < 1e-7 && got_axis.z > z + 0.01,
+            "ξz {z} λ {lambda}: {got_axis}"
+        );
         let r = moment.length() / share;
         // Inverted exactly below λ = 100; above, 1 − A(λ) ≈ 1/λ.
         let inverted = if got_lambda < 100.0 {
