@@ -136,6 +136,13 @@ pub fn prelude() -> String {
         ] {
             let _ = writeln!(out, "const {name}: f32 = {value:?};");
         }
+        let (lo, hi) = twill_precompute::shading::multiple::ABOVE_HORIZON_SHARES;
+        #[allow(clippy::cast_possible_truncation)]
+        let _ = writeln!(
+            out,
+            "const ABOVE_HORIZON_SHARES: vec2<f32> = vec2<f32>({:?}, {:?});",
+            lo as f32, hi as f32
+        );
         let _ = writeln!(
             out,
             "const BESSEL_RATIO_DEPTH: u32 = {}u;",

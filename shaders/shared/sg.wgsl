@@ -176,11 +176,17 @@ fn vmf_sharpness_f32(r_in: f32) -> f32 {
 // The SG standing for an SG light's part above the horizon, as vec4(axis, sharpness)
 // (shading::multiple::sg_above_horizon): the mean direction of that part, and the von
 // Mises-Fisher sharpness of its mean resultant length.
+// Below ABOVE_HORIZON_SHARES.x of its power above the horizon a light keeps its own SG, and up
+// to ABOVE_HORIZON_SHARES.y it moves to the one above by a smoothstep in the share.
 fn sg_above_horizon_f32(axis: vec3<f32>, lambda: f32) -> vec4<f32> {
     let upper = sg_upper_moment_f32(axis, lambda);
+    let x = clamp((upper.w - ABOVE_HORIZON_SHARES.x) / (ABOVE_HORIZON_SHARES.y - ABOVE_HORIZON_SHARES.x), 0.0, 1.0);
+    let weight = x * x * (3.0 - 2.0 * x);
     let length = length(upper.xyz);
-    if (upper.w < 1e-9 || length < 1e-12) {
+    if (weight == 0.0 || length < 1e-12) {
         return vec4<f32>(axis, lambda);
     }
-    return vec4<f32>(upper.xyz / length, vmf_sharpness_f32(length / upper.w));
+    let above = upper.xyz / length;
+    let above_sharpness = vmf_sharpness_f32(length / upper.w);
+    return vec4<f32>(normalize(axis + weight * (above - axis)), lambda + weight * (above_sharpness - lambda));
 }

@@ -375,18 +375,30 @@ impl FiberLobe {
 /// length R ([`vmf_sharpness`]). Light from below the horizon never reaches the transfer, so a
 /// broad SG low in the sky reaches the fibers from higher up than its axis, and narrower than
 /// itself: its forward chains fan out about that higher direction (a backlit eye near the
-/// horizon sees less of them). A light wholly above the horizon keeps its axis and sharpness;
-/// one wholly below keeps both (it has no strength anyway). Twin: `sg_above_horizon_f32`
+/// horizon sees less of them). A light wholly above the horizon keeps its axis and sharpness.
+/// A light with less than [`ABOVE_HORIZON_SHARES`]`.0` of its power above the horizon keeps
+/// both too, and between the two shares the SG moves to the one above by a smoothstep in the
+/// share: such a light's lobes hold next to nothing (its strength is the share's), and below
+/// the horizon its moment is the difference of two nearly equal ones (the whole SG's and its
+/// mirror's), which f32 (the WGSL twin) cannot take. Twin: `sg_above_horizon_f32`
 /// (`shaders/shared/sg.wgsl`).
 #[must_use]
 pub fn sg_above_horizon(axis: DVec3, sharpness: f64) -> (DVec3, f64) {
     let (share, moment) = sg_upper_moment(axis, sharpness);
+    let (lo, hi) = ABOVE_HORIZON_SHARES;
+    let x = ((share - lo) / (hi - lo)).clamp(0.0, 1.0);
+    let weight = x * x * (3.0 - 2.0 * x);
     let length = moment.length();
-    if share < 1e-9 || length < 1e-12 {
+    if weight == 0.0 || length < 1e-12 {
         return (axis, sharpness);
     }
-    (moment / length, vmf_sharpness(length / share))
+    let (above, above_sharpness) = (moment / length, vmf_sharpness(length / share));
+    ((axis + weight * (above - axis)).normalize(), sharpness + weight * (above_sharpness - sharpness))
 }
+
+/// The shares of an SG light's power above the horizon between which [`sg_above_horizon`]
+/// moves from the light's own SG to the one above the horizon.
+pub const ABOVE_HORIZON_SHARES: (f64, f64) = (1e-3, 1e-2);
 
 /// The sharpness λ of the von Mises–Fisher density with mean resultant length `r`
 /// (the inverse of [`sg_mean_resultant`]): Banerjee et al.'s `R (3 − R²) / (1 − R²)` (about
