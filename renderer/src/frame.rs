@@ -98,8 +98,14 @@ pub struct PassTiming {
 pub struct Frame {
     pub width: u32,
     pub height: u32,
-    /// Linear radiance per pixel, row-major from the top-left.
+    /// Linear radiance per pixel, row-major from the top-left: the mean of the frame's samples
+    /// clamped at zero per channel (the picture).
     pub radiance: Vec<[f32; 3]>,
+    /// The same mean before its clamp at zero. The method's samples are signed (a truncated
+    /// SH transfer rings below zero) and only a pixel's mean is clamped, so frames of one
+    /// sample sequence are combined through this (weighted by their sample counts) and the
+    /// sum clamped ([`clamp_at_zero`]); their clamped means would not add up.
+    pub signed_radiance: Vec<[f32; 3]>,
     /// Tone-mapped sRGB, RGBA8.
     pub display: Vec<[u8; 4]>,
     pub plan: FramePlan,
@@ -108,6 +114,12 @@ pub struct Frame {
     /// Passes of the plan this frame did not run because it reused an earlier frame's result
     /// (shell-space visibility: shadow maps, X, V, blur), by their plan names.
     pub reused: Vec<String>,
+}
+
+/// A mean radiance clamped at zero per channel (the picture of signed samples' mean).
+#[must_use]
+pub fn clamp_at_zero(radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    radiance.iter().map(|p| p.map(|v| v.max(0.0))).collect()
 }
 
 impl Frame {
@@ -179,7 +191,7 @@ impl ProgressivePicture {
             filmic: self.filmic,
             display_texture: self.targets.display.clone(),
             display: read.display,
-            radiance: read.radiance,
+            radiance: read.radiance.as_deref().map(clamp_at_zero),
             plan: self.plan.clone(),
             timings: read.timings,
             reused,
@@ -196,6 +208,7 @@ struct Recorded {
 
 /// What a submitted frame read back.
 struct ReadBack {
+    /// The mean of the samples, signed (not clamped at zero).
     radiance: Option<Vec<[f32; 3]>>,
     display: Option<Vec<[u8; 4]>>,
     timings: Option<Vec<PassTiming>>,
@@ -476,9 +489,9 @@ impl Renderer {
 
     /// As [`Renderer::render`], for samples `first_sample .. first_sample + settings.spp` of
     /// one longer sample sequence (the sub-pixel jitter continues where the previous frame
-    /// stopped). The frame's `radiance` is the mean of its own samples, so a caller that
-    /// weights each frame by its `spp` and sums them gets the same image as one frame with all
-    /// the samples (what an export does). `first_sample = 0` is exactly [`Renderer::render`].
+    /// stopped). The frame's `signed_radiance` is the mean of its own samples, so a caller that
+    /// weights each frame by its `spp`, sums them and clamps the sum at zero gets the same image
+    /// as one frame with all the samples (what an export does). `first_sample = 0` is exactly [`Renderer::render`].
     /// These frames have targets of their own: they never touch the progressive picture.
     pub fn render_samples(
         &mut self,
@@ -493,10 +506,12 @@ impl Renderer {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let recorded = self.record(camera, lights, &settings, first_sample, &targets, true, settings.spp)?;
         let read = self.submit(recorded.frame, scope, &targets, Readback::Everything, settings.spp)?;
+        let signed_radiance = read.radiance.unwrap_or_default();
         Ok(Frame {
             width,
             height,
-            radiance: read.radiance.unwrap_or_default(),
+            radiance: clamp_at_zero(&signed_radiance),
+            signed_radiance,
             display: read.display.unwrap_or_default(),
             plan: recorded.plan,
             timings: read.timings,
@@ -713,10 +728,10 @@ impl Renderer {
         let radiance = if readback == Readback::Everything {
             let accumulated: Vec<[f32; 4]> =
                 crate::gpu::read_buffer(&self.device, &targets.radiance_readback)?;
-            // The shade pass accumulates signed samples; a pixel's mean is clamped at zero
-            // here, as the tone map clamps it (shading::render::ClampAtZero::PixelMean).
+            // The shade pass accumulates signed samples; the callers clamp the mean at zero
+            // (`clamp_at_zero`), as the tone map does (shading::render::ClampAtZero::PixelMean).
             let inv = 1.0 / samples.max(1) as f32;
-            Some(accumulated.iter().map(|p| [p[0], p[1], p[2]].map(|v| (v * inv).max(0.0))).collect())
+            Some(accumulated.iter().map(|p| [p[0] * inv, p[1] * inv, p[2] * inv]).collect())
         } else {
             None
         };

@@ -787,7 +787,8 @@ fn run_export(
             .render_samples(&request.camera, &request.lights, &settings, done)
             .map_err(|e| format!("export render failed: {e}"))?;
         let weight = batch as f32;
-        for (s, p) in sum.iter_mut().zip(&frame.radiance) {
+        // Signed means: only the whole picture's mean is clamped at zero.
+        for (s, p) in sum.iter_mut().zip(&frame.signed_radiance) {
             for c in 0..3 {
                 s[c] += p[c] * weight;
             }
@@ -797,7 +798,7 @@ fn run_export(
         progress(done, total);
     }
     let inv = 1.0 / total as f32;
-    let mean: Vec<[f32; 3]> = sum.iter().map(|p| p.map(|c| c * inv)).collect();
+    let mean: Vec<[f32; 3]> = sum.iter().map(|p| p.map(|c| (c * inv).max(0.0))).collect();
     let image = ExportImage {
         width,
         height,
