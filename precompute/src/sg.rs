@@ -224,21 +224,37 @@ pub fn sg_upper_fraction(axis_z: f64, lambda: f64) -> f64 {
     let upper = if lambda * gap > 20.0 {
         1.0
     } else {
-        // The share of the mass within 1 − t ≤ w of the axis.
-        let total = (-2.0 * lambda).exp_m1();
-        let mass_within = |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
-        let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
-        let mut between = 0.0;
-        for i in 0..UPPER_FRACTION_NODES {
-            let u = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
-            // The inverse of `mass_within`: the sampler's, which takes the share from the far end.
-            let w = sample_one_minus_cos(lambda, 1.0 - u);
-            let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
-            between += (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos() / PI;
-        }
+        let (top, bottom, circles) = circles_cut_by_the_plane(lambda, s, c, gap);
+        let between: f64 = circles.map(|(_, _, alpha)| alpha / PI).sum();
         top + (bottom - top) * between / UPPER_FRACTION_NODES as f64
     };
     if z >= 0.0 { upper } else { 1.0 - upper }
+}
+
+/// The circles of directions about an SG's axis (sharpness `lambda`, `ξ_z = s ≥ 0`,
+/// `|ξ_xy| = c`, `gap = 1 − c` without cancellation) that the plane z = 0 cuts, for
+/// [`sg_upper_fraction`] and [`sg_upper_moment`]: `(top, bottom, circles)` with `top` and
+/// `bottom` the shares of the mass within `1 − t ≤ gap` and `≤ 1 + c` of the axis, and per each
+/// of the [`UPPER_FRACTION_NODES`] equal slices of the mass between, its middle circle's
+/// `(t, r, α)`: `t = ω·ξ`, `r = √(1 − t²)` and the half-angle `α` of its arc above the plane.
+fn circles_cut_by_the_plane(
+    lambda: f64,
+    s: f64,
+    c: f64,
+    gap: f64,
+) -> (f64, f64, impl Iterator<Item = (f64, f64, f64)>) {
+    // The share of the mass within 1 − t ≤ w of the axis.
+    let total = (-2.0 * lambda).exp_m1();
+    let mass_within = |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
+    let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
+    let circles = (0..UPPER_FRACTION_NODES).map(move |i| {
+        let u = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
+        // The inverse of `mass_within`: the sampler's, which takes the share from the far end.
+        let w = sample_one_minus_cos(lambda, 1.0 - u);
+        let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
+        (t, r, (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos())
+    });
+    (top, bottom, circles)
 }
 
 /// A normalized SG's power above the plane z = 0, as `(share, first moment)`: the share is
@@ -272,26 +288,20 @@ pub fn sg_upper_moment(axis: DVec3, lambda: f64) -> (f64, DVec3) {
         let mean_w = if x < 1e-4 { g * (0.5 - x / 12.0) } else { 1.0 / lambda - g / x.exp_m1() };
         1.0 - mean_w
     };
-    if lambda * gap > 20.0 || c == 0.0 {
-        // All of it above the plane (or the axis along z: every circle is level).
-        if c == 0.0 && lambda * gap <= 20.0 {
-            let total = (-2.0 * lambda).exp_m1();
-            let share = if lambda > 0.0 { (-lambda).exp_m1() / total } else { 0.5 };
-            return (share, share * cap_mean_t(1.0) * axis);
-        }
+    if lambda * gap > 20.0 {
         return (1.0, sg_mean_resultant(lambda) * axis);
     }
-    let total = (-2.0 * lambda).exp_m1();
-    let mass_within = |w: f64| if lambda > 0.0 { (-lambda * w).exp_m1() / total } else { 0.5 * w };
-    let (top, bottom) = (mass_within(gap), mass_within(1.0 + c));
+    if c == 0.0 {
+        // The axis along z: every circle is level, those within 1 − t ≤ 1 wholly above.
+        let total = (-2.0 * lambda).exp_m1();
+        let share = if lambda > 0.0 { (-lambda).exp_m1() / total } else { 0.5 };
+        return (share, share * cap_mean_t(1.0) * axis);
+    }
+    let (top, bottom, circles) = circles_cut_by_the_plane(lambda, s, c, gap);
     // u: in the plane of ξ and z, perpendicular to ξ, toward +z.
     let u = (DVec3::Z - s * axis) / c;
     let (mut share, mut moment) = (0.0, DVec3::ZERO);
-    for i in 0..UPPER_FRACTION_NODES {
-        let m = top + (bottom - top) * (i as f64 + 0.5) / UPPER_FRACTION_NODES as f64;
-        let w = sample_one_minus_cos(lambda, 1.0 - m);
-        let (t, r) = (1.0 - w, (w * (2.0 - w)).max(0.0).sqrt());
-        let alpha = (-t * s / (r * c).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0).acos();
+    for (t, r, alpha) in circles {
         share += alpha / PI;
         moment += (alpha * t * axis + alpha.sin() * r * u) / PI;
     }
@@ -353,6 +363,25 @@ mod tests {
     use crate::sh::{ShRotation, sh_index, sh_project};
     use crate::test_support::{gamma_q, random_unit};
 
+    /// The share and first moment of a normalized SG above the plane z = 0 by a product rule
+    /// over the upper hemisphere: Gauss–Legendre in z (`nodes`, `weights` on [−1, 1]) by 800
+    /// midpoints in azimuth.
+    fn upper_hemisphere_rule(axis: DVec3, lambda: f64, nodes: &[f64], weights: &[f64]) -> (f64, DVec3) {
+        let (mut share, mut moment) = (0.0, DVec3::ZERO);
+        for (x, w) in nodes.iter().zip(weights) {
+            let z = 0.5 * (x + 1.0);
+            let r = (1.0 - z * z).sqrt();
+            for k in 0..800 {
+                let phi = 2.0 * PI * (f64::from(k) + 0.5) / 800.0;
+                let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                let p = 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
+                share += p;
+                moment += p * dir;
+            }
+        }
+        (share, moment)
+    }
+
     #[test]
     fn upper_moment_matches_a_product_rule_and_its_limits() {
         // The share and first moment above the plane by a product rule over the upper
@@ -362,18 +391,7 @@ mod tests {
             for axis_z in [-0.6_f64, -0.1, 0.0, 0.05, 0.2, 0.7, 0.95, 1.0] {
                 let r0 = (1.0 - axis_z * axis_z).sqrt();
                 let axis = DVec3::new(r0 * 0.6, r0 * 0.8, axis_z);
-                let (mut share, mut moment) = (0.0, DVec3::ZERO);
-                for (x, w) in nodes.iter().zip(&weights) {
-                    let z = 0.5 * (x + 1.0);
-                    let r = (1.0 - z * z).sqrt();
-                    for k in 0..800 {
-                        let phi = 2.0 * PI * (f64::from(k) + 0.5) / 800.0;
-                        let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
-                        let p = 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
-                        share += p;
-                        moment += p * dir;
-                    }
-                }
+                let (share, moment) = upper_hemisphere_rule(axis, lambda, &nodes, &weights);
                 let (got_share, got_moment) = sg_upper_moment(axis, lambda);
                 assert!(
                     (got_share - share).abs() < 2e-3,
@@ -419,16 +437,7 @@ mod tests {
         for lambda in [1e-4, 0.5, 2.0, 8.0, 50.0] {
             for axis_z in [-0.6_f64, -0.1, 0.05, 0.2, 0.7, 0.95] {
                 let axis = DVec3::new((1.0 - axis_z * axis_z).sqrt(), 0.0, axis_z);
-                let mut sum = 0.0;
-                for (x, w) in nodes.iter().zip(&weights) {
-                    let z = 0.5 * (x + 1.0);
-                    let r = (1.0 - z * z).sqrt();
-                    for k in 0..800 {
-                        let phi = 2.0 * PI * (f64::from(k) + 0.5) / 800.0;
-                        let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
-                        sum += 0.5 * w * (2.0 * PI / 800.0) * sg_pdf(axis, lambda, dir);
-                    }
-                }
+                let (sum, _) = upper_hemisphere_rule(axis, lambda, &nodes, &weights);
                 let got = sg_upper_fraction(axis_z, lambda);
                 assert!((got - sum).abs() < 2e-3, "λ {lambda} ξz {axis_z}: {got} vs {sum}");
                 let f32_twin = f64::from(sg_upper_fraction_f32(axis_z as f32, lambda as f32));

@@ -46,6 +46,31 @@ fn ln_1p_f32(x: f32) -> f32 {
 
 const UPPER_FRACTION_NODES: u32 = 32u;
 
+// The circles of directions about an SG's axis (xi_z = s >= 0, |xi_xy| = c, gap = 1 - c) that
+// the plane z = 0 cuts (sg.rs circles_cut_by_the_plane): vec3(top, bottom, expm1(-2 lambda)),
+// the shares of the mass within 1 - t <= gap and <= 1 + c of the axis.
+fn cut_circle_shares(lambda: f32, c: f32, gap: f32) -> vec3<f32> {
+    let total = expm1_f32(-2.0 * lambda);
+    if (lambda > 0.0) {
+        return vec3<f32>(expm1_f32(-lambda * gap) / total, expm1_f32(-lambda * (1.0 + c)) / total, total);
+    }
+    return vec3<f32>(0.5 * gap, 0.5 * (1.0 + c), total);
+}
+
+// The middle circle of slice i of the UPPER_FRACTION_NODES equal slices of the mass between
+// `shares` (cut_circle_shares) as vec3(t, r, alpha): t = w.xi, r = sqrt(1 - t^2) and the
+// half-angle alpha of its arc above the plane.
+fn cut_circle(i: u32, shares: vec3<f32>, lambda: f32, s: f32, c: f32) -> vec3<f32> {
+    let u = shares.x + (shares.y - shares.x) * (f32(i) + 0.5) / f32(UPPER_FRACTION_NODES);
+    var w = clamp(2.0 * u, 0.0, 2.0);
+    if (lambda > 0.0) {
+        w = clamp(-ln_1p_f32(u * shares.z) / lambda, 0.0, 2.0);
+    }
+    let t = 1.0 - w;
+    let r = sqrt(max(w * (2.0 - w), 0.0));
+    return vec3<f32>(t, r, acos(clamp(-t * s / max(r * c, 1.17549435e-38), -1.0, 1.0)));
+}
+
 // The share of a normalized SG's power above the plane z = 0 (sg.rs sg_upper_fraction): for an
 // axis above the plane, the mass within 1 - t <= 1 - |xi_xy| of the axis in closed form
 // (F(w) = expm1(-lambda w) / expm1(-2 lambda)), the mass between t = +-|xi_xy| by the midpoint
@@ -58,25 +83,12 @@ fn sg_upper_fraction_f32(axis_z: f32, lambda: f32) -> f32 {
     let gap = s * s / (1.0 + c);
     var upper = 1.0;
     if (!(lambda * gap > 20.0)) {
-        let total = expm1_f32(-2.0 * lambda);
-        var top = 0.5 * gap;
-        var bottom = 0.5 * (1.0 + c);
-        if (lambda > 0.0) {
-            top = expm1_f32(-lambda * gap) / total;
-            bottom = expm1_f32(-lambda * (1.0 + c)) / total;
-        }
+        let shares = cut_circle_shares(lambda, c, gap);
         var between = 0.0;
         for (var i = 0u; i < UPPER_FRACTION_NODES; i++) {
-            let u = top + (bottom - top) * (f32(i) + 0.5) / f32(UPPER_FRACTION_NODES);
-            var w = clamp(2.0 * u, 0.0, 2.0);
-            if (lambda > 0.0) {
-                w = clamp(-ln_1p_f32(u * total) / lambda, 0.0, 2.0);
-            }
-            let t = 1.0 - w;
-            let r = sqrt(max(w * (2.0 - w), 0.0));
-            between += acos(clamp(-t * s / max(r * c, 1.17549435e-38), -1.0, 1.0)) / PI;
+            between += cut_circle(i, shares, lambda, s, c).z / PI;
         }
-        upper = top + (bottom - top) * between / f32(UPPER_FRACTION_NODES);
+        upper = shares.x + (shares.y - shares.x) * between / f32(UPPER_FRACTION_NODES);
     }
     return select(1.0 - upper, upper, z >= 0.0);
 }
@@ -104,13 +116,8 @@ fn sg_upper_moment_f32(axis_in: vec3<f32>, lambda: f32) -> vec4<f32> {
     var share = 1.0;
     var moment = sg_mean_resultant_f32(lambda) * axis;
     if (!(lambda * gap > 20.0)) {
-        let total = expm1_f32(-2.0 * lambda);
-        var top = 0.5 * gap;
-        var bottom = 0.5 * (1.0 + c);
-        if (lambda > 0.0) {
-            top = expm1_f32(-lambda * gap) / total;
-            bottom = expm1_f32(-lambda * (1.0 + c)) / total;
-        }
+        let shares = cut_circle_shares(lambda, c, gap);
+        let top = shares.x;
         // 1 - E[1 - t] over the circles wholly above the plane.
         let x = lambda * gap;
         var mean_w = gap * (0.5 - x / 12.0);
@@ -125,18 +132,11 @@ fn sg_upper_moment_f32(axis_in: vec3<f32>, lambda: f32) -> vec4<f32> {
             var arcs = 0.0;
             var sum = vec3<f32>(0.0);
             for (var i = 0u; i < UPPER_FRACTION_NODES; i++) {
-                let m = top + (bottom - top) * (f32(i) + 0.5) / f32(UPPER_FRACTION_NODES);
-                var w = clamp(2.0 * m, 0.0, 2.0);
-                if (lambda > 0.0) {
-                    w = clamp(-ln_1p_f32(m * total) / lambda, 0.0, 2.0);
-                }
-                let t = 1.0 - w;
-                let r = sqrt(max(w * (2.0 - w), 0.0));
-                let alpha = acos(clamp(-t * s / max(r * c, 1.17549435e-38), -1.0, 1.0));
-                arcs += alpha / PI;
-                sum += (alpha * t * axis + sin(alpha) * r * u) / PI;
+                let circle = cut_circle(i, shares, lambda, s, c);
+                arcs += circle.z / PI;
+                sum += (circle.z * circle.x * axis + sin(circle.z) * circle.y * u) / PI;
             }
-            let slice = (bottom - top) / f32(UPPER_FRACTION_NODES);
+            let slice = (shares.y - top) / f32(UPPER_FRACTION_NODES);
             share = top + slice * arcs;
             moment = top * (1.0 - mean_w) * axis + slice * sum;
         }
