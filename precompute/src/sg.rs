@@ -291,13 +291,11 @@ pub fn sg_upper_moment(axis: DVec3, lambda: f64) -> (f64, DVec3) {
     if lambda * gap > 20.0 {
         return (1.0, sg_mean_resultant(lambda) * axis);
     }
-    if c == 0.0 {
-        // The axis along z: every circle is level, those within 1 − t ≤ 1 wholly above.
-        let total = (-2.0 * lambda).exp_m1();
-        let share = if lambda > 0.0 { (-lambda).exp_m1() / total } else { 0.5 };
-        return (share, share * cap_mean_t(1.0) * axis);
-    }
     let (top, bottom, circles) = circles_cut_by_the_plane(lambda, s, c, gap);
+    if c == 0.0 {
+        // The axis along z (gap 1): every circle is level, those within 1 − t ≤ 1 wholly above.
+        return (top, top * cap_mean_t(gap) * axis);
+    }
     // u: in the plane of ξ and z, perpendicular to ξ, toward +z.
     let u = (DVec3::Z - s * axis) / c;
     let (mut share, mut moment) = (0.0, DVec3::ZERO);

@@ -48,7 +48,9 @@ use twill_precompute::bake::settings::Quality;
 use twill_precompute::bcsdf::MaterialDesc;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
-use twill_renderer::frame::{FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer};
+use twill_renderer::frame::{
+    FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer, clamp_at_zero,
+};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
 use twill_renderer::headless::{HeadlessError, renderer_on_mesh};
@@ -798,7 +800,10 @@ fn run_export(
         progress(done, total);
     }
     let inv = 1.0 / total as f32;
-    let mean: Vec<[f32; 3]> = sum.iter().map(|p| p.map(|c| (c * inv).max(0.0))).collect();
+    for p in &mut sum {
+        *p = p.map(|c| c * inv);
+    }
+    let mean = clamp_at_zero(&sum);
     let image = ExportImage {
         width,
         height,
