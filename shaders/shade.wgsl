@@ -25,7 +25,9 @@ override ENABLE_FIBER_LOBES: bool = false;
 
 
 struct ShadeUniforms {
-    // x: lights, y: image width, z: image height, w: unused.
+    // x: lights, y: image width, z: the end (exclusive) of the rows this dispatch shades, the
+    // image height for a whole frame; w: the first of those rows (a band of rows, frame.rs
+    // `render_progressive_in_bands`; 0 for a whole frame).
     counts: vec4<u32>,
     // Eye position (w = 1) or viewing direction (w = 0).
     eye: vec4<f32>,
@@ -86,11 +88,11 @@ fn shell_visibility(tex: texture_2d_array<f32>, layer: i32, uv: vec2<f32>) -> f3
 @compute @workgroup_size(8, 8)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let width = shade.counts.y;
-    let height = shade.counts.z;
-    if (id.x >= width || id.y >= height) {
+    let row = id.y + shade.counts.w;
+    if (id.x >= width || row >= shade.counts.z) {
         return;
     }
-    let pixel = vec2<i32>(id.xy);
+    let pixel = vec2<i32>(i32(id.x), i32(row));
     let ids = textureLoad(gbuffer_ids, pixel, 0);
     if (ids.w == 0u) {
         return;
@@ -177,6 +179,6 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
             radiance += shade_multiple(e, segment, p, wo, &c_in);
         }
     }
-    let index = id.y * width + id.x;
+    let index = row * width + id.x;
     accumulation[index] += vec4<f32>(radiance, 1.0);
 }

@@ -14,7 +14,7 @@ use twill_precompute::image::{Estimate, compare};
 use twill_precompute::pathtrace::{self, Component};
 use twill_precompute::scene::{GpuSection, Scene, SceneFile};
 use twill_renderer::export::{Display, ToneCurve, display_srgb8};
-use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX, Readback};
+use twill_renderer::frame::{Frame, FrameSettings, MAX_SAMPLE_INDEX, Readback, RenderError, RowBands};
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::{SceneRenderer, frame_settings, shell_for_mesh};
 use twill_renderer::plan::Components;
@@ -242,6 +242,73 @@ fn the_progressive_picture_on_the_gpu_is_the_frame_of_all_its_samples() {
     renderer.update_fabric(&exemplars, &PatternMap::uniform(0)).expect("rebake in place");
     assert!(renderer.render_progressive(camera, lights, &one, 9, Readback::Nothing).is_err());
     assert!(renderer.tone_map_progressive(0.0, true, Readback::Nothing).is_err());
+}
+
+#[test]
+fn a_batch_rendered_in_bands_of_rows_is_the_same_picture_and_stops_between_bands() {
+    // The viewer's slow-device batches: every sample's G-buffer and shading band by band of
+    // rows, each band its own submission. The picture is the one-submission picture to the bit
+    // (each pixel's samples are added in the same order), whatever the band height (12 rounds
+    // up to 16; the last band of 36 rows is short). A stop between bands ends the batch with
+    // the bands done so far and the picture with it.
+    let Some(gpu) =
+        Gpu::for_test("a_batch_rendered_in_bands_of_rows_is_the_same_picture_and_stops_between_bands")
+    else {
+        return;
+    };
+    let swatch = scene(&format!("{FABRIC}{}", camera_above(0.4)), &[SUN]);
+    let mut settings = frame_settings(&swatch, Components::All);
+    (settings.width, settings.height, settings.spp) = (40, 36, 3);
+    let mut session = SceneRenderer::with_gpu(gpu, &swatch, &[default_bake()], &PatternMap::uniform(0))
+        .expect("scene uploads");
+    let (camera, lights) = (&swatch.camera, &swatch.path_scene.lights);
+    let renderer = &mut session.renderer;
+    let whole =
+        renderer.render_progressive(camera, lights, &settings, 0, Readback::Everything).expect("whole");
+    let never = || false;
+    for rows in [8, 12, 40] {
+        let bands = RowBands { rows, stop: &never };
+        let banded = renderer
+            .render_progressive_in_bands(camera, lights, &settings, 0, Readback::Everything, Some(&bands))
+            .expect("banded");
+        assert_eq!(banded.samples, 3);
+        assert_eq!(banded.radiance, whole.radiance, "bands of {rows} rows: the same radiance");
+        assert_eq!(banded.display, whole.display, "bands of {rows} rows: the same display");
+        assert!(banded.timings.is_none() || rows >= 36, "several submissions carry no pass timings");
+    }
+    let lit = whole.radiance.as_ref().expect("read back").iter().filter(|p| p[0] > 0.0).count();
+    assert!(lit > 40 * 36 / 2, "the frame is lit ({lit} pixels)");
+
+    // Stopped after the 7th of 3 x 5 bands (the 2nd band of the 2nd sample): reported, and the
+    // picture is gone, so its continuation is refused; a new picture is whole again.
+    let asked = std::cell::Cell::new(0);
+    let seventh = || {
+        asked.set(asked.get() + 1);
+        asked.get() == 7
+    };
+    let bands = RowBands { rows: 8, stop: &seventh };
+    let err = renderer
+        .render_progressive_in_bands(camera, lights, &settings, 0, Readback::Everything, Some(&bands))
+        .unwrap_err();
+    assert!(matches!(err, RenderError::Interrupted { bands_done: 7 }), "{err}");
+    assert_eq!(asked.get(), 7, "asked after each band until it said stop");
+    let one = FrameSettings { spp: 1, ..settings.clone() };
+    let err = renderer.render_progressive(camera, lights, &one, 3, Readback::Nothing).unwrap_err();
+    assert!(matches!(err, RenderError::Continuation { .. }), "{err}");
+    // A stop asked after the last band of a batch is never asked: the batch is done.
+    let asked = std::cell::Cell::new(0);
+    let always = || {
+        asked.set(asked.get() + 1);
+        true
+    };
+    let bands = RowBands { rows: 64, stop: &always };
+    let again = renderer
+        .render_progressive_in_bands(camera, lights, &one, 0, Readback::Nothing, Some(&bands))
+        .expect("one band, nothing to stop between");
+    assert_eq!((again.samples, asked.get()), (1, 0));
+    let restarted =
+        renderer.render_progressive(camera, lights, &settings, 0, Readback::Everything).expect("restart");
+    assert_eq!(restarted.radiance, whole.radiance);
 }
 
 #[test]

@@ -12,6 +12,12 @@
 //! timed under its plan name, so `--print-plan`, the viewer's plan panel and the GPU timings
 //! name the same passes.
 //!
+//! A progressive batch may also be rendered in bands of rows
+//! ([`Renderer::render_progressive_in_bands`]): each band of each sample (its G-buffer rows,
+//! then their shading) is its own submission, waited for, and the caller may stop the batch
+//! between two of them. That bounds how long newer work waits behind a batch on a slow device
+//! (a software renderer's full-size sample takes seconds); a stopped batch ends the picture.
+//!
 //! Kept between frames: the frame targets while the size stays ([`FrameTargets`]), the
 //! compiled shading variants, and shell-space visibility (shadow maps, X, V, blur: the plan's
 //! [`Pass::view_independent`] passes), which depends on neither the camera nor the sample. It
@@ -60,6 +66,8 @@ pub enum RenderError {
          of this view kept): start it again from sample 0"
     )]
     Continuation { first_sample: u32, kept: u32 },
+    #[error("the batch was stopped between two bands of rows, after {bands_done} of them: the picture ends")]
+    Interrupted { bands_done: u32 },
     #[error("the frame plan runs {pass:?} before {needs}, which it reads")]
     PassOrder { pass: String, needs: &'static str },
     #[error(transparent)]
@@ -84,6 +92,23 @@ pub struct FrameSettings {
     /// light SH (one flat-fabric frame, no shadow maps); `false` forces the per-pixel product
     /// (the two agree to f32 rounding; tests compare them).
     pub frame_transfer: bool,
+}
+
+/// How [`Renderer::render_progressive_in_bands`] splits a batch: bands of `rows` image rows,
+/// each submitted and waited for on its own, and `stop`, asked after each band but the last,
+/// which ends the batch when it says so.
+pub struct RowBands<'a> {
+    /// Rows per band, a multiple of 8 (the shading's workgroup height): at least 8.
+    pub rows: u32,
+    pub stop: &'a dyn Fn() -> bool,
+}
+
+impl RowBands<'_> {
+    /// The bands of an image `height` rows high, top to bottom.
+    fn of(&self, height: u32) -> impl Iterator<Item = std::ops::Range<u32>> + use<> {
+        let rows = self.rows.max(8).next_multiple_of(8);
+        (0..height.div_ceil(rows)).map(move |i| i * rows..((i + 1) * rows).min(height))
+    }
 }
 
 /// Time one pass took, summed over the frame's samples.
@@ -241,8 +266,9 @@ struct FrameState<'a> {
     settings: &'a FrameSettings,
     targets: FrameTargets,
     eye: EyeRays,
-    /// The sample the per-sample passes are recording.
+    /// The sample the per-sample passes are recording, and the rows they record.
     sample: u32,
+    rows: std::ops::Range<u32>,
     /// The samples the accumulation holds once the frame's are added (the tone map's divisor).
     tone_samples: u32,
     /// The frame's lights on the GPU, and how many.
@@ -253,7 +279,8 @@ struct FrameState<'a> {
     /// earlier frame.
     visibility: Option<(wgpu::Texture, wgpu::Texture)>,
     cell_transfer: Option<wgpu::Buffer>,
-    shade: Option<(wgpu::ComputePipeline, wgpu::BindGroup)>,
+    /// The shading pipeline, and the bind group of the rows it was last bound for.
+    shade: Option<(wgpu::ComputePipeline, std::ops::Range<u32>, wgpu::BindGroup)>,
 }
 
 /// Shell-mapped fabric renderer on one device.
@@ -504,7 +531,8 @@ impl Renderer {
         let (width, height) = (settings.width, settings.height);
         let targets = self.targets(width, height);
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let recorded = self.record(camera, lights, &settings, first_sample, &targets, true, settings.spp)?;
+        let recorded =
+            self.record(camera, lights, &settings, first_sample, &targets, true, settings.spp, None)?;
         let read = self.submit(recorded.frame, scope, &targets, Readback::Everything, settings.spp)?;
         let signed_radiance = read.radiance.unwrap_or_default();
         Ok(Frame {
@@ -539,6 +567,27 @@ impl Renderer {
         first_sample: u32,
         readback: Readback,
     ) -> Result<ProgressiveFrame, RenderError> {
+        self.render_progressive_in_bands(camera, lights, settings, first_sample, readback, None)
+    }
+
+    /// As [`Renderer::render_progressive`], with `bands`: each sample is rendered band by band
+    /// of rows, each band its own submission, and `bands.stop` is asked after every band but
+    /// the last. The picture is the same, to the bit, whatever the bands; the frame has no
+    /// pass timings (they are taken within one submission). `None` is one submission.
+    ///
+    /// # Errors
+    /// As [`Renderer::render_progressive`], and [`RenderError::Interrupted`] when `stop` said
+    /// so: the accumulation then holds part of a sample, so the picture ends (a continuation
+    /// is refused until a new picture starts from sample 0).
+    pub fn render_progressive_in_bands(
+        &mut self,
+        camera: &CameraSection,
+        lights: &[Light],
+        settings: &FrameSettings,
+        first_sample: u32,
+        readback: Readback,
+        bands: Option<&RowBands<'_>>,
+    ) -> Result<ProgressiveFrame, RenderError> {
         let settings = self.checked(camera, lights, settings, first_sample)?;
         let key = picture_key(camera, lights, &settings);
         let size = (settings.width, settings.height);
@@ -560,8 +609,16 @@ impl Renderer {
         };
         let samples = first_sample + settings.spp;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let recorded =
-            self.record(camera, lights, &settings, first_sample, &targets, first_sample == 0, samples)?;
+        let clear = first_sample == 0;
+        let recorded = self.record(camera, lights, &settings, first_sample, &targets, clear, samples, bands);
+        let recorded = match recorded {
+            Ok(recorded) => recorded,
+            Err(e) => {
+                // Part of a sample may be in the accumulation: no batch continues it.
+                self.progressive = None;
+                return Err(e);
+            }
+        };
         let read = self.submit(recorded.frame, scope, &targets, readback, samples)?;
         let picture = ProgressivePicture {
             targets,
@@ -623,7 +680,10 @@ impl Renderer {
     }
 
     /// Records the plan's passes for samples `first_sample ..` into `targets`, clearing the
-    /// accumulation first when `clear`; the tone map divides by `tone_samples`.
+    /// accumulation first when `clear`; the tone map divides by `tone_samples`. With `bands`,
+    /// the per-sample passes are recorded band by band of rows, and everything up to the end of
+    /// each band but the last is submitted and waited for (see [`RowBands`]); the frame
+    /// returned holds the rest.
     #[allow(clippy::too_many_arguments)]
     fn record(
         &mut self,
@@ -634,6 +694,7 @@ impl Renderer {
         targets: &FrameTargets,
         clear: bool,
         tone_samples: u32,
+        bands: Option<&RowBands<'_>>,
     ) -> Result<Recorded, RenderError> {
         let plan = self.plan(lights, settings);
         let passes = plan.passes();
@@ -668,7 +729,13 @@ impl Renderer {
                 _ => 1,
             })
             .sum();
-        let timed = self.timestamps.then_some(timed_instances).filter(|&n| n <= MAX_TIMED_PASS_INSTANCES);
+        let row_bands: Vec<std::ops::Range<u32>> =
+            bands.map_or_else(|| std::iter::once(0..height).collect(), |b| b.of(height).collect());
+        // Timestamps are resolved within one submission: a frame of several has none.
+        let timed = self
+            .timestamps
+            .then_some(timed_instances)
+            .filter(|&n| n <= MAX_TIMED_PASS_INSTANCES && row_bands.len() == 1);
         let mut frame = FrameEncoder::new(&device, &self.queue, timed);
         if clear {
             frame.encoder.clear_buffer(&targets.accumulation, 0, None);
@@ -681,6 +748,7 @@ impl Renderer {
             eye: EyeRays::new(camera, width as f32 / height as f32, self.shell.bounds),
             targets: targets.clone(),
             sample: first_sample,
+            rows: 0..height,
             tone_samples,
             lights_gpu: (lights_buffer(&device, &self.queue, &lights_gpu), lights_gpu.len()),
             shadow_maps: None,
@@ -692,18 +760,36 @@ impl Renderer {
         for pass in before.iter().filter(runs) {
             self.encode_pass(pass, &mut frame, &mut state)?;
         }
+        if let (Some(key), Some((sharp, blurred)), false) = (visibility_key, &state.visibility, reuse) {
+            self.shell_visibility =
+                Some(ShellVisibility { key, sharp: sharp.clone(), blurred: blurred.clone() });
+        }
+        let band_count = settings.spp as usize * row_bands.len();
+        let mut bands_done = 0;
         for sample in first_sample..first_sample + settings.spp {
             state.sample = sample;
-            for pass in per_sample {
-                self.encode_pass(pass, &mut frame, &mut state)?;
+            for rows in &row_bands {
+                state.rows = rows.clone();
+                for pass in per_sample {
+                    self.encode_pass(pass, &mut frame, &mut state)?;
+                }
+                bands_done += 1;
+                if let Some(bands) = bands.filter(|_| bands_done < band_count) {
+                    let (commands, _) =
+                        std::mem::replace(&mut frame, FrameEncoder::new(&device, &self.queue, None)).finish();
+                    self.queue.submit([commands]);
+                    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Gpu {
+                        label: format!("band {bands_done} of {band_count}"),
+                        message: e.to_string(),
+                    })?;
+                    if (bands.stop)() {
+                        return Err(RenderError::Interrupted { bands_done: bands_done as u32 });
+                    }
+                }
             }
         }
         for pass in after {
             self.encode_pass(pass, &mut frame, &mut state)?;
-        }
-        if let (Some(key), Some((sharp, blurred)), false) = (visibility_key, &state.visibility, reuse) {
-            self.shell_visibility =
-                Some(ShellVisibility { key, sharp: sharp.clone(), blurred: blurred.clone() });
         }
         Ok(Recorded { frame, plan, reused })
     }
@@ -798,13 +884,18 @@ impl Renderer {
             Pass::GBuffer => {
                 let (width, height) = state.targets.size;
                 let jitter = sample_jitter(state.sample, width, height);
-                passes.gbuffer.encode(frame, &state.eye, jitter, shell, fabric, &state.targets, &name);
+                let (eye, targets, rows) = (&state.eye, &state.targets, &state.rows);
+                passes.gbuffer.encode(frame, eye, jitter, shell, fabric, targets, rows, &name);
             }
             Pass::Shade { .. } => {
-                if state.shade.is_none() {
-                    let variant =
-                        ShadeVariant::of(pass).ok_or_else(|| out_of_order("its shading variant"))?;
-                    let pipeline = passes.shade.pipeline(device, &fabric.layout, variant);
+                if state.shade.as_ref().is_none_or(|(_, rows, _)| *rows != state.rows) {
+                    let pipeline = if let Some((pipeline, _, _)) = state.shade.take() {
+                        pipeline
+                    } else {
+                        let variant =
+                            ShadeVariant::of(pass).ok_or_else(|| out_of_order("its shading variant"))?;
+                        passes.shade.pipeline(device, &fabric.layout, variant)
+                    };
                     let (sharp, blurred) = state.visibility.clone().unwrap_or_else(|| {
                         let none = visibility_texture(device, "twill.visibility.none", 1, 1);
                         (none.clone(), none)
@@ -825,11 +916,12 @@ impl Renderer {
                         visibility_blurred: &blurred,
                         cell_transfer: &cell_transfer,
                     };
-                    let group = passes.shade.bind(device, queue, &inputs, &state.targets);
-                    state.shade = Some((pipeline, group));
+                    let group = passes.shade.bind(device, queue, &inputs, &state.targets, &state.rows);
+                    state.shade = Some((pipeline, state.rows.clone(), group));
                 }
-                if let Some((pipeline, group)) = &state.shade {
-                    ShadePass::encode(frame, pipeline, group, fabric, state.targets.size, &name);
+                if let Some((pipeline, rows, group)) = &state.shade {
+                    let width = state.targets.size.0;
+                    ShadePass::encode(frame, pipeline, group, fabric, width, rows, &name);
                 }
             }
             Pass::ToneMap => {

@@ -750,6 +750,18 @@ impl ViewerApp {
                         "generation {generation}: the picture on the GPU was replaced; starting again"
                     );
                 }
+                WorkerEvent::FrameInterrupted { request, bands_done } => {
+                    // Stopped for newer work, which the worker takes next: the picture on the GPU
+                    // ended, so whatever follows starts from sample 0.
+                    if self.in_flight.as_ref() == Some(&request) {
+                        self.in_flight = None;
+                    }
+                    self.restart_picture = true;
+                    log::debug!(
+                        "generation {}: batch stopped after {bands_done} bands for newer work",
+                        request.generation
+                    );
+                }
                 WorkerEvent::FrameFailed { generation, message } => {
                     self.in_flight = None;
                     if self.failed_generation != Some(generation) {

@@ -18,6 +18,14 @@
 //! the 8-bit display image is read back, for the window to upload. A request that does not
 //! continue the picture on the GPU (a rebake or a new device came between) is answered with
 //! [`WorkerEvent::FrameRestart`], and the viewer starts the picture again.
+//!
+//! A batch whose samples would take longer than [`BAND_BUDGET_MS`] at the worker's measured
+//! cost (a software renderer's full-size sample takes seconds) is rendered in bands of rows
+//! about that long ([`Renderer::render_progressive_in_bands`]; tests fix the rows); between two bands the worker
+//! looks at its inbox and stops the batch when newer work has come that replaces the picture
+//! (another view, new colours, a fabric, a mesh, a device loss or shutdown), answering
+//! [`WorkerEvent::FrameInterrupted`]. So an edit waits behind at most one band, not a whole
+//! batch; an export or a tone map waits for the batch.
 //! Results and errors come back as [`WorkerEvent`]s, with a repaint request so the window picks
 //! them up at once. A render that panics is caught and reported as an error; the viewer goes on.
 //!
@@ -36,7 +44,7 @@
 
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::Instant;
@@ -49,7 +57,7 @@ use twill_precompute::bcsdf::MaterialDesc;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, MeshSection, Scene};
 use twill_renderer::frame::{
-    FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer, clamp_at_zero,
+    FrameSettings, ProgressiveFrame, Readback, RenderError, Renderer, RowBands, clamp_at_zero,
 };
 use twill_renderer::gpu::Gpu;
 use twill_renderer::headless::shell_for_mesh;
@@ -60,6 +68,9 @@ use super::export::{ExportImage, write_export};
 
 /// Samples per export batch.
 const EXPORT_BATCH_SPP: u32 = 4;
+/// About how long one band of a banded batch takes: the longest newer work waits behind a
+/// batch in flight. Batches of up to twice this are one submission.
+pub const BAND_BUDGET_MS: f64 = 150.0;
 /// Tries at opening a new device after a loss, and the wait before the second, doubling.
 const RECOVERY_TRIES: u32 = 4;
 const RECOVERY_FIRST_WAIT: std::time::Duration = std::time::Duration::from_millis(250);
@@ -216,6 +227,12 @@ pub enum WorkerEvent {
     FrameRestart {
         generation: u64,
     },
+    /// The batch was stopped between two bands of rows for newer work; the picture on the GPU
+    /// ended with it (the next batch starts again from sample 0).
+    FrameInterrupted {
+        request: FrameRequest,
+        bands_done: u32,
+    },
     FrameFailed {
         generation: u64,
         message: String,
@@ -266,10 +283,53 @@ impl Inbox {
     }
 }
 
+impl Inbox {
+    /// Whether something waits that replaces the picture of `rendering` (between two bands of
+    /// its batch): another frame request, new colours, a fabric, a mesh, a device loss or
+    /// shutdown. An export or a tone map waits for the batch.
+    fn replaces_picture_of(&self, rendering: &FrameRequest) -> bool {
+        self.frame.as_ref().is_some_and(|next| next != rendering)
+            || self.fabric.is_some()
+            || self.recolour.is_some()
+            || self.mesh.is_some()
+            || self.lose_device
+            || self.shutdown
+    }
+}
+
 struct Shared {
     inbox: Mutex<Inbox>,
     wake: Condvar,
     cancel_export: AtomicBool,
+    /// Rows per band when set (`RenderWorker::set_band_rows`); 0: chosen from the measured cost.
+    band_rows: AtomicU32,
+}
+
+/// The worker's measure of its device: the wall time of a pixel's sample, in nanoseconds,
+/// averaged over the batches it rendered.
+#[derive(Default)]
+struct FrameCost {
+    ns_per_pixel_sample: Option<f64>,
+}
+
+impl FrameCost {
+    fn add(&mut self, settings: &FrameSettings, wall_ms: f64) {
+        let work = f64::from(settings.width) * f64::from(settings.height) * f64::from(settings.spp.max(1));
+        let cost = wall_ms * 1e6 / work.max(1.0);
+        self.ns_per_pixel_sample = Some(self.ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
+    }
+
+    /// Rows per band for a batch of `settings` (a multiple of 8), or `None` for one submission:
+    /// the first batch (nothing measured yet) and batches within twice [`BAND_BUDGET_MS`].
+    fn band_rows(&self, settings: &FrameSettings) -> Option<u32> {
+        let row_ms = self.ns_per_pixel_sample? * f64::from(settings.width) * 1e-6;
+        let batch_ms = row_ms * f64::from(settings.height) * f64::from(settings.spp.max(1));
+        if batch_ms <= 2.0 * BAND_BUDGET_MS {
+            return None;
+        }
+        let rows = (BAND_BUDGET_MS / row_ms.max(1e-9)).floor().min(f64::from(settings.height)) as u32;
+        Some((rows / 8 * 8).max(8))
+    }
 }
 
 /// The viewer's handle on the worker thread.
@@ -286,6 +346,7 @@ impl RenderWorker {
             inbox: Mutex::new(Inbox::default()),
             wake: Condvar::new(),
             cancel_export: AtomicBool::new(false),
+            band_rows: AtomicU32::new(0),
         });
         let (sender, events) = channel();
         let thread_shared = Arc::clone(&shared);
@@ -343,6 +404,13 @@ impl RenderWorker {
     pub fn cancel_export(&self) {
         self.shared.cancel_export.store(true, Ordering::Relaxed);
         self.post(|inbox| inbox.export = None);
+    }
+
+    /// Renders every batch in bands of `rows` rows (rounded up to a multiple of 8), or with
+    /// `None` in bands chosen from the measured cost (see [`BAND_BUDGET_MS`]).
+    #[cfg(test)]
+    pub fn set_band_rows(&self, rows: Option<u32>) {
+        self.shared.band_rows.store(rows.map_or(0, |r| r.max(1)), Ordering::Relaxed);
     }
 
     /// Simulates losing the render device: the worker destroys its device (when it is its own,
@@ -435,6 +503,7 @@ fn worker_loop(
     let mut current: Option<NewFabric> = None;
     // Lost, and no new device could be opened yet.
     let mut dead = false;
+    let mut cost = FrameCost::default();
     while let Some(work) = next_work(shared) {
         match work {
             Work::LoseDevice if !device.own => send(WorkerEvent::DeviceUnavailable {
@@ -555,28 +624,43 @@ fn worker_loop(
                 };
                 let started = Instant::now();
                 let readback = picture_readback(&device);
+                let band_rows = match shared.band_rows.load(Ordering::Relaxed) {
+                    0 => cost.band_rows(&request.settings),
+                    fixed => Some(fixed),
+                };
+                let stop = || {
+                    shared.inbox.lock().unwrap_or_else(PoisonError::into_inner).replaces_picture_of(&request)
+                };
+                let bands = band_rows.map(|rows| RowBands { rows, stop: &stop });
                 let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                    r.render_progressive(
+                    r.render_progressive_in_bands(
                         &request.camera,
                         &request.lights,
                         &request.settings,
                         request.first_sample,
                         readback,
+                        bands.as_ref(),
                     )
                 }));
                 let wall_ms = started.elapsed().as_secs_f64() * 1e3;
                 let s = &request.settings;
                 log::debug!(
-                    "frame: generation {}, {}x{}, samples {}..{}, {wall_ms:.0} ms",
+                    "frame: generation {}, {}x{}, samples {}..{}, {}, {wall_ms:.0} ms",
                     request.generation,
                     s.width,
                     s.height,
                     request.first_sample,
-                    request.first_sample + s.spp
+                    request.first_sample + s.spp,
+                    band_rows.map_or_else(|| "whole".to_owned(), |rows| format!("bands of {rows} rows")),
                 );
                 let failure = match result {
                     Ok(Ok(frame)) => {
+                        cost.add(&request.settings, wall_ms);
                         send(WorkerEvent::Frame(Box::new(FrameResult { request, frame, wall_ms })));
+                        continue;
+                    }
+                    Ok(Err(RenderError::Interrupted { bands_done })) => {
+                        send(WorkerEvent::FrameInterrupted { request, bands_done });
                         continue;
                     }
                     Ok(Err(RenderError::Continuation { .. })) => {
@@ -845,6 +929,79 @@ mod tests {
             }
             assert!(started.elapsed() < Duration::from_mins(5), "no such event in five minutes");
             std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
+    fn a_batch_in_bands_stops_for_newer_work_and_the_newer_work_is_done() {
+        // A batch of 4 samples x 32 bands of 8 rows; a new view posted while its first band renders stops
+        // it at the next band (answered `FrameInterrupted`, never `Frame`), and the new view's
+        // batch is rendered next. An exposure edit (a tone map) would wait for the batch.
+        let Some(gpu) = Gpu::for_test("a_batch_in_bands_stops_for_newer_work_and_the_newer_work_is_done")
+        else {
+            return;
+        };
+        let device =
+            DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true };
+        let worker = RenderWorker::start(device, egui::Context::default()).expect("worker thread");
+        let settings =
+            BakeSettings { cell_size_mfp: 8.0, iirtf_paths_per_cell: 32, ..Quality::Draft.settings() };
+        let scene = Arc::new(SceneFile::default_scene().build().expect("default scene"));
+        let baked =
+            bake(&scene.bake_inputs(settings)[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
+        worker.set_fabric(NewFabric {
+            fabric_id: 1,
+            quality: Quality::Draft,
+            preview: false,
+            baked: Arc::new(BakedSet { exemplars: vec![baked], pattern: PatternMap::uniform(0) }),
+            scene: Arc::clone(&scene),
+        });
+        events_until(&worker, |e| matches!(e, WorkerEvent::FabricReady { fabric_id: 1, .. }));
+        worker.set_band_rows(Some(8));
+        let frame = |generation, width, height| FrameRequest {
+            generation,
+            fabric_id: 1,
+            camera: scene.camera,
+            lights: scene.path_scene.lights.clone(),
+            settings: FrameSettings {
+                width,
+                height,
+                spp: 1,
+                ..twill_renderer::headless::frame_settings(&scene, twill_renderer::plan::Components::All)
+            },
+            first_sample: 0,
+        };
+        let (slow, next) = (
+            FrameRequest {
+                settings: FrameSettings { spp: 4, ..frame(1, 256, 256).settings },
+                ..frame(1, 256, 256)
+            },
+            frame(2, 48, 40),
+        );
+        worker.request_frame(slow.clone());
+        // The worker has taken the batch once it left the inbox; post the new view at once.
+        let started = Instant::now();
+        while worker.shared.inbox.lock().unwrap_or_else(PoisonError::into_inner).frame.is_some() {
+            assert!(started.elapsed() < Duration::from_secs(30), "the worker never took the batch");
+            std::hint::spin_loop();
+        }
+        worker.request_frame(next.clone());
+        let events =
+            events_until(&worker, |e| matches!(e, WorkerEvent::Frame(_) | WorkerEvent::FrameFailed { .. }));
+        let interrupted = events.iter().find_map(|e| match e {
+            WorkerEvent::FrameInterrupted { request, bands_done } => Some((request, *bands_done)),
+            _ => None,
+        });
+        let Some((request, bands_done)) = interrupted else { panic!("the slow batch was not stopped") };
+        assert_eq!(request, &slow);
+        assert!((1..128).contains(&bands_done), "stopped after {bands_done} of 128 bands");
+        match events.last() {
+            Some(WorkerEvent::Frame(result)) => {
+                assert_eq!(result.request, next, "the new view's batch, not the stopped one");
+                assert_eq!(result.frame.samples, 1);
+            }
+            Some(WorkerEvent::FrameFailed { message, .. }) => panic!("frame failed: {message}"),
+            _ => unreachable!(),
         }
     }
 

@@ -148,8 +148,9 @@ impl GBufferPass {
         Self { layout, pipeline }
     }
 
-    /// Renders one sample's G-buffer into `targets`, its eye rays offset by `jitter` (clip
-    /// units), timed as `name`.
+    /// Renders one sample's G-buffer into `rows` of `targets` (all of them, or one band: the
+    /// other rows are cleared), its eye rays offset by `jitter` (clip units), timed as `name`.
+    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         frame: &mut FrameEncoder,
@@ -158,6 +159,7 @@ impl GBufferPass {
         shell: &ShellGpu,
         fabric: &FabricData,
         targets: &FrameTargets,
+        rows: &std::ops::Range<u32>,
         name: &str,
     ) {
         let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
@@ -188,6 +190,10 @@ impl GBufferPass {
             &[Some(cleared_colour(&position)), Some(cleared_colour(&ids))],
             Some(cleared_depth(&depth)),
         );
+        let (width, height) = targets.size;
+        if rows.start > 0 || rows.end < height {
+            pass.set_scissor_rect(0, rows.start, width, rows.len() as u32);
+        }
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.set_bind_group(1, &fabric.bind_group, &[]);

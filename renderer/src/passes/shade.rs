@@ -6,9 +6,11 @@
 //! `Pass::Shade` ([`ShadeVariant`]), so a term or a local-visibility path no light needs is not
 //! compiled; [`ShadePass::pipeline`] compiles each variant on first use and keeps it. The
 //! frame's lights are uploaded once as [`LightGpu`]s (only the ones the plan kept, with their
-//! shadow layer and SG path weights), and one bind group serves every sample of the frame.
+//! shadow layer and SG path weights), and one bind group serves every sample of the frame (one
+//! per band of rows where a frame is shaded in bands, `Renderer::render_progressive_in_bands`).
 
 use std::collections::HashMap;
+use std::ops::Range;
 
 use twill_precompute::pathtrace::Light;
 use twill_precompute::shading::sg_path_weights;
@@ -39,7 +41,7 @@ pub struct LightGpu {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct ShadeUniformsGpu {
-    /// Lights, width, height.
+    /// Lights, width, the end (exclusive) and the start of the rows shaded.
     pub counts: [u32; 4],
     pub eye: [f32; 4],
     pub uv_rect: [f32; 4],
@@ -218,7 +220,8 @@ impl ShadePass {
             .clone()
     }
 
-    /// The bind group every sample of a frame shades with.
+    /// The bind group every sample of a frame shades `rows` of the image with (all its rows,
+    /// or one band of them).
     #[must_use]
     pub fn bind(
         &self,
@@ -226,10 +229,12 @@ impl ShadePass {
         queue: &wgpu::Queue,
         inputs: &ShadeInputs<'_>,
         targets: &FrameTargets,
+        rows: &Range<u32>,
     ) -> wgpu::BindGroup {
         let (width, height) = targets.size;
+        debug_assert!(rows.start <= rows.end && rows.end <= height, "rows {rows:?} of {height}");
         let uniforms = ShadeUniformsGpu {
-            counts: [inputs.light_count as u32, width, height, 0],
+            counts: [inputs.light_count as u32, width, rows.end, rows.start],
             eye: inputs.eye,
             uv_rect: inputs.uv_rect,
             fabric: [inputs.fabric_thickness_cm, 0.0, 0.0, 0.0],
@@ -255,19 +260,21 @@ impl ShadePass {
         )
     }
 
-    /// Shades one sample: `pipeline` over the frame's pixels, adding to the accumulation.
+    /// Shades one sample: `pipeline` over the pixels of `rows` (those `group` was bound for),
+    /// adding to the accumulation.
     pub fn encode(
         frame: &mut FrameEncoder,
         pipeline: &wgpu::ComputePipeline,
         group: &wgpu::BindGroup,
         fabric: &FabricData,
-        size: (u32, u32),
+        width: u32,
+        rows: &Range<u32>,
         name: &str,
     ) {
         let mut pass = frame.compute_pass("twill.shade.pass", name);
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, group, &[]);
         pass.set_bind_group(1, &fabric.bind_group, &[]);
-        pass.dispatch_workgroups(size.0.div_ceil(8), size.1.div_ceil(8), 1);
+        pass.dispatch_workgroups(width.div_ceil(8), rows.len().div_ceil(8) as u32, 1);
     }
 }
