@@ -688,7 +688,11 @@ impl ViewerApp {
                     }
                     self.live_recolour_in_flight = false;
                     self.restart_picture = true;
-                    // Shown as an edit is: first at the reduced size, then refined.
+                    // Shown as an edit is: first at the reduced size, then refined. A picture of
+                    // its own (a new generation), so the reduced one is asked for until it is
+                    // shown, even when a batch of the old colours holds the worker past the
+                    // interaction's settle time (that batch is stopped between two bands).
+                    self.generation += 1;
                     self.last_edit = Instant::now();
                     self.edit_generation = self.generation;
                     log::info!("colours written from the recolouring bases in {:.0} ms", seconds * 1e3);
@@ -1537,6 +1541,14 @@ impl ViewerApp {
             }
         };
         let (Some(worker), Some(fabric)) = (&self.worker, &self.fabric) else { return };
+        if self.live_recolour_in_flight {
+            // New colours are being written: a batch asked for now would be rendered after
+            // them as a picture of the old edit, and dropped. The next one is asked for once
+            // they are written (a new generation, at the reduced size first), or refused.
+            worker.clear_frame_request();
+            self.in_flight = None;
+            return;
+        }
         if self.paint.is_some() {
             // Paint mode shows its own picture: the live renderer rests (and leaves the cores
             // to the precompute).

@@ -19,7 +19,7 @@
 //! continue the picture on the GPU (a rebake or a new device came between) is answered with
 //! [`WorkerEvent::FrameRestart`], and the viewer starts the picture again.
 //!
-//! A batch whose samples would take longer than [`BAND_BUDGET_MS`] at the worker's measured
+//! A batch whose samples would take longer than four times [`BAND_BUDGET_MS`] at the worker's measured
 //! cost (a software renderer's full-size sample takes seconds) is rendered in bands of rows
 //! about that long ([`Renderer::render_progressive_in_bands`]; tests fix the rows); between two bands the worker
 //! looks at its inbox and stops the batch when newer work has come that replaces the picture
@@ -69,7 +69,9 @@ use super::export::{ExportImage, write_export};
 /// Samples per export batch.
 const EXPORT_BATCH_SPP: u32 = 4;
 /// About how long one band of a banded batch takes: the longest newer work waits behind a
-/// batch in flight. Batches of up to twice this are one submission.
+/// batch in flight. Batches of up to four times this are one submission: a small picture's
+/// time is mostly the frame's fixed work, which bands would only repeat (the viewer's reduced
+/// picture after an edit, 0.14 s on lavapipe at 81 x 97, is one).
 pub const BAND_BUDGET_MS: f64 = 150.0;
 /// Tries at opening a new device after a loss, and the wait before the second, doubling.
 const RECOVERY_TRIES: u32 = 4;
@@ -320,11 +322,11 @@ impl FrameCost {
     }
 
     /// Rows per band for a batch of `settings` (a multiple of 8), or `None` for one submission:
-    /// the first batch (nothing measured yet) and batches within twice [`BAND_BUDGET_MS`].
+    /// the first batch (nothing measured yet) and batches within four times [`BAND_BUDGET_MS`].
     fn band_rows(&self, settings: &FrameSettings) -> Option<u32> {
         let row_ms = self.ns_per_pixel_sample? * f64::from(settings.width) * 1e-6;
         let batch_ms = row_ms * f64::from(settings.height) * f64::from(settings.spp.max(1));
-        if batch_ms <= 2.0 * BAND_BUDGET_MS {
+        if batch_ms <= 4.0 * BAND_BUDGET_MS {
             return None;
         }
         let rows = (BAND_BUDGET_MS / row_ms.max(1e-9)).floor().min(f64::from(settings.height)) as u32;
@@ -930,6 +932,39 @@ mod tests {
             assert!(started.elapsed() < Duration::from_mins(5), "no such event in five minutes");
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+
+    #[test]
+    fn bands_are_about_the_budget_long_at_the_measured_cost() {
+        let settings = |width, height, spp| FrameSettings {
+            width,
+            height,
+            spp,
+            exposure: 0.0,
+            filmic: true,
+            components: twill_renderer::plan::Components::All,
+            gpu: twill_precompute::scene::GpuSection::default(),
+            frame_transfer: true,
+        };
+        let mut cost = FrameCost::default();
+        assert_eq!(cost.band_rows(&settings(651, 775, 1)), None, "nothing measured: one submission");
+        // lavapipe at interactive: a 651 x 775 sample in about 4.8 s.
+        cost.add(&settings(651, 775, 1), 4_800.0);
+        let rows = cost.band_rows(&settings(651, 775, 1)).expect("a 4.8 s sample is banded");
+        assert_eq!(rows % 8, 0);
+        let band_ms = 4_800.0 * f64::from(rows) / 775.0;
+        assert!((0.5 * BAND_BUDGET_MS..=BAND_BUDGET_MS).contains(&band_ms), "{rows} rows: {band_ms} ms");
+        // The reduced picture after an edit (81 x 97, 75 ms at this cost) is one submission;
+        // a slower device's bands are never under 8 rows.
+        assert_eq!(cost.band_rows(&settings(81, 97, 1)), None);
+        cost.add(&settings(651, 775, 1), 1e6);
+        assert_eq!(cost.band_rows(&settings(651, 775, 4)), Some(8));
+        // A fast GPU (5 ms at 512 x 512): a 1080p sample is one submission; a batch of 16 of
+        // them (0.6 s) is one submission per sample, so it can be stopped between samples.
+        let mut fast = FrameCost::default();
+        fast.add(&settings(512, 512, 1), 5.0);
+        assert_eq!(fast.band_rows(&settings(1920, 1080, 1)), None);
+        assert_eq!(fast.band_rows(&settings(1920, 1080, 16)), Some(1080));
     }
 
     #[test]
