@@ -104,6 +104,10 @@ enum AccuracyCommand {
         /// Override one bake knob, as `twill bake --set` (repeatable).
         #[arg(long = "set", value_name = "KNOB=VALUE")]
         overrides: Vec<String>,
+        /// Seed of every rung's and reference's samplers (another seed: independent noise, to
+        /// tell a rung's bias from its noise).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
         /// Also split multiple scattering's transfer into the first neighbour's transmission,
         /// its reflection and light scattered twice or more (rungs 4a-4c; three more transfer
         /// bakes).
@@ -605,6 +609,7 @@ fn run(cli: Cli) -> Result<()> {
                     reference_spp,
                     light_samples,
                     overrides,
+                    seed,
                     split_transfer,
                 }),
             ..
@@ -617,7 +622,7 @@ fn run(cli: Cli) -> Result<()> {
                 spp,
                 reference_spp,
                 light_samples,
-                seed: 1,
+                seed,
                 split_transfer,
             },
         ),

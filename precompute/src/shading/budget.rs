@@ -141,10 +141,15 @@ impl Budget {
     #[must_use]
     pub fn markdown(&self) -> String {
         let mut out = format!(
-            "{}x{} px, rungs {} spp, references {} spp (path traced in {:.1} s)\n\n\
+            "{}x{} px, rungs {} spp, references {} spp (path traced in {:.1} s), seed {}\n\n\
              | component | rung | mean error | ± noise | per-pixel RMSE | noise alone | time |\n\
              |---|---|---|---|---|---|---|\n",
-            self.width, self.height, self.settings.spp, self.settings.reference_spp, self.reference_seconds
+            self.width,
+            self.height,
+            self.settings.spp,
+            self.settings.reference_spp,
+            self.reference_seconds,
+            self.settings.seed
         );
         for r in &self.rungs {
             let _ = writeln!(
