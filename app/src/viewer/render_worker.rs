@@ -934,6 +934,19 @@ mod tests {
         }
     }
 
+    /// A worker on the test's device (`None` without one), the default scene, and bake
+    /// settings of cells so big that its bake and bases take a moment.
+    fn started_worker(test: &str) -> Option<(RenderWorker, Arc<Scene>, BakeSettings)> {
+        let gpu = Gpu::for_test(test)?;
+        let device =
+            DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true };
+        let worker = RenderWorker::start(device, egui::Context::default()).expect("worker thread");
+        let settings =
+            BakeSettings { cell_size_mfp: 8.0, iirtf_paths_per_cell: 32, ..Quality::Draft.settings() };
+        let scene = Arc::new(SceneFile::default_scene().build().expect("default scene"));
+        Some((worker, scene, settings))
+    }
+
     #[test]
     fn bands_are_about_the_budget_long_at_the_measured_cost() {
         let settings = |width, height, spp| FrameSettings {
@@ -972,16 +985,11 @@ mod tests {
         // A batch of 4 samples x 32 bands of 8 rows; a new view posted while its first band renders stops
         // it at the next band (answered `FrameInterrupted`, never `Frame`), and the new view's
         // batch is rendered next. An exposure edit (a tone map) would wait for the batch.
-        let Some(gpu) = Gpu::for_test("a_batch_in_bands_stops_for_newer_work_and_the_newer_work_is_done")
+        let Some((worker, scene, settings)) =
+            started_worker("a_batch_in_bands_stops_for_newer_work_and_the_newer_work_is_done")
         else {
             return;
         };
-        let device =
-            DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true };
-        let worker = RenderWorker::start(device, egui::Context::default()).expect("worker thread");
-        let settings =
-            BakeSettings { cell_size_mfp: 8.0, iirtf_paths_per_cell: 32, ..Quality::Draft.settings() };
-        let scene = Arc::new(SceneFile::default_scene().build().expect("default scene"));
         let baked =
             bake(&scene.bake_inputs(settings)[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
         worker.set_fabric(NewFabric {
@@ -1042,17 +1050,11 @@ mod tests {
 
     #[test]
     fn colour_edits_are_written_from_the_bases_into_the_uploaded_fabric() {
-        let Some(gpu) = Gpu::for_test("colour_edits_are_written_from_the_bases_into_the_uploaded_fabric")
+        let Some((worker, scene, settings)) =
+            started_worker("colour_edits_are_written_from_the_bases_into_the_uploaded_fabric")
         else {
             return;
         };
-        let device =
-            DeviceHandles { adapter_info: gpu.adapter_info, device: gpu.device, queue: gpu.queue, own: true };
-        let worker = RenderWorker::start(device, egui::Context::default()).expect("worker thread");
-        // A fabric of huge cells, so the bake and its bases take a moment.
-        let settings =
-            BakeSettings { cell_size_mfp: 8.0, iirtf_paths_per_cell: 32, ..Quality::Draft.settings() };
-        let scene = Arc::new(SceneFile::default_scene().build().expect("default scene"));
         let inputs = &scene.bake_inputs(settings)[0];
         let baked = bake(inputs, None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
         let basis = recolour_basis(inputs, None, &Cancel::new(), &|_| {}).expect("bases");
