@@ -760,10 +760,9 @@ impl Renderer {
         for pass in before.iter().filter(runs) {
             self.encode_pass(pass, &mut frame, &mut state)?;
         }
-        if let (Some(key), Some((sharp, blurred)), false) = (visibility_key, &state.visibility, reuse) {
-            self.shell_visibility =
-                Some(ShellVisibility { key, sharp: sharp.clone(), blurred: blurred.clone() });
-        }
+        // Kept for later frames once its passes are submitted (with the first band, or with
+        // the whole frame).
+        let mut made_visibility = if reuse { None } else { visibility_key.zip(state.visibility.clone()) };
         let band_count = settings.spp as usize * row_bands.len();
         let mut bands_done = 0;
         for sample in first_sample..first_sample + settings.spp {
@@ -782,6 +781,7 @@ impl Renderer {
                         label: format!("band {bands_done} of {band_count}"),
                         message: e.to_string(),
                     })?;
+                    self.keep_shell_visibility(made_visibility.take());
                     if (bands.stop)() {
                         return Err(RenderError::Interrupted { bands_done: bands_done as u32 });
                     }
@@ -791,7 +791,16 @@ impl Renderer {
         for pass in after {
             self.encode_pass(pass, &mut frame, &mut state)?;
         }
+        self.keep_shell_visibility(made_visibility);
         Ok(Recorded { frame, plan, reused })
+    }
+
+    /// Keeps a frame's shell-space visibility (its key, sharp and blurred textures) for later
+    /// frames; `None` leaves the kept one.
+    fn keep_shell_visibility(&mut self, made: Option<(u64, (wgpu::Texture, wgpu::Texture))>) {
+        if let Some((key, (sharp, blurred))) = made {
+            self.shell_visibility = Some(ShellVisibility { key, sharp, blurred });
+        }
     }
 
     /// Submits a recorded frame, with copies of what `readback` asks for, and reads them.
