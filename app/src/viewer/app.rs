@@ -56,8 +56,8 @@ use super::quality::{
     SIGMA_GLO_RANGE_CM, TARGET_SPP_RANGE, quality_panel,
 };
 use super::render_worker::{
-    DeviceHandles, ExportRequest, FrameRequest, MeshRequest, NewFabric, RecolourRequest, RenderWorker,
-    ToneRequest, WorkerEvent,
+    DeviceHandles, ExportRequest, FrameCost, FrameRequest, MeshRequest, NewFabric, RecolourRequest,
+    RenderWorker, ToneRequest, WorkerEvent,
 };
 use super::script::{LightField, STEP_TIMEOUT, ScriptLine, Setting, Step, viewport_screenshot_path};
 use super::timing::FrameStats;
@@ -240,8 +240,8 @@ pub struct ViewerApp {
     shown_tone: (f64, bool),
     viewport_px: [u32; 2],
     viewport_rect_px: egui::Rect,
-    /// Measured wall time per pixel and sample, nanoseconds (smoothed over batches).
-    cost_ns_per_pixel_sample: Option<f64>,
+    /// Measured wall time per pixel and sample (smoothed over batches).
+    frame_cost: FrameCost,
 
     export_form: ExportForm,
     export_status: ExportStatus,
@@ -366,7 +366,7 @@ impl ViewerApp {
             shown_tone: (f64::NAN, true),
             viewport_px: [0, 0],
             viewport_rect_px: egui::Rect::NOTHING,
-            cost_ns_per_pixel_sample: None,
+            frame_cost: FrameCost::default(),
             export_form: ExportForm::default(),
             export_status: ExportStatus::Idle,
             last_export: None,
@@ -714,11 +714,7 @@ impl ViewerApp {
                     if self.in_flight.as_ref() == Some(&result.request) {
                         self.in_flight = None;
                     }
-                    let s = &result.request.settings;
-                    let work = f64::from(s.width) * f64::from(s.height) * f64::from(s.spp.max(1));
-                    let cost = result.wall_ms * 1e6 / work.max(1.0);
-                    self.cost_ns_per_pixel_sample =
-                        Some(self.cost_ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
+                    self.frame_cost.add(&result.request.settings, result.wall_ms);
                     match Accumulation::add(&mut self.accumulation, &result) {
                         Added::Dropped => {}
                         added => {
@@ -1613,7 +1609,7 @@ impl ViewerApp {
             return;
         }
         // Batches double (1, 1, 2, 4, ...) but stay near BATCH_BUDGET_MS at the measured cost.
-        let affordable = self.cost_ns_per_pixel_sample.map_or(1, |cost| {
+        let affordable = self.frame_cost.ns_per_pixel_sample.map_or(1, |cost| {
             let per_sample_ms = cost * f64::from(size[0]) * f64::from(size[1]) * 1e-6;
             (BATCH_BUDGET_MS / per_sample_ms.max(1e-6)).floor().clamp(1.0, f64::from(MAX_BATCH_SPP)) as u32
         });
@@ -1655,7 +1651,7 @@ impl ViewerApp {
         }
         let [w, h] = self.viewport_px;
         let pixels = f64::from(w) * f64::from(h);
-        match self.cost_ns_per_pixel_sample {
+        match self.frame_cost.ns_per_pixel_sample {
             Some(cost) if pixels > 0.0 => {
                 let scale = (INTERACTION_BUDGET_MS * 1e6 / (cost * pixels)).sqrt().clamp(lo, hi);
                 // Whole sixteenths, so the size does not change with every measurement.

@@ -307,15 +307,17 @@ struct Shared {
     band_rows: AtomicU32,
 }
 
-/// The worker's measure of its device: the wall time of a pixel's sample, in nanoseconds,
-/// averaged over the batches it rendered.
-#[derive(Default)]
-struct FrameCost {
-    ns_per_pixel_sample: Option<f64>,
+/// A measure of the render device: the wall time of a pixel's sample, in nanoseconds, averaged
+/// over the batches rendered (the worker sizes its bands by it, the viewer its batches and its
+/// picture while the view moves).
+#[derive(Debug, Default)]
+pub struct FrameCost {
+    pub ns_per_pixel_sample: Option<f64>,
 }
 
 impl FrameCost {
-    fn add(&mut self, settings: &FrameSettings, wall_ms: f64) {
+    /// Takes a batch of `settings` that took `wall_ms`.
+    pub fn add(&mut self, settings: &FrameSettings, wall_ms: f64) {
         let work = f64::from(settings.width) * f64::from(settings.height) * f64::from(settings.spp.max(1));
         let cost = wall_ms * 1e6 / work.max(1.0);
         self.ns_per_pixel_sample = Some(self.ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
