@@ -731,11 +731,13 @@ impl Renderer {
             .sum();
         let row_bands: Vec<std::ops::Range<u32>> =
             bands.map_or_else(|| std::iter::once(0..height).collect(), |b| b.of(height).collect());
+        // Bands of the samples, each of all but the last submitted on its own.
+        let band_count = if bands.is_some() { settings.spp as usize * row_bands.len() } else { 1 };
         // Timestamps are resolved within one submission: a frame of several has none.
         let timed = self
             .timestamps
             .then_some(timed_instances)
-            .filter(|&n| n <= MAX_TIMED_PASS_INSTANCES && row_bands.len() == 1);
+            .filter(|&n| n <= MAX_TIMED_PASS_INSTANCES && band_count == 1);
         let mut frame = FrameEncoder::new(&device, &self.queue, timed);
         if clear {
             frame.encoder.clear_buffer(&targets.accumulation, 0, None);
@@ -763,7 +765,6 @@ impl Renderer {
         // Kept for later frames once its passes are submitted (with the first band, or with
         // the whole frame).
         let mut made_visibility = if reuse { None } else { visibility_key.zip(state.visibility.clone()) };
-        let band_count = settings.spp as usize * row_bands.len();
         let mut bands_done = 0;
         for sample in first_sample..first_sample + settings.spp {
             state.sample = sample;
