@@ -307,9 +307,14 @@ struct Shared {
     band_rows: AtomicU32,
 }
 
-/// A measure of the render device: the wall time of a pixel's sample, in nanoseconds, averaged
-/// over the batches rendered (the worker sizes its bands by it, the viewer its batches and its
-/// picture while the view moves).
+/// A measure of the render device: the wall time of a pixel's sample, in nanoseconds, over the
+/// batches rendered (the worker sizes its bands by it, the viewer its batches and its picture
+/// while the view moves).
+///
+/// A batch can take longer than its pixels' samples for one-off work (the first frame compiles
+/// the pipelines: 35 s on lavapipe under load, against seconds for a sample), never shorter; so
+/// a cheaper batch replaces the estimate at once and a dearer one moves it halfway. Averaged
+/// both ways, one compile kept the bands at their least for several batches after it.
 #[derive(Debug, Default)]
 pub struct FrameCost {
     pub ns_per_pixel_sample: Option<f64>,
@@ -320,7 +325,10 @@ impl FrameCost {
     pub fn add(&mut self, settings: &FrameSettings, wall_ms: f64) {
         let work = f64::from(settings.width) * f64::from(settings.height) * f64::from(settings.spp.max(1));
         let cost = wall_ms * 1e6 / work.max(1.0);
-        self.ns_per_pixel_sample = Some(self.ns_per_pixel_sample.map_or(cost, |old| 0.5 * (old + cost)));
+        self.ns_per_pixel_sample = Some(match self.ns_per_pixel_sample {
+            Some(old) if cost > old => 0.5 * (old + cost),
+            _ => cost,
+        });
     }
 
     /// Rows per band for a batch of `settings` (a multiple of 8), or `None` for one submission:
@@ -963,7 +971,9 @@ mod tests {
         };
         let mut cost = FrameCost::default();
         assert_eq!(cost.band_rows(&settings(651, 775, 1)), None, "nothing measured: one submission");
-        // lavapipe at interactive: a 651 x 775 sample in about 4.8 s.
+        // lavapipe at interactive: a first sample that compiled the pipelines (35 s), then
+        // 651 x 775 samples in about 4.8 s: the compile is forgotten at once.
+        cost.add(&settings(651, 775, 1), 35_000.0);
         cost.add(&settings(651, 775, 1), 4_800.0);
         let rows = cost.band_rows(&settings(651, 775, 1)).expect("a 4.8 s sample is banded");
         assert_eq!(rows % 8, 0);
