@@ -124,6 +124,9 @@ fn file_stem(index: usize, name: &str) -> String {
 /// `twill colorways`.
 pub fn colorways(options: &ColorwaysOptions) -> Result<()> {
     let mut base = SceneFile::load_or_default(options.scene.as_deref())?;
+    if options.reference {
+        crate::commands::refuse_pattern(&base, "`twill colorways --reference` (the path tracer)")?;
+    }
     if let Some((w, h)) = options.size {
         (base.render.width, base.render.height) = (w, h);
     }
@@ -386,6 +389,20 @@ mod tests {
         assert_eq!(
             (info.width as usize, info.height as usize),
             (GAP + 2 * (24 + GAP), GAP + 16 + LABEL_HEIGHT + GAP)
+        );
+
+        // Patterned cloth takes colour orders, but the path tracer holds one exemplar: refused.
+        let patterned = dir.path().join("patterned.toml");
+        std::fs::copy(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/patterned.toml"),
+            &patterned,
+        )
+        .unwrap();
+        let message =
+            colorways(&ColorwaysOptions { scene: Some(patterned), ..options }).unwrap_err().to_string();
+        assert!(
+            message.contains("patterned.toml: [pattern]") && message.contains("--reference"),
+            "{message}"
         );
     }
 }

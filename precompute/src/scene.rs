@@ -36,9 +36,8 @@ use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
 use crate::raycast::{Extent, FiberScene};
 
-/// Why colour orders are refused on imported fibers and patterned cloth.
-const COLOUR_ORDERS_NEED_WOVEN: &str = "colour orders need a woven [fabric] without [pattern] (imported \
-     fibers have no threads to colour, and patterned cloth does not take them yet)";
+/// Why colour orders are refused on imported fibers.
+const COLOUR_ORDERS_NEED_WOVEN: &str = "colour orders need a woven [fabric] (a preset or a procedural [fabric.spec]): imported fibers have no threads to colour";
 
 /// sRGB-encoded display value (0..1) to linear.
 fn srgb_to_linear(v: f64) -> f64 {
@@ -289,12 +288,36 @@ impl TryFrom<RawPatternWeave> for PatternWeave {
 /// `[1, 1]`.
 #[must_use]
 pub fn pattern_blocks(drafts: &[WeaveDraft]) -> Vec<[u32; 2]> {
+    let [gx, gy] = pattern_block_side(drafts);
+    drafts.iter().map(|d| [(d.cols() / gx) as u32, (d.rows() / gy) as u32]).collect()
+}
+
+/// The side of a pattern block in yarns, along x (ends) and y (picks): the greatest common
+/// divisor of the drafts' repeats.
+#[must_use]
+pub fn pattern_block_side(drafts: &[WeaveDraft]) -> [usize; 2] {
     fn gcd(a: usize, b: usize) -> usize {
         if b == 0 { a } else { gcd(b, a % b) }
     }
-    let gx = drafts.iter().map(WeaveDraft::cols).fold(0, gcd).max(1);
-    let gy = drafts.iter().map(WeaveDraft::rows).fold(0, gcd).max(1);
-    drafts.iter().map(|d| [(d.cols() / gx) as u32, (d.rows() / gy) as u32]).collect()
+    [
+        drafts.iter().map(WeaveDraft::cols).fold(0, gcd).max(1),
+        drafts.iter().map(WeaveDraft::rows).fold(0, gcd).max(1),
+    ]
+}
+
+/// The exemplar repeat `[ends, picks]` of `draft` with `colourway`'s orders: the least common
+/// multiple of the weave's and the colours' repeat along each direction (the draft's own repeat
+/// without colour orders).
+///
+/// # Errors
+/// A joint repeat past the limit, naming both repeats.
+fn joint_repeat(draft: &WeaveDraft, colourway: Option<&Colourway>) -> Result<[usize; 2], String> {
+    let Some(colourway) = colourway else { return Ok([draft.cols(), draft.rows()]) };
+    let cols = exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
+        .map_err(|e| e.to_string())?;
+    let rows = exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
+        .map_err(|e| e.to_string())?;
+    Ok([cols, rows])
 }
 
 /// `[swatch]`: the flat tiled piece of fabric that is rendered.
@@ -630,11 +653,11 @@ impl SceneFile {
                 fabric.weft_colours = Some(colourway.weft.clone());
                 (fabric.build().map_err(|e| fabric_error(e.into()))?, None)
             }
-            (_, Some(_), _) => {
+            (None, Some(_), _) => {
                 return Err(invalid(format!("[materials]: {COLOUR_ORDERS_NEED_WOVEN}")));
             }
-            (Some(section), None, _) => {
-                let pattern = self.build_pattern(section, &spec, base_dir)?;
+            (Some(section), colourway, _) => {
+                let pattern = self.build_pattern(section, &spec, base_dir, colourway.as_ref())?;
                 (pattern.exemplars[0].clone(), Some(pattern))
             }
         };
@@ -708,11 +731,19 @@ impl SceneFile {
     }
 
     /// Builds every exemplar of a patterned cloth and reads its map.
+    ///
+    /// With colour orders, each exemplar repeats over its weave's joint repeat with them (as a
+    /// cloth without `[pattern]` does) while the blocks stay the weaves' own (the greatest
+    /// common divisor of the drafts alone), so a colour order never changes the pattern's
+    /// scale: every exemplar holds a whole number of blocks, and end `j` of every exemplar has
+    /// the colour of thread `j` of the warp order, so a yarn keeps its colour from one block
+    /// into the next.
     fn build_pattern(
         &self,
         section: &PatternSection,
         spec: &FabricSpec,
         base_dir: &Path,
+        colourway: Option<&Colourway>,
     ) -> Result<ScenePattern, SceneError> {
         let path = &self.path;
         let invalid = |message: String| SceneError::Invalid { path: path.clone(), message };
@@ -741,14 +772,20 @@ impl SceneFile {
             });
         }
         let drafts: Vec<WeaveDraft> = weaves.iter().map(WeaveSource::draft).collect();
+        let [side_x, side_y] = pattern_block_side(&drafts);
         let mut exemplars = Vec::with_capacity(weaves.len());
-        for (k, (weave, blocks)) in weaves.into_iter().zip(pattern_blocks(&drafts)).enumerate() {
+        for (k, (weave, draft)) in weaves.into_iter().zip(&drafts).enumerate() {
+            let place = if k == 0 { "[fabric]".to_owned() } else { format!("[pattern] weaves[{}]", k - 1) };
+            let [cols, rows] = joint_repeat(draft, colourway)
+                .map_err(|e| invalid(format!("[materials]: with {place}'s weave: {e}")))?;
+            let blocks = [(cols / side_x) as u32, (rows / side_y) as u32];
             let spec = WovenSpec { weave, blocks, ..(**woven).clone() };
-            let exemplar = spec.woven_fabric().build().map_err(|e| {
-                let place =
-                    if k == 0 { "[fabric]".to_owned() } else { format!("[pattern] weaves[{}]", k - 1) };
-                invalid(format!("{place}: {e}"))
-            })?;
+            let mut fabric = spec.woven_fabric();
+            if let Some(colourway) = colourway {
+                fabric.warp_colours = Some(colourway.warp.clone());
+                fabric.weft_colours = Some(colourway.weft.clone());
+            }
+            let exemplar = fabric.build().map_err(|e| invalid(format!("{place}: {e}")))?;
             exemplars.push(exemplar);
         }
         let map = match &section.map {
@@ -881,20 +918,34 @@ impl SceneFile {
         let Some(colourway) = self.colourway()? else { return Ok(()) };
         // An unknown preset or a missing fabric is build's to report.
         let Some(draft) = self.colour_order_draft()? else { return Ok(()) };
-        exemplar_repeat("warp_order", draft.cols(), colourway.warp.threads().len())
-            .map_err(|e| e.to_string())?;
-        exemplar_repeat("weft_order", draft.rows(), colourway.weft.threads().len())
-            .map_err(|e| e.to_string())?;
+        let Some(section) = &self.pattern else {
+            return joint_repeat(&draft, Some(&colourway)).map(|_| ());
+        };
+        joint_repeat(&draft, Some(&colourway)).map_err(|e| format!("with [fabric]'s weave: {e}"))?;
+        let base_dir = self.path.parent().unwrap_or(Path::new("."));
+        for (k, weave) in section.weaves.iter().enumerate() {
+            let draft = match weave {
+                PatternWeave::Preset(p) => p.draft(),
+                PatternWeave::Draft(d) => d.clone(),
+                // A WIF file that does not read is build's to report.
+                PatternWeave::Wif(file) => match read_wif(&base_dir.join(file)) {
+                    Ok(draft) => draft,
+                    Err(_) => continue,
+                },
+            };
+            joint_repeat(&draft, Some(&colourway))
+                .map_err(|e| format!("with [pattern] weaves[{k}]'s weave: {e}"))?;
+        }
         Ok(())
     }
 
     /// The weave draft that colour orders repeat against (warp orders against its columns,
-    /// weft orders against its rows): `[fabric]`'s own draft, for a woven fabric without
-    /// `[pattern]`; `Ok(None)` for an unknown preset or a missing fabric (which
-    /// [`SceneFile::build`] reports).
+    /// weft orders against its rows): `[fabric]`'s own draft, for a woven fabric (with
+    /// `[pattern]`, the weaves of the other exemplars repeat against them too); `Ok(None)` for
+    /// an unknown preset or a missing fabric (which [`SceneFile::build`] reports).
     ///
     /// # Errors
-    /// Imported fibers or patterned cloth: they take no colour orders (the message says so).
+    /// Imported fibers: they take no colour orders (the message says so).
     pub fn colour_order_draft(&self) -> Result<Option<WeaveDraft>, String> {
         let spec = match (&self.fabric.preset, &self.fabric.spec) {
             (Some(name), None) => fabric_preset(name).map(|p| p.fabric),
@@ -902,7 +953,7 @@ impl SceneFile {
             _ => None,
         };
         match spec {
-            Some(FabricSpec::Woven(woven)) if self.pattern.is_none() => Ok(Some(woven.weave.draft())),
+            Some(FabricSpec::Woven(woven)) => Ok(Some(woven.weave.draft())),
             None => Ok(None),
             Some(_) => Err(COLOUR_ORDERS_NEED_WOVEN.into()),
         }
@@ -1126,14 +1177,61 @@ mod tests {
             assert!(message.contains(expect), "{extra}: {message}");
             assert!(message.contains("bad.toml"), "{message}");
         }
-        // Patterned cloth: build and the check that edits use say the same.
-        let patterned = with_colourway(&format!(
+        // A pattern weave whose joint repeat with the orders is too long: build and the check
+        // that edits use both name the weave (a 5-end satin with a 16-thread warp order, 80
+        // ends; the 2/2 twill of [fabric] repeats in 16).
+        let long = with_colourway(&format!(
+            "{}[pattern]\nweaves = [{{ weave = \"satin_4_1\" }}]\nrows = [\"01\"]\n",
+            COLOURWAY.replace("2 navy, 2 cream, 1 red", "14 navy, 1 cream, 1 red")
+        ));
+        let message = parse_err(&long);
+        assert!(message.contains("with [pattern] weaves[0]'s weave") && message.contains("80"), "{message}");
+        let file = SceneFile::parse(&long, Path::new("p.toml")).unwrap();
+        let check = file.check_colourway().unwrap_err();
+        assert!(check.contains("with [pattern] weaves[0]'s weave") && check.contains("80"), "{check}");
+    }
+
+    /// Colour orders on patterned cloth: each exemplar repeats over its weave's joint repeat with
+    /// the orders, the blocks stay the weaves' own (2 x 2 yarns for a 2/2 twill beside a plain
+    /// weave, as without colours), and every exemplar's end `j` and pick `i` take the colours of
+    /// thread `j` and `i` of the orders, so a yarn keeps its colour across blocks.
+    #[test]
+    fn patterned_cloth_takes_colour_orders_and_keeps_its_blocks() {
+        let text = with_colourway(&format!(
             "{COLOURWAY}[pattern]\nweaves = [{{ weave = \"plain\" }}]\nrows = [\"01\"]\n"
         ));
-        let message = parse_err(&patterned);
-        assert!(message.contains(COLOUR_ORDERS_NEED_WOVEN), "{message}");
-        let file = SceneFile::parse(&patterned, Path::new("p.toml")).unwrap();
-        assert_eq!(file.check_colourway(), Err(COLOUR_ORDERS_NEED_WOVEN.to_owned()));
+        let file = SceneFile::parse(&text, Path::new("p.toml")).unwrap();
+        assert_eq!(file.check_colourway(), Ok(()));
+        let scene = file.build().unwrap();
+        let colourway = file.colourway().unwrap().unwrap();
+        let pattern = scene.pattern.as_ref().expect("patterned");
+        // Warp order 5 threads: the twill's 4 ends repeat in 20 (10 blocks of 2), the plain
+        // weave's 2 in 10 (5 blocks); weft order 4 threads: both repeat in 4 picks (2 blocks).
+        let blocks: Vec<_> = pattern.exemplars.iter().map(|e| [e.blocks.nx, e.blocks.ny]).collect();
+        assert_eq!(blocks, [[10, 2], [5, 2]]);
+        let plain = SceneFile::default_scene().build().unwrap();
+        let spacing = match plain.exemplar.tiling {
+            Tiling::Periodic { period } => period / 4.0,
+            Tiling::AsIs => panic!("woven exemplars are periodic"),
+        };
+        for (k, exemplar) in pattern.exemplars.iter().enumerate() {
+            let Tiling::Periodic { period } = exemplar.tiling else { panic!("periodic") };
+            let block = period / Vec2::new(exemplar.blocks.nx as f32, exemplar.blocks.ny as f32);
+            assert!((block - 2.0 * spacing).abs().max_element() < 1e-6, "exemplar {k}: block {block}");
+            let warp_ends = (exemplar.blocks.nx * 2) as usize;
+            let materials: Vec<u32> = exemplar.yarns.iter().map(|y| y.material).collect();
+            let want: Vec<u32> = (0..warp_ends)
+                .map(|j| colourway.warp.colour_of(j))
+                .chain((0..exemplar.yarns.len() - warp_ends).map(|i| colourway.weft.colour_of(i)))
+                .collect();
+            assert_eq!(materials, want, "exemplar {k}");
+        }
+        assert_eq!(pattern.exemplars[0], scene.exemplar);
+        // Every exemplar's bake gets the palette's materials.
+        for inputs in scene.bake_inputs(crate::bake::settings::Quality::Draft.settings()) {
+            assert_eq!(inputs.materials, scene.material_descs);
+            assert_eq!(inputs.materials.len(), 3);
+        }
     }
 
     fn parse_err(text: &str) -> String {

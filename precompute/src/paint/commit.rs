@@ -233,6 +233,11 @@ pub fn commit_colour_orders(
     if colours.len() != cells.count() {
         return Err(NotAColourOrder::ColourCount { count: colours.len(), cells: cells.count() });
     }
+    if scene.pattern.is_some() {
+        let reason = "a painting is of cloth without [pattern] (paint mode draws no patterned cloth), \
+                      so it does not become this scene's colour orders";
+        return Err(NotAColourOrder::NotWoven { reason: reason.into() });
+    }
     let draft = match scene.colour_order_draft() {
         Ok(Some(draft)) => draft,
         Ok(None) => {
@@ -694,7 +699,7 @@ mod tests {
         )
         .unwrap();
         let message = commit_colour_orders(&patterned, &cells, &own).unwrap_err().to_string();
-        assert!(message.contains("colour orders need a woven [fabric] without [pattern]"), "{message}");
+        assert!(message.contains("a painting is of cloth without [pattern]"), "{message}");
         let message = commit_colour_orders(&file, &cells, &own[1..]).unwrap_err().to_string();
         assert!(message.contains("give one colour per cell"), "{message}");
     }
