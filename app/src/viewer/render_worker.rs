@@ -667,6 +667,17 @@ fn worker_loop(
                 );
                 let failure = match result {
                     Ok(Ok(frame)) => {
+                        if let Some(timings) = &frame.timings {
+                            let passes: Vec<String> = timings
+                                .iter()
+                                .map(|t| format!("{} {:.1} ms", t.pass, t.milliseconds))
+                                .collect();
+                            log::debug!(
+                                "frame passes (GPU): {}; reused: {:?}",
+                                passes.join(", "),
+                                frame.reused
+                            );
+                        }
                         cost.add(&request.settings, wall_ms);
                         send(WorkerEvent::Frame(Box::new(FrameResult { request, frame, wall_ms })));
                         continue;
