@@ -192,6 +192,20 @@ pub enum PatternWeave {
     Wif(PathBuf),
 }
 
+impl PatternWeave {
+    /// The weave, a WIF file read from `base_dir`.
+    ///
+    /// # Errors
+    /// A WIF file that does not read.
+    pub fn source(&self, base_dir: &Path) -> Result<WeaveSource, WifError> {
+        Ok(match self {
+            PatternWeave::Preset(p) => WeaveSource::Preset(*p),
+            PatternWeave::Draft(d) => WeaveSource::Draft(d.clone()),
+            PatternWeave::Wif(file) => WeaveSource::Draft(read_wif(&base_dir.join(file))?),
+        })
+    }
+}
+
 /// Where a pattern map comes from: `rows = ["0011", "0110"]` (top row first, one character per
 /// block, `0`-`9` then `a`-`z`) or `png = "map.png"` (gray levels, darkest = exemplar 0;
 /// relative to the scene file's folder). See [`PatternMap`].
@@ -762,14 +776,9 @@ impl SceneFile {
         }
         let mut weaves = vec![woven.weave.clone()];
         for weave in &section.weaves {
-            weaves.push(match weave {
-                PatternWeave::Preset(p) => WeaveSource::Preset(*p),
-                PatternWeave::Draft(d) => WeaveSource::Draft(d.clone()),
-                PatternWeave::Wif(file) => WeaveSource::Draft(
-                    read_wif(&base_dir.join(file))
-                        .map_err(|source| SceneError::Wif { path: path.clone(), source })?,
-                ),
-            });
+            weaves.push(
+                weave.source(base_dir).map_err(|source| SceneError::Wif { path: path.clone(), source })?,
+            );
         }
         let drafts: Vec<WeaveDraft> = weaves.iter().map(WeaveSource::draft).collect();
         let [side_x, side_y] = pattern_block_side(&drafts);
@@ -924,16 +933,9 @@ impl SceneFile {
         joint_repeat(&draft, Some(&colourway)).map_err(|e| format!("with [fabric]'s weave: {e}"))?;
         let base_dir = self.path.parent().unwrap_or(Path::new("."));
         for (k, weave) in section.weaves.iter().enumerate() {
-            let draft = match weave {
-                PatternWeave::Preset(p) => p.draft(),
-                PatternWeave::Draft(d) => d.clone(),
-                // A WIF file that does not read is build's to report.
-                PatternWeave::Wif(file) => match read_wif(&base_dir.join(file)) {
-                    Ok(draft) => draft,
-                    Err(_) => continue,
-                },
-            };
-            joint_repeat(&draft, Some(&colourway))
+            // A WIF file that does not read is build's to report.
+            let Ok(source) = weave.source(base_dir) else { continue };
+            joint_repeat(&source.draft(), Some(&colourway))
                 .map_err(|e| format!("with [pattern] weaves[{k}]'s weave: {e}"))?;
         }
         Ok(())
