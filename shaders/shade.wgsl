@@ -45,7 +45,7 @@ struct ShadeUniforms {
 @group(0) @binding(5) var visibility_sharp: texture_2d_array<f32>;
 @group(0) @binding(6) var visibility_blurred: texture_2d_array<f32>;
 @group(0) @binding(7) var<storage, read_write> accumulation: array<vec4<f32>>;
-// A c_in per cell for this frame, `cell * sh_count + j` (ENABLE_FRAME_TRANSFER; else unused).
+// A c_in per slot (cell with segments) for this frame, `slot * sh_count + j` (ENABLE_FRAME_TRANSFER; else unused).
 @group(0) @binding(8) var<storage, read> cell_transfer: array<vec4<f32>>;
 
 // transferred_at (shared/shading.wgsl) from the frame's cell_transfer: the cells' A c_in,
@@ -56,7 +56,7 @@ fn frame_transferred_at(e: u32, segment: u32, p: vec3<f32>, coeffs: ptr<function
     for (var k = 0u; k < 8u; k++) {
         let w = around.weights[k];
         if (w > 0.0) {
-            let base = around.cells[k] * n;
+            let base = around.slots[k] * n;
             for (var j = 0u; j < n; j++) {
                 (*coeffs)[j] += w * cell_transfer[base + j].xyz;
             }

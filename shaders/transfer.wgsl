@@ -1,7 +1,8 @@
 // The light arriving in every IIRTF cell, A_cell c_in, once per frame (paper 5.3, hoisted out of
 // the shading pass): where the lights' SH c_in is the same at every pixel (a shell whose
 // tetrahedra share one flat-fabric frame, lit without shadow maps), every pixel would multiply
-// the same eight transfer matrices by the same vector. One invocation per cell computes c_in
+// the same eight transfer matrices by the same vector. One invocation per slot (a cell that holds
+// segments; empty cells transfer nothing and have none) computes c_in
 // (shared/shading.wgsl hemisphere_light_sh_accumulate, as the shading pass does) and A c_in; the shading
 // pass then interpolates the results (shade.wgsl frame_transferred_at).
 // Twin structs: renderer/src/passes/cell_transfer.rs (TransferUniformsGpu) and
@@ -9,7 +10,7 @@
 #import shared/shading.wgsl
 
 struct TransferUniforms {
-    // x: lights, y: cells, zw: unused.
+    // x: lights, y: slots (cells with segments), zw: unused.
     counts: vec4<u32>,
     // Rows of the linear part of the shell's world -> (u, v, w) map (the same in every
     // tetrahedron); w of row 0: the fabric slab's thickness in cm.
@@ -22,17 +23,11 @@ struct TransferUniforms {
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
-    let cell = id.x;
-    if (cell >= transfer.counts.y) {
+    let slot = id.x;
+    if (slot >= transfer.counts.y) {
         return;
     }
     let n = fabric.sh_count;
-    if (cell_flags[cell] == 0u) {
-        for (var j = 0u; j < n; j++) {
-            cell_transfer[cell * n + j] = vec4<f32>(0.0);
-        }
-        return;
-    }
     let m = transfer.uvw_from_world;
     let h = transfer.uvw_from_world[0].w;
     var c_in: array<vec3<f32>, 49>;
@@ -47,8 +42,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     for (var j = 0u; j < n; j++) {
         c_t[j] = vec3<f32>(0.0);
     }
-    add_transferred(cell, 1.0, n, &c_in, &c_t);
+    add_transferred(slot, 1.0, n, &c_in, &c_t);
     for (var j = 0u; j < n; j++) {
-        cell_transfer[cell * n + j] = vec4<f32>(c_t[j], 0.0);
+        cell_transfer[slot * n + j] = vec4<f32>(c_t[j], 0.0);
     }
 }

@@ -1033,6 +1033,117 @@ fn live_recolouring_writes_fiber_lobes_in_place() {
     }
 }
 
+/// Live recolouring of patterned cloth (the colourways issue, part 2): the default twill beside
+/// a plain weave in a 2 x 1 block map, both under the colour orders "1 navy, 1 cream" (warp)
+/// and "2 cream, 1 red" (weft), so each weave's exemplar spans its own joint repeat (4 x 12
+/// and 2 x 6 threads) and has its own cell grid and recolouring basis. The viewer writes a recolouring into
+/// every exemplar with the scene's one palette (`RenderWorker`'s `Work::Recolour`); here:
+/// - every exemplar written in place equals the material previews of both exemplars uploaded
+///   through the whole-bake path, to rounding;
+/// - with only the first exemplar written, the picture differs (the second weave's blocks are
+///   in view, so a write that missed them would show);
+/// - one exemplar's basis written into the other, whose cell grid differs, is refused.
+///
+/// This test found the viewer refusing every live recolouring of patterned cloth: the GPU
+/// counted an exemplar's cells in one block of its lattice, not in all of them (the basis of
+/// the twill's exemplar, 12 blocks, has 10,800 cells; the GPU said 900). Measured 2026-11-28 on
+/// lavapipe (32x32, 4 spp, draft): the live picture differs from the original colours' by 20.7%
+/// (mean absolute difference over the mean) and from the picture with only the first exemplar
+/// written by 8.4%; held to at least 10% and 2%.
+#[test]
+fn live_recolouring_of_patterned_cloth_writes_every_exemplar() {
+    use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
+    let Some(gpu) = Gpu::for_test("live_recolouring_of_patterned_cloth_writes_every_exemplar") else {
+        return;
+    };
+    let scene_with = |navy: &str, red: &str| {
+        scene(
+            &format!(
+                "{FABRIC}[pattern]\nweaves = [{{ weave = \"plain\" }}]\nrows = [\"01\"]\n\
+                 [materials]\nwarp_order = \"1 navy, 1 cream\"\nweft_order = \"2 cream, 1 red\"\n\
+                 [materials.palette]\nnavy = {{ base = \"warp\", c_tt = {navy} }}\ncream = {{ base = \"weft\" }}\n\
+                 red = {{ base = \"warp\", c_tt = {red} }}\n\
+                 [swatch]\nsize_cm = [2.0, 2.0]\nground = true\n[camera]\nprojection = \"orthographic\"\n\
+                 eye = [0.0, -0.2, 0.6]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nheight_cm = 0.5\n"
+            ),
+            &[SUN],
+        )
+    };
+    let scene0 = scene_with("[0.05, 0.07, 0.4]", "[0.8, 0.1, 0.08]");
+    let scene1 = scene_with("[0.1, 0.5, 0.12]", "[0.95, 0.8, 0.1]");
+    let draft = Quality::Draft.settings();
+    let (inputs0, inputs1) = (scene0.bake_inputs(draft), scene1.bake_inputs(draft));
+    assert_eq!(inputs0.len(), 2, "two weaves, two exemplars");
+    let map = scene0.pattern_map();
+    let set =
+        bake_set(&inputs0, map.clone(), None, &Cancel::new(), &|_, _| {}).expect("draft bake of both weaves");
+    let before: Vec<&Baked> = set.exemplars.iter().map(|o| &o.baked).collect();
+    let bases: Vec<_> = inputs0
+        .iter()
+        .map(|inputs| recolour_basis(inputs, None, &Cancel::new(), &|_| {}).expect("basis"))
+        .collect();
+    assert_ne!(bases[0].cells.len(), bases[1].cells.len(), "the weaves' cell grids differ");
+    for inputs in &inputs1 {
+        assert_eq!(inputs.materials, scene1.material_descs.as_slice(), "one palette for every exemplar");
+    }
+    let size = 32;
+    let mut settings = frame_settings(&scene1, Components::All);
+    (settings.width, settings.height, settings.spp) = (size, size, 4);
+    settings.gpu.visibility_texture_size = 256;
+    settings.gpu.shadow_map_size = 512;
+    let mut session = SceneRenderer::with_gpu(gpu, &scene0, &before, &map).expect("scene uploads");
+    let original = session.render(&scene0, &settings).expect("frame renders").radiance;
+    // The first exemplar alone, then the second: what the viewer writes.
+    let written = session.renderer.recolour(0, &bases[0], &scene1.material_descs).expect("recolours");
+    assert!(written.contains(&"iirtf"), "{written:?}");
+    let first_only = session.render(&scene1, &settings).expect("frame renders").radiance;
+    session.renderer.recolour(1, &bases[1], &scene1.material_descs).expect("recolours");
+    let live = session.render(&scene1, &settings).expect("frame renders").radiance_image();
+    assert!(live.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
+    // Each exemplar's basis fits its own grid only.
+    let refused = session.renderer.recolour(0, &bases[1], &scene1.material_descs);
+    assert!(
+        matches!(&refused, Err(RenderError::Settings(m)) if m.contains("cells")),
+        "a basis of another exemplar: {refused:?}"
+    );
+    // The same recolouring through the whole-bake path.
+    let previews: Vec<Baked> = inputs1
+        .iter()
+        .zip(&before)
+        .zip(&bases)
+        .map(|((inputs, baked), basis)| {
+            bake_material_preview(inputs, baked, Some(basis), None, &Cancel::new(), &|_, _| {})
+                .expect("preview")
+                .baked
+        })
+        .collect();
+    let previews: Vec<&Baked> = previews.iter().collect();
+    session.renderer.update_fabric(&previews, &map).expect("packs").expect("same layout");
+    let packed = session.render(&scene1, &settings).expect("frame renders").radiance_image();
+    let largest = packed.pixels.iter().map(|p| p.max_element()).fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    for (a, b) in live.pixels.iter().zip(&packed.pixels) {
+        assert!((*a - *b).abs().max_element() <= 1e-6 * largest, "in place {a:?} vs packed {b:?}");
+    }
+    // Both writes show in the picture.
+    let difference = |a: &[[f32; 3]], b: &twill_precompute::image::Image| {
+        let sum: f64 = a
+            .iter()
+            .zip(&b.pixels)
+            .map(|(x, y)| (0..3).map(|c| (f64::from(x[c]) - y[c]).abs()).sum::<f64>())
+            .sum();
+        sum / b.pixels.iter().map(|p| p.x + p.y + p.z).sum::<f64>()
+    };
+    let (from_original, from_first_only) = (difference(&original, &live), difference(&first_only, &live));
+    eprintln!(
+        "mean absolute difference from the live picture: the original colours {:.1}%, only the first exemplar recoloured {:.1}%",
+        100.0 * from_original,
+        100.0 * from_first_only
+    );
+    assert!(from_original > 0.1, "the new colours change the picture: {from_original}");
+    assert!(from_first_only > 0.02, "the second weave's blocks change with its write: {from_first_only}");
+}
+
 /// Live recolouring on the GPU (the colourways issue, part 2): the default fabric's draft bake,
 /// recoloured to a navy warp and a cream weft from its recolouring basis, written in place
 /// (`Renderer::recolour`):

@@ -7,7 +7,14 @@
 //! segment table are made global the same way, and so are material ids. The C_G table is the
 //! same for every exemplar (it depends only on the SH order), so the first one is used.
 //!
-//! The IIRTF dominates the memory (`cells × 3 × (L+1)⁴` values) and is stored as f16 pairs:
+//! Cells are stored sparsely: only a cell that holds segments has a transfer matrix and fiber
+//! lobes, in its *slot* (slots number those cells in global cell order, so each exemplar's are
+//! contiguous), and `cell_slots` maps every cell of the grid to 1 + its slot, or 0 when empty.
+//! Most of a grid is empty (air above and below the yarns, the gaps between them: 6,013 of the
+//! default fabric's 9,025 interactive cells, 249,191 of `large`'s 269,664 at `paper`), and an
+//! empty cell now costs 4 bytes instead of a matrix.
+//!
+//! The IIRTF dominates the memory (`slots × 3 × (L+1)⁴` values) and is stored as f16 pairs:
 //! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
 //! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
 //! binding. Fiber lobes (`BakeSettings::fiber_lobes`) are packed per cell by
@@ -107,6 +114,17 @@ pub struct ExemplarGpu {
 }
 const _: () = assert!(size_of::<ExemplarGpu>() == 112);
 
+impl ExemplarGpu {
+    /// Cells in the exemplar's whole lattice: every block's (`CellGrid::cell_count`; a patterned
+    /// exemplar spans several blocks).
+    #[must_use]
+    pub fn cell_count(&self) -> usize {
+        self.cell_dims.iter().map(|&d| d as usize).product::<usize>()
+            * self.cell_blocks_x as usize
+            * self.cell_blocks_y as usize
+    }
+}
+
 /// Twin of `SegmentGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -167,17 +185,21 @@ pub struct FabricArrays {
     /// image order, `header.visibility_words` words each (bit `p % 32` of word `p / 32` is
     /// pixel `p`); one zero word when the bake kept none.
     pub visibility_bits: Vec<u32>,
-    /// f16 pairs (see the module doc).
+    /// f16 pairs, one matrix per slot (see the module doc).
     pub iirtf: Vec<u32>,
-    /// Per global cell: 1 if it holds segments (and so a transfer matrix), 0 if empty.
-    pub cell_flags: Vec<u32>,
+    /// Per global cell: 1 + its slot if it holds segments (and so a transfer matrix), 0 if
+    /// empty. Slots number the cells that hold segments in global cell order, so each
+    /// exemplar's are contiguous.
+    pub cell_slots: Vec<u32>,
+    /// Slots: the cells that hold segments.
+    pub slot_count: usize,
     /// The fiber lobes (`CellTransfer::forward`, `reflected` and their shapes), twin of `lobes`
-    /// in `shaders/shared/fabric_data.wgsl`: per global cell [`LOBE_PACKED_FLOATS`] floats in
+    /// in `shaders/shared/fabric_data.wgsl`: per slot [`LOBE_PACKED_FLOATS`] floats in
     /// `CellTransfer::pack_lobes`' layout, zeros for a cell without lobes (one that folded its
     /// light into its matrix). Empty for a set baked without fiber lobes in which no cell has
     /// them (the buffer is then one zeroed vec4, never read).
     pub lobes: Vec<f32>,
-    /// Cells whose lobe slot is not all zeros: the plan compiles `ENABLE_FIBER_LOBES` only when
+    /// Cells whose lobes are not all zeros: the plan compiles `ENABLE_FIBER_LOBES` only when
     /// there are any (a bake made with the option whose cells all folded their light into their
     /// matrices shades without them). Counted when packed and after every recolouring, which
     /// can give a cell lobes or take them away.
@@ -273,7 +295,8 @@ impl FabricArrays {
             sum_of_sg: Vec::new(),
             visibility_bits: Vec::new(),
             iirtf: Vec::new(),
-            cell_flags: Vec::new(),
+            cell_slots: Vec::new(),
+            slot_count: 0,
             lobes: Vec::new(),
             lobe_cells: 0,
             cs_table: Vec::new(),
@@ -289,6 +312,7 @@ impl FabricArrays {
             )));
         }
         let mut iirtf_values: Vec<f32> = Vec::new();
+        let mut slots = 0_usize;
         let mut any_lobes = false;
         let mut z_range = [f32::INFINITY, f32::NEG_INFINITY];
         let mut block_size = [0.0_f32; 2];
@@ -316,7 +340,7 @@ impl FabricArrays {
             }
             let segment_count = baked.volume.segments.len();
             let segment_offset = out.segments.len();
-            let cell_base = iirtf_values.len() / (3 * sh_count * sh_count);
+            let cell_base = out.cell_slots.len();
             let material_offset = out.materials.len();
             let extent = volume.voxel_size * Vec3::from(volume.dims.map(|d| d as f32));
             z_range = [z_range[0].min(volume.origin.z), z_range[1].max(volume.origin.z + extent.z)];
@@ -339,9 +363,15 @@ impl FabricArrays {
                 cell_dims: cells.dims(),
                 cell_blocks_y: cells.blocks()[1],
             });
-            out.cell_flags.extend(baked.transfer.iirtf.cells.iter().map(|c| u32::from(c.paths > 0)));
             let lobe_sh = twill_precompute::sh::sh_count(LOBE_SH_ORDER);
             for (c, cell) in baked.transfer.iirtf.cells.iter().enumerate() {
+                // Only cells that hold segments get a slot: its matrix and its lobes.
+                if cell.paths == 0 {
+                    out.cell_slots.push(0);
+                    continue;
+                }
+                slots += 1;
+                out.cell_slots.push(to_u32(slots, "slot")?);
                 let sizes = [
                     cell.forward.len(),
                     cell.reflected.len(),
@@ -400,9 +430,9 @@ impl FabricArrays {
                 // word p / 32.
                 out.visibility_bits.extend(bits.words().iter().flat_map(|&w| [w as u32, (w >> 32) as u32]));
             }
-            for cell in &baked.transfer.iirtf.cells {
+            for cell in baked.transfer.iirtf.cells.iter().filter(|c| c.paths > 0) {
                 if cell.is_empty() {
-                    // Every cell has its slot: an empty one transfers nothing.
+                    // A slot without a matrix transfers nothing.
                     iirtf_values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
                     continue;
                 }
@@ -439,6 +469,7 @@ impl FabricArrays {
             out.gn_table.extend_from_slice(baked.gn.data());
         }
         out.iirtf = pack_f16_pairs(&iirtf_values);
+        out.slot_count = slots;
         if !any_lobes {
             out.lobes = Vec::new();
         }
@@ -484,14 +515,14 @@ impl FabricArrays {
         self.lobe_cells > 0
     }
 
-    /// Whether the buffer holds a lobe slot for every cell (the set was baked with fiber lobes,
-    /// or some cell has them), so that a recolouring can write lobes.
+    /// Whether the buffer holds lobes for every slot (the set was baked with fiber lobes, or
+    /// some cell has them), so that a recolouring can write lobes.
     #[must_use]
     pub fn holds_lobes(&self) -> bool {
         !self.lobes.is_empty()
     }
 
-    /// Cells whose lobe slot is not all zeros.
+    /// Cells whose lobes are not all zeros.
     fn count_lobe_cells(&self) -> usize {
         self.lobes.chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
     }
@@ -512,7 +543,7 @@ impl FabricArrays {
             ("cs_table", bytemuck::cast_slice(&self.cs_table)),
             ("cg_table", bytemuck::cast_slice(&self.cg_table)),
             ("gn_table", bytemuck::cast_slice(&self.gn_table)),
-            ("cell_flags", bytemuck::cast_slice(&self.cell_flags)),
+            ("cell_slots", bytemuck::cast_slice(&self.cell_slots)),
             ("lobes", bytemuck::cast_slice(&self.lobes)),
             ("visibility_bits", bytemuck::cast_slice(&self.visibility_bits)),
         ]
@@ -740,7 +771,7 @@ pub struct Recolouring<'a> {
     /// for a cell that folds them into its matrix) into the second, which is empty when the
     /// fabric holds no lobes; both from one evaluation of the cell (`RecolourBasis::write_cell`:
     /// one decision whether the cell keeps lobes at the new colours). Called for every cell of
-    /// the exemplar, in parallel.
+    /// the exemplar that holds segments (the cells with a slot), in parallel.
     pub write_cell: &'a WriteRecolouredCell<'a>,
 }
 
@@ -772,7 +803,7 @@ impl FabricData {
         let Some(ex) = a.exemplars.get(r.exemplar) else {
             return Err(FabricDataError::Inconsistent(format!("no exemplar {} to recolour", r.exemplar)));
         };
-        let (first_cell, cells) = (ex.cell_offset as usize, (ex.cell_dims.iter().product::<u32>()) as usize);
+        let (first_cell, cells) = (ex.cell_offset as usize, ex.cell_count());
         if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars
         {
             return Err(FabricDataError::Inconsistent(format!(
@@ -811,15 +842,24 @@ impl FabricData {
         a.cs_table[cs_range.clone()].copy_from_slice(&cs);
         queue.write_buffer(&cs_buffer, (cs_range.start * 4) as u64, bytemuck::cast_slice(&cs));
         written.push("cs_table");
-        // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words.
-        let start = first_cell * cell_values;
+        // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words. The
+        // exemplar's cells with segments have contiguous slots, in cell order.
+        let Some(exemplar_slots) = a.cell_slots.get(first_cell..first_cell + cells) else {
+            return Err(FabricDataError::Inconsistent("the exemplar's cells lie outside the buffer".into()));
+        };
+        let occupied: Vec<usize> = (0..cells).filter(|&c| exemplar_slots[c] != 0).collect();
+        let Some(&first_occupied) = occupied.first() else {
+            return Ok(written);
+        };
+        let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
+        let start = first_slot * cell_values;
         let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
-        let Some(exemplar_halves) = halves.get_mut(start..start + cells * cell_values) else {
+        let Some(exemplar_halves) = halves.get_mut(start..start + filled * cell_values) else {
             return Err(FabricDataError::Inconsistent(
                 "the exemplar's IIRTF cells lie outside the buffer".into(),
             ));
         };
-        let lobe_range = first_cell * LOBE_PACKED_FLOATS..(first_cell + cells) * LOBE_PACKED_FLOATS;
+        let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
         let with_lobes = !a.lobes.is_empty(); // holds_lobes(), while a.iirtf is borrowed
         let lobe_values: &mut [f32] = if with_lobes {
             let Some(lobes) = a.lobes.get_mut(lobe_range.clone()) else {
@@ -834,14 +874,14 @@ impl FabricData {
         if with_lobes {
             (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
                 .enumerate()
-                .for_each(|(c, (out, lobe))| (r.write_cell)(c, out, lobe));
+                .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
         } else {
             exemplar_halves
                 .par_chunks_mut(cell_values)
                 .enumerate()
-                .for_each(|(c, out)| (r.write_cell)(c, out, &mut []));
+                .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
         }
-        let (word_start, word_end) = (start / 2, (start + cells * cell_values).div_ceil(2));
+        let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
         queue.write_buffer(
             &iirtf_buffer,
             (word_start * 4) as u64,

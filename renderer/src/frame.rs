@@ -30,7 +30,7 @@ use std::fmt::Write as _;
 use twill_precompute::pathtrace::Light;
 use twill_precompute::scene::{CameraSection, GpuSection};
 
-use crate::fabric_data::FabricData;
+use crate::fabric_data::{ExemplarGpu, FabricData};
 use crate::gpu::Gpu;
 use crate::passes::cell_transfer::CellTransferPass;
 use crate::passes::gbuffer::EyeRays;
@@ -463,12 +463,7 @@ impl Renderer {
             .collect::<Result<_, _>>()
             .map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
         basis.check_colours(&colours).map_err(|e| RenderError::Settings(format!("recolouring: {e}")))?;
-        let exemplar_cells = self
-            .fabric
-            .arrays
-            .exemplars
-            .get(exemplar)
-            .map_or(0, |e| e.cell_dims.iter().product::<u32>() as usize);
+        let exemplar_cells = self.fabric.arrays.exemplars.get(exemplar).map_or(0, ExemplarGpu::cell_count);
         if basis.cells.len() != exemplar_cells {
             return Err(RenderError::Settings(format!(
                 "recolouring: the basis has {} cells, the GPU fabric's exemplar {exemplar} {exemplar_cells}",

@@ -1222,7 +1222,8 @@ fn fiber_lobe_frames_match_the_cpu_method() {
 /// The frame plan compiles the fiber lobes into the shading pass only for a bake that has them:
 /// a draft bake with `fiber_lobes: false` packs no lobes and plans `ENABLE_FIBER_LOBES` off, on
 /// a flat swatch (cells' transfer) and a curved shell (per pixel) alike; the silk's lobe bake
-/// packs `LOBE_PACKED_FLOATS` per cell and plans it on. CPU only (packing and planning need no
+/// packs `LOBE_PACKED_FLOATS` per slot (cell with segments) and plans it on. Both pack a slot,
+/// a matrix and lobes for the cells with segments only. CPU only (packing and planning need no
 /// device).
 #[test]
 fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
@@ -1236,9 +1237,20 @@ fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
     {
         let arrays = FabricArrays::pack(&[baked], &PatternMap::uniform(0)).expect("pack");
         assert_eq!(arrays.has_lobes(), expected, "{label}");
+        // Sparse cells: a slot for every cell that holds segments, numbered in cell order, and
+        // a matrix per slot only.
+        let held: Vec<bool> = baked.transfer.iirtf.cells.iter().map(|c| c.paths > 0).collect();
+        let slots: Vec<u32> = arrays.cell_slots.iter().copied().filter(|&s| s != 0).collect();
+        assert_eq!(arrays.cell_slots.len(), held.len(), "{label}");
+        assert!(arrays.cell_slots.iter().zip(&held).all(|(&s, &h)| (s != 0) == h), "{label}");
+        assert_eq!(slots, (1..=slots.len() as u32).collect::<Vec<_>>(), "{label}: slots in cell order");
+        assert_eq!(arrays.slot_count, slots.len(), "{label}");
+        assert!(slots.len() < held.len(), "{label}: some cells are empty");
+        let n = arrays.header.sh_count as usize;
+        assert_eq!(arrays.iirtf.len(), (arrays.slot_count * 3 * n * n).div_ceil(2), "{label}");
         // Without lobes the buffer is empty (bound as one zeroed vec4); with them
-        // LOBE_PACKED_FLOATS per cell, and as many non-zero slots as cells with lobes.
-        let expected_len = if expected { arrays.cell_flags.len() * LOBE_PACKED_FLOATS } else { 0 };
+        // LOBE_PACKED_FLOATS per slot, and as many non-zero ones as cells with lobes.
+        let expected_len = if expected { arrays.slot_count * LOBE_PACKED_FLOATS } else { 0 };
         assert_eq!(arrays.holds_lobes(), expected, "{label}");
         assert_eq!(arrays.lobes.len(), expected_len, "{label}");
         assert_eq!(arrays.lobe_cells, baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count());

@@ -13,7 +13,8 @@
 //                   image = global segment * visibility_points + point (visibility_image)
 //   visibility_bits [image * visibility_words + p / 32] bit p % 32 = pixel p of the binary
 //                   visibility image (row-major, rows theta), when visibility_words > 0
-//   iirtf           f16 pairs: entry e = ((global cell * 3 + channel) * sh_count + j1) * sh_count + j0,
+//   iirtf           f16 pairs, one matrix per slot (a cell that holds segments; empty cells have
+//                   none): entry e = ((slot * 3 + channel) * sh_count + j1) * sh_count + j0,
 //                   the value a_C[j0, j1] (light coefficient j0 -> incoming-radiance coefficient j1)
 //                   is unpack2x16float(iirtf[e / 2])[e % 2]
 //   cs_table        [((global material * cs_theta_count + row) * sh_count + j) * 3 + channel]
@@ -22,9 +23,10 @@
 //                   fits of orders 0..=cg_order (shading.wgsl upper_fit_offset)
 //   gn_table        [(((global material * 2 + lobe) * (gn_intervals + 1) + node) * 2 + {0: Gn, 1: dGn/dmu}]
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
-//   cell_flags      [global cell] = 1 if the cell holds segments (has a transfer matrix), else 0
-//   lobes           per global cell LOBE_PACKED_VEC4S vec4s (CellTransfer::pack_lobes, the layout's
-//                   owner): [cell * LOBE_PACKED_VEC4S + j] = forward strength j (rgb, w = 0) and
+//   cell_slots      [global cell] = 1 + its slot if the cell holds segments (has a transfer matrix),
+//                   else 0; slots number the cells that hold segments in global cell order
+//   lobes           per slot LOBE_PACKED_VEC4S vec4s (CellTransfer::pack_lobes, the layout's
+//                   owner): [slot * LOBE_PACKED_VEC4S + j] = forward strength j (rgb, w = 0) and
 //                   [... + LOBE_SH_COUNT + j] = reflected strength j, j < LOBE_SH_COUNT; then,
 //                   as floats from vec4 2 * LOBE_SH_COUNT on, the forward shape's LOBE_SHAPE_LEN
 //                   sums and the reflected shape's, back to back, zero-padded; zeros for a cell
@@ -122,7 +124,7 @@ struct MaterialGpu {
 @group(1) @binding(10) var<storage, read> cs_table: array<f32>;
 @group(1) @binding(11) var<storage, read> cg_table: array<f32>;
 @group(1) @binding(12) var<storage, read> gn_table: array<f32>;
-@group(1) @binding(13) var<storage, read> cell_flags: array<u32>;
+@group(1) @binding(13) var<storage, read> cell_slots: array<u32>;
 @group(1) @binding(14) var<storage, read> lobes: array<vec4<f32>>;
 @group(1) @binding(15) var<storage, read> visibility_bits: array<u32>;
 
@@ -384,10 +386,10 @@ fn first_fiber_hit(p0: vec3<f32>, d: vec3<f32>, t_min: f32, t_start: f32, t_end:
     }
 }
 
-// a_C[j0, j1] of one channel of a global cell.
-fn iirtf_entry(cell: u32, channel: u32, j0: u32, j1: u32) -> f32 {
+// a_C[j0, j1] of one channel of the cell in `slot`.
+fn iirtf_entry(slot: u32, channel: u32, j0: u32, j1: u32) -> f32 {
     let n = fabric.sh_count;
-    let e = ((cell * 3u + channel) * n + j1) * n + j0;
+    let e = ((slot * 3u + channel) * n + j1) * n + j0;
     let pair = unpack2x16float(iirtf[e / 2u]);
     return select(pair.x, pair.y, (e & 1u) == 1u);
 }
@@ -399,11 +401,12 @@ fn cell_at(ex: ExemplarGpu, i: vec3<u32>) -> u32 {
     return ex.cell_offset + block * (d.x * d.y * d.z) + (i.z * d.y + i.y % d.y) * d.x + i.x % d.x;
 }
 
-// The eight cells around point p (exemplar cm) and their trilinear weights, empty cells left
-// out and the rest renormalized (CellGrid::interpolation). Where all eight are empty, the
-// returned weights are all zero and the caller keeps the segment's own cell.
+// The eight cells around point p (exemplar cm), as their slots, and their trilinear weights,
+// empty cells left out (weight 0, slot unused) and the rest renormalized
+// (CellGrid::interpolation). Where all eight are empty, the returned weights are all zero and
+// the caller keeps the segment's own cell.
 struct CellWeights {
-    cells: array<u32, 8>,
+    slots: array<u32, 8>,
     weights: array<f32, 8>,
 }
 
@@ -431,11 +434,12 @@ fn cell_interpolation(e: u32, p: vec3<f32>) -> CellWeights {
         }
         let cell = cell_at(ex, vec3<u32>(i));
         let t = select(vec3<f32>(1.0) - f, f, o == vec3<i32>(1));
+        let slot = cell_slots[cell];
         var w = t.x * t.y * t.z;
-        if (cell_flags[cell] == 0u) {
+        if (slot == 0u) {
             w = 0.0;
         }
-        out.cells[k] = cell;
+        out.slots[k] = max(slot, 1u) - 1u;
         out.weights[k] = w;
         total += w;
     }

@@ -550,12 +550,13 @@ fn light_sh_add(light: LightGpu, dir: vec3<f32>, weight: vec3<f32>, c: ptr<funct
     hemisphere_light_sh_accumulate(fabric.sh_order, dir, sharpness, weight, c);
 }
 
-// Adds weight * (A_cell c_in), channel by channel, to c_t (multiple.rs add_transferred).
-fn add_transferred(cell: u32, weight: f32, n: u32, c_in: ptr<function, array<vec3<f32>, 49>>, c_t: ptr<function, array<vec3<f32>, 49>>) {
+// Adds weight * (A_cell c_in), channel by channel, to c_t, for the cell in `slot`
+// (multiple.rs add_transferred).
+fn add_transferred(slot: u32, weight: f32, n: u32, c_in: ptr<function, array<vec3<f32>, 49>>, c_t: ptr<function, array<vec3<f32>, 49>>) {
     for (var j1 = 0u; j1 < n; j1++) {
         var sum = vec3<f32>(0.0);
         for (var j0 = 0u; j0 < n; j0++) {
-            let a = vec3<f32>(iirtf_entry(cell, 0u, j0, j1), iirtf_entry(cell, 1u, j0, j1), iirtf_entry(cell, 2u, j0, j1));
+            let a = vec3<f32>(iirtf_entry(slot, 0u, j0, j1), iirtf_entry(slot, 1u, j0, j1), iirtf_entry(slot, 2u, j0, j1));
             sum += a * (*c_in)[j0];
         }
         (*c_t)[j1] += weight * sum;
@@ -569,7 +570,7 @@ fn transferred_at(e: u32, segment: u32, p: vec3<f32>, c_in: ptr<function, array<
     let around = transfer_cells(e, segment, p);
     for (var k = 0u; k < 8u; k++) {
         if (around.weights[k] > 0.0) {
-            add_transferred(around.cells[k], around.weights[k], fabric.sh_count, c_in, coeffs);
+            add_transferred(around.slots[k], around.weights[k], fabric.sh_count, c_in, coeffs);
         }
     }
 }
@@ -583,9 +584,9 @@ fn transfer_cells(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
     for (var k = 0u; k < 8u; k++) {
         found = found || around.weights[k] > 0.0;
     }
-    let own = segments[segment].cell;
-    if (!found && cell_flags[own] != 0u) {
-        around.cells[0] = own;
+    let own = cell_slots[segments[segment].cell];
+    if (!found && own != 0u) {
+        around.slots[0] = own - 1u;
         around.weights[0] = 1.0;
     }
     return around;
@@ -794,10 +795,10 @@ struct FiberLobesAt {
 
 const LOBE_GATHERED: u32 = LOBE_SHAPE_LEN - LOBE_AZIMUTH_TOTALS;
 
-// Float i of the shapes of lobe cell `cell` (the forward shape's floats, then the reflected
-// shape's, as CellTransfer::pack_lobes lays them out after the strengths).
-fn lobe_shape_float(cell: u32, i: u32) -> f32 {
-    return lobes[cell * LOBE_PACKED_VEC4S + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
+// Float i of the shapes of the lobes of the cell in `slot` (the forward shape's floats, then
+// the reflected shape's, as CellTransfer::pack_lobes lays them out after the strengths).
+fn lobe_shape_float(slot: u32, i: u32) -> f32 {
+    return lobes[slot * LOBE_PACKED_VEC4S + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
 }
 
 // The two elevation nodes around z and their weights (iirtf.rs elevation_hats).
@@ -822,7 +823,7 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         if (!(w > 0.0)) {
             continue;
         }
-        let base = (*at).around.cells[k] * LOBE_PACKED_VEC4S;
+        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
         let forward0 = lobes[base].xyz;
         let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
         // A cell without lobes is all zeros; one whose lobes carry no light has no strength
@@ -835,7 +836,7 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
         for (var lobe = 0u; lobe < 2u; lobe++) {
             for (var i = 0u; i < LOBE_GATHERED; i++) {
-                (*at).shapes[lobe * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.cells[k], lobe * LOBE_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
+                (*at).shapes[lobe * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.slots[k], lobe * LOBE_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
             }
         }
     }
@@ -859,7 +860,7 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
         if (!(w > 0.0)) {
             continue;
         }
-        let base = (*at).around.cells[k] * LOBE_PACKED_VEC4S;
+        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
         var forward = vec3<f32>(0.0);
         var reflected = vec3<f32>(0.0);
         for (var j = 0u; j < LOBE_SH_COUNT; j++) {
@@ -943,10 +944,10 @@ fn lobe_azimuth_means(at: ptr<function, FiberLobesAt>, lobe: u32, z: f32, angles
             if (!(w > 0.0)) {
                 continue;
             }
-            let cell = (*at).around.cells[k];
+            let slot = (*at).around.slots[k];
             let first = lobe * LOBE_SHAPE_LEN + node * 2u * LOBE_AZIMUTH_TERMS;
             for (var i = 0u; i < 2u * LOBE_AZIMUTH_TERMS; i++) {
-                (*angles).azimuth[i] += hat * w * lobe_shape_float(cell, first + i) / total;
+                (*angles).azimuth[i] += hat * w * lobe_shape_float(slot, first + i) / total;
             }
         }
     }

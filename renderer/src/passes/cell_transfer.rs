@@ -18,7 +18,7 @@ use crate::fabric_data::{FabricData, make_buffer};
 #[repr(C)]
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct TransferUniformsGpu {
-    /// Lights, cells.
+    /// Lights, slots (cells with segments).
     pub counts: [u32; 4],
     /// Rows of the shell's common world → uvw linear map; `[0][3]` the slab thickness (cm).
     pub uvw_from_world: [[f32; 4]; 3],
@@ -60,7 +60,7 @@ impl CellTransferPass {
     }
 
     /// Records the pass for `light_count` lights in `lights`, timed as `name`, and returns its
-    /// output (`cells × sh_count` vec4s). `None` when the shell has no common frame (the plan
+    /// output (`slots × sh_count` vec4s: one row per cell that holds segments). `None` when the shell has no common frame (the plan
     /// does not run it then).
     #[must_use]
     pub fn encode(
@@ -75,14 +75,14 @@ impl CellTransferPass {
         let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let mut rows = shell.uniform_frame?;
         let header = fabric.arrays.header;
-        let cells = fabric.arrays.cell_flags.len() as u32;
+        let slots = fabric.arrays.slot_count as u32;
         rows[0][3] = header.z_range[1] - header.z_range[0];
         let uniforms =
-            TransferUniformsGpu { counts: [light_count as u32, cells, 0, 0], uvw_from_world: rows };
+            TransferUniformsGpu { counts: [light_count as u32, slots, 0, 0], uvw_from_world: rows };
         let uniforms = uniform_buffer(device, queue, "twill.transfer.uniforms", &uniforms);
         let output = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("twill.transfer.cells"),
-            size: (u64::from(cells.max(1)) * u64::from(header.sh_count) * 16).max(16),
+            size: (u64::from(slots.max(1)) * u64::from(header.sh_count) * 16).max(16),
             usage: wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
@@ -96,7 +96,7 @@ impl CellTransferPass {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.set_bind_group(1, &fabric.bind_group, &[]);
-        pass.dispatch_workgroups(cells.div_ceil(64), 1, 1);
+        pass.dispatch_workgroups(slots.div_ceil(64), 1, 1);
         drop(pass);
         Some(output)
     }
