@@ -16,7 +16,7 @@ use super::shell_gpu::ShellGpu;
 use super::targets::FrameTargets;
 use super::{
     FrameEncoder, bind_group, cleared_colour, cleared_depth, depth_less, pass_module, storage_entry,
-    uniform_buffer, uniform_entry, view,
+    uniform_buffer, uniform_entry,
 };
 use crate::fabric_data::FabricData;
 
@@ -183,7 +183,7 @@ impl GBufferPass {
                 shell.surface_faces.as_entire_binding(),
             ],
         );
-        let (position, ids, depth) = (view(&targets.position), view(&targets.ids), view(&targets.depth));
+        let (position, ids, depth) = (&targets.views.position, &targets.views.ids, &targets.views.depth);
         let mut pass = frame.render_pass(
             "twill.gbuffer.pass",
             name,

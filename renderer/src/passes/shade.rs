@@ -18,7 +18,7 @@ use twill_precompute::shading::sg_path_weights;
 use super::targets::FrameTargets;
 use super::{
     FrameEncoder, array_view, bind_group, compute_pipeline, pass_module, storage_entry, texture_entry,
-    uniform_buffer, uniform_entry, view,
+    uniform_buffer, uniform_entry,
 };
 use crate::fabric_data::{FabricData, make_buffer};
 use crate::plan::{FramePlan, LocalVisibility, Pass};
@@ -240,7 +240,7 @@ impl ShadePass {
             fabric: [inputs.fabric_thickness_cm, 0.0, 0.0, 0.0],
         };
         let uniforms = uniform_buffer(device, queue, "twill.shade.uniforms", &uniforms);
-        let (position, ids) = (view(&targets.position), view(&targets.ids));
+        let (position, ids) = (&targets.views.position, &targets.views.ids);
         let (sharp, blurred) = (array_view(inputs.visibility_sharp), array_view(inputs.visibility_blurred));
         bind_group(
             device,
@@ -250,8 +250,8 @@ impl ShadePass {
                 uniforms.as_entire_binding(),
                 inputs.lights.as_entire_binding(),
                 inputs.tetras.as_entire_binding(),
-                wgpu::BindingResource::TextureView(&position),
-                wgpu::BindingResource::TextureView(&ids),
+                wgpu::BindingResource::TextureView(position),
+                wgpu::BindingResource::TextureView(ids),
                 wgpu::BindingResource::TextureView(&sharp),
                 wgpu::BindingResource::TextureView(&blurred),
                 targets.accumulation.as_entire_binding(),

@@ -6,7 +6,7 @@
 //! frame's size changes, so progressive batches and camera moves allocate nothing. A frame that
 //! starts a picture clears the accumulation; the readback buffers are unmapped after each read.
 
-use super::{readback_buffer, texture_2d};
+use super::{readback_buffer, texture_2d, view};
 
 /// A frame's render targets (cheap to clone: handles).
 #[derive(Clone)]
@@ -17,10 +17,22 @@ pub struct FrameTargets {
     pub depth: wgpu::Texture,
     /// Tone-mapped sRGB, RGBA8 (storage for the tone map, sampled by a window, copied for export).
     pub display: wgpu::Texture,
+    /// Views of the G-buffer textures and the display image, made once with them: the passes
+    /// bind these every sample instead of making views of their own.
+    pub views: TargetViews,
     /// Radiance summed over the samples so far, one `vec4<f32>` per pixel.
     pub accumulation: wgpu::Buffer,
     pub radiance_readback: wgpu::Buffer,
     pub display_readback: wgpu::Buffer,
+}
+
+/// The views every frame binds (cheap to clone: handles).
+#[derive(Clone)]
+pub struct TargetViews {
+    pub position: wgpu::TextureView,
+    pub ids: wgpu::TextureView,
+    pub depth: wgpu::TextureView,
+    pub display: wgpu::TextureView,
 }
 
 /// Bytes per row of the display image's readback (rows padded to wgpu's copy alignment).
@@ -38,22 +50,33 @@ impl FrameTargets {
         };
         let attach = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
         let pixels = u64::from(width) * u64::from(height);
+        let position = target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach);
+        let ids = target("twill.gbuffer.ids", wgpu::TextureFormat::Rgba32Uint, attach);
+        let depth = target(
+            "twill.gbuffer.depth",
+            wgpu::TextureFormat::Depth32Float,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        );
+        let display = target(
+            "twill.display",
+            wgpu::TextureFormat::Rgba8Unorm,
+            wgpu::TextureUsages::STORAGE_BINDING
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+        );
+        let views = TargetViews {
+            position: view(&position),
+            ids: view(&ids),
+            depth: view(&depth),
+            display: view(&display),
+        };
         Self {
             size: (width, height),
-            position: target("twill.gbuffer.position", wgpu::TextureFormat::Rgba32Float, attach),
-            ids: target("twill.gbuffer.ids", wgpu::TextureFormat::Rgba32Uint, attach),
-            depth: target(
-                "twill.gbuffer.depth",
-                wgpu::TextureFormat::Depth32Float,
-                wgpu::TextureUsages::RENDER_ATTACHMENT,
-            ),
-            display: target(
-                "twill.display",
-                wgpu::TextureFormat::Rgba8Unorm,
-                wgpu::TextureUsages::STORAGE_BINDING
-                    | wgpu::TextureUsages::COPY_SRC
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-            ),
+            position,
+            ids,
+            depth,
+            display,
+            views,
             accumulation: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("twill.accumulation"),
                 size: pixels * 16,

@@ -6,7 +6,7 @@
 //! needs no new samples.
 
 use super::targets::FrameTargets;
-use super::{FrameEncoder, bind_group, compute_pass_pipeline, uniform_buffer, view};
+use super::{FrameEncoder, bind_group, compute_pass_pipeline, uniform_buffer};
 
 /// Twin of `ToneMapUniforms` in shaders/tonemap.wgsl.
 #[repr(C)]
@@ -47,7 +47,7 @@ impl ToneMapPass {
             scale: [(exposure.exp2() / f64::from(samples.max(1))) as f32, 0.0, 0.0, 0.0],
         };
         let uniforms = uniform_buffer(device, queue, "twill.tonemap.uniforms", &uniforms);
-        let display = view(&targets.display);
+        let display = &targets.views.display;
         let group = bind_group(
             device,
             "twill.tonemap.bind_group",
@@ -55,7 +55,7 @@ impl ToneMapPass {
             &[
                 uniforms.as_entire_binding(),
                 targets.accumulation.as_entire_binding(),
-                wgpu::BindingResource::TextureView(&display),
+                wgpu::BindingResource::TextureView(display),
             ],
         );
         let mut pass = frame.compute_pass("twill.tonemap.pass", name);
