@@ -187,8 +187,8 @@ impl GBufferPass {
         let mut pass = frame.render_pass(
             "twill.gbuffer.pass",
             name,
-            &[Some(cleared_colour(&position)), Some(cleared_colour(&ids))],
-            Some(cleared_depth(&depth)),
+            &[Some(cleared_colour(position)), Some(cleared_colour(ids))],
+            Some(cleared_depth(depth)),
         );
         let (width, height) = targets.size;
         if rows.start > 0 || rows.end < height {
