@@ -1190,7 +1190,7 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     let pattern = PatternMap::uniform(0);
     let mut session = SceneRenderer::with_gpu(gpu, &scene0, &[before], &pattern).expect("scene uploads");
     let written = session.renderer.recolour(0, &basis, &scene1.material_descs).expect("recolours");
-    assert_eq!(written, ["materials", "cs_table", "iirtf"]);
+    assert_eq!(written, ["materials", "cs_table", "iirtf", "lobes"], "the draft bake holds fiber lobes");
     let live = session.render(&scene1, &settings).expect("frame renders").radiance_image();
     assert!(live.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     // The same recolouring through the whole-bake path.
