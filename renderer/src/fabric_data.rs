@@ -365,7 +365,7 @@ impl FabricArrays {
             });
             let lobe_sh = twill_precompute::sh::sh_count(LOBE_SH_ORDER);
             for (c, cell) in baked.transfer.iirtf.cells.iter().enumerate() {
-                // Only cells that hold segments get a slot: its matrix and its lobes.
+                // Only cells that hold segments get a slot: its lobes and its matrix, packed here.
                 if cell.paths == 0 {
                     out.cell_slots.push(0);
                     continue;
@@ -387,6 +387,23 @@ impl FabricArrays {
                 let start = out.lobes.len();
                 out.lobes.resize(start + LOBE_PACKED_FLOATS, 0.0);
                 cell.pack_lobes(&mut out.lobes[start..]);
+                if cell.is_empty() {
+                    // A slot without a matrix transfers nothing.
+                    iirtf_values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
+                    continue;
+                }
+                let largest = cell.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs()));
+                for channel in 0..3 {
+                    for entry in &cell.matrix {
+                        let value = entry[channel];
+                        iirtf_values.push(value);
+                        if largest > 0.0 && value.abs() >= 1e-3 * largest {
+                            let (rounded, value) = (f64::from(f16_round_trip(value)), f64::from(value));
+                            let rel = (rounded - value).abs() / value.abs();
+                            out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
+                        }
+                    }
+                }
             }
             // A bake made with fiber lobes keeps its buffer even when every cell folded its light
             // into its matrix: a recolouring can give a cell lobes again.
@@ -429,25 +446,6 @@ impl FabricArrays {
                 // Little-endian halves: bit p % 64 of u64 word p / 64 is bit p % 32 of u32
                 // word p / 32.
                 out.visibility_bits.extend(bits.words().iter().flat_map(|&w| [w as u32, (w >> 32) as u32]));
-            }
-            for cell in baked.transfer.iirtf.cells.iter().filter(|c| c.paths > 0) {
-                if cell.is_empty() {
-                    // A slot without a matrix transfers nothing.
-                    iirtf_values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
-                    continue;
-                }
-                let largest = cell.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs()));
-                for channel in 0..3 {
-                    for entry in &cell.matrix {
-                        let value = entry[channel];
-                        iirtf_values.push(value);
-                        if largest > 0.0 && value.abs() >= 1e-3 * largest {
-                            let (rounded, value) = (f64::from(f16_round_trip(value)), f64::from(value));
-                            let rel = (rounded - value).abs() / value.abs();
-                            out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
-                        }
-                    }
-                }
             }
             for (m, table) in baked.cs_tables.iter().enumerate() {
                 match table {

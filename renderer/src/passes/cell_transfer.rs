@@ -60,8 +60,8 @@ impl CellTransferPass {
     }
 
     /// Records the pass for `light_count` lights in `lights`, timed as `name`, and returns its
-    /// output (`slots × sh_count` vec4s: one row per cell that holds segments). `None` when the shell has no common frame (the plan
-    /// does not run it then).
+    /// output (`slots × sh_count` vec4s: one row per cell that holds segments). `None` when the
+    /// shell has no common frame (the plan does not run it then).
     #[must_use]
     pub fn encode(
         &self,
