@@ -26,6 +26,7 @@ pub fn lambert_scene(exemplar: &Exemplar, extent: Extent, albedo: f64, lights: V
         lights,
         ground_z: None,
         painted: None,
+        pattern: None,
     }
 }
 

@@ -83,7 +83,7 @@ fn fabrics(names: &[String]) -> Result<Vec<Fabric>> {
             };
             anyhow::ensure!(
                 file.pattern.is_none(),
-                "{name}: patterned cloth cannot be traced by the path tracer (one exemplar); remove [pattern]"
+                "{name}: patterned cloth: the accuracy run measures the CPU method too, which shades one exemplar; remove [pattern]"
             );
             // A flat swatch over a black ground, large enough for grazing views of a 0.4 cm film.
             file.mesh = MeshSection::default();

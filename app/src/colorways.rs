@@ -124,9 +124,6 @@ fn file_stem(index: usize, name: &str) -> String {
 /// `twill colorways`.
 pub fn colorways(options: &ColorwaysOptions) -> Result<()> {
     let mut base = SceneFile::load_or_default(options.scene.as_deref())?;
-    if options.reference {
-        crate::commands::refuse_pattern(&base, "`twill colorways --reference` (the path tracer)")?;
-    }
     if let Some((w, h)) = options.size {
         (base.render.width, base.render.height) = (w, h);
     }
@@ -391,18 +388,18 @@ mod tests {
             (GAP + 2 * (24 + GAP), GAP + 16 + LABEL_HEIGHT + GAP)
         );
 
-        // Patterned cloth takes colour orders, but the path tracer holds one exemplar: refused.
+        // Patterned cloth takes colour orders, and the path tracer draws its blocks.
         let patterned = dir.path().join("patterned.toml");
         std::fs::copy(
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/patterned.toml"),
             &patterned,
         )
         .unwrap();
-        let message =
-            colorways(&ColorwaysOptions { scene: Some(patterned), ..options }).unwrap_err().to_string();
-        assert!(
-            message.contains("patterned.toml: [pattern]") && message.contains("--reference"),
-            "{message}"
-        );
+        let output_dir = dir.path().join("patterned");
+        colorways(&ColorwaysOptions { scene: Some(patterned), output_dir: output_dir.clone(), ..options })
+            .unwrap();
+        for name in ["01-navy-stripe.png", "02-red.png", "contact-sheet.png"] {
+            assert!(output_dir.join(name).is_file(), "{name}");
+        }
     }
 }

@@ -126,12 +126,13 @@ pub fn fabric_export(scene_path: Option<&Path>, hair: bool, output: &Path) -> Re
     Ok(())
 }
 
-/// Refuses a patterned scene for a command that traces only one exemplar.
+/// Refuses a patterned scene for a command that works on one exemplar (the CPU method, the
+/// error budget, paint cells); `twill render` and `twill reference` take patterned cloth.
 pub(crate) fn refuse_pattern(file: &SceneFile, command: &str) -> Result<()> {
     anyhow::ensure!(
         file.pattern.is_none(),
-        "{}: [pattern]: {command} cannot trace patterned cloth: the path tracer holds one exemplar; \
-         render it with `twill render`, or remove [pattern] to trace [fabric]'s weave alone",
+        "{}: [pattern]: {command} cannot take patterned cloth: it works on one exemplar; \
+         render it with `twill render` or `twill reference`, or remove [pattern] to use [fabric]'s weave alone",
         file.path.display()
     );
     Ok(())
@@ -152,7 +153,6 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     let render = &mut file.render;
     render.max_depth = options.max_depth.unwrap_or(render.max_depth);
     render.seed = options.seed.unwrap_or(render.seed);
-    refuse_pattern(&file, "`twill reference` (the path tracer)")?;
     let mut scene = file.build()?;
     if let Some(path) = &options.painting {
         let cells = crate::paint::scene_cells(&scene, &file.path)?;

@@ -2,7 +2,7 @@
 //! command line.
 //!
 //! How it works: `paint precompute` loads a scene as the other commands do (plain cloth only:
-//! the path tracer holds one exemplar), divides its swatch into paint cells (one crossing-long
+//! paint cells run along one exemplar's threads), divides its swatch into paint cells (one crossing-long
 //! section of one thread each, `twill_precompute::paint::PaintCells`) and traces colour-free
 //! camera paths at the scene's camera and lights, keeping per pixel the homogeneous curve and
 //! the sparse gradient weights (`paint::precompute`) in a checksummed paint file, written

@@ -34,6 +34,7 @@ use crate::fabric::wif::{WifColours, WifError, read_wif};
 use crate::fabric::{Exemplar, Tiling};
 use crate::params::{ParamError, check_count, check_positive, check_range};
 use crate::pathtrace::{Camera, Component, Light, PathScene, Projection, RenderSettings};
+use crate::raycast::pattern::PatternedFibers;
 use crate::raycast::{Extent, FiberScene};
 
 /// Why colour orders are refused on imported fibers.
@@ -679,9 +680,12 @@ impl SceneFile {
         let material_descs = self.slot_materials(colourway.map(|c| c.materials));
         let materials: Vec<Material> =
             material_descs.iter().map(Material::from_desc).collect::<Result<_, _>>().map_err(param)?;
-        let yarn_materials = exemplar
-            .yarns
+        // A patterned cloth numbers its yarns across its exemplars (`raycast::pattern`).
+        let yarn_materials = pattern
+            .as_ref()
+            .map_or(std::slice::from_ref(&exemplar), |p| &p.exemplars)
             .iter()
+            .flat_map(|e| &e.yarns)
             .map(|y| materials[(y.material as usize).min(materials.len() - 1)].clone())
             .collect();
 
@@ -728,8 +732,17 @@ impl SceneFile {
             Tiling::AsIs => Extent::Unbounded,
         };
         let fibers = FiberScene::new(&exemplar, extent).map_err(|e| invalid(format!("[fabric]: {e}")))?;
-        let ground_z = self.swatch.ground.then(|| f64::from(fibers.slab().0) - GROUND_GAP_CM);
-        let path_scene = PathScene { fibers, yarn_materials, lights, ground_z, painted: None };
+        let patterned_fibers = match (&pattern, extent) {
+            (Some(p), Extent::Rectangle { min, max }) => Some(
+                PatternedFibers::new(&p.exemplars, p.map.clone(), (min, max))
+                    .map_err(|e| invalid(format!("[pattern]: {e}")))?,
+            ),
+            _ => None,
+        };
+        let lowest = patterned_fibers.as_ref().map_or_else(|| fibers.slab().0, |p| p.slab().0);
+        let ground_z = self.swatch.ground.then(|| f64::from(lowest) - GROUND_GAP_CM);
+        let path_scene =
+            PathScene { fibers, pattern: patterned_fibers, yarn_materials, lights, ground_z, painted: None };
         Ok(Scene {
             exemplar,
             pattern,

@@ -211,7 +211,7 @@ impl PaintSession {
         ctx: &egui::Context,
     ) -> Result<Self, String> {
         if scene.pattern.is_some() {
-            return Err("paint mode traces the fabric with the path tracer, which holds one exemplar: \
+            return Err("paint mode's cells run along one exemplar's threads: \
                         remove [pattern] to paint [fabric]'s weave"
                 .into());
         }

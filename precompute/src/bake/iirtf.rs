@@ -1726,6 +1726,7 @@ mod tests {
             lights: vec![Light::Directional { to_light: light, irradiance: Rgb::ONE }],
             ground_z: None,
             painted: None,
+            pattern: None,
         };
         let render = RenderSettings { spp: 1, max_depth: MAX_DEPTH, component: Component::All, seed: 0 };
 

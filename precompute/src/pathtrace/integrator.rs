@@ -28,6 +28,7 @@ use crate::bcsdf::Material;
 use crate::image::{Film, PixelRow};
 use crate::paint::PaintedMaterials;
 use crate::params::{ParamError, check_count};
+use crate::raycast::pattern::PatternedFibers;
 use crate::raycast::{FiberScene, Hit};
 
 /// Which scattering orders an image shows.
@@ -71,8 +72,13 @@ impl RenderSettings {
 
 /// Everything a path needs: fibers, their materials, lights and an optional ground.
 pub struct PathScene {
+    /// The fabric (of a patterned cloth, exemplar 0's swatch alone, for the tools that trace
+    /// one exemplar; paths trace `pattern`).
     pub fibers: FiberScene,
-    /// Material of each yarn of the fabric (indexed by `Hit::yarn`).
+    /// Patterned cloth: every exemplar in its blocks, what paths trace instead of `fibers`.
+    pub pattern: Option<PatternedFibers>,
+    /// Material of each yarn of the fabric (indexed by `Hit::yarn`; a patterned cloth's yarns
+    /// are numbered across its exemplars, see [`PatternedFibers`]).
     pub yarn_materials: Vec<Material>,
     pub lights: Vec<Light>,
     /// Height of a black, absorbing ground plane under the fabric, if any.
@@ -88,6 +94,33 @@ impl PathScene {
         match &self.painted {
             Some(p) => &p.materials[p.of_cell[p.cells.cell_of(hit) as usize] as usize],
             None => &self.yarn_materials[hit.yarn as usize],
+        }
+    }
+
+    /// The first fiber along `origin + t dir`, `t < t_max`, skipping `ignore_fiber`: in the
+    /// pattern's blocks for patterned cloth, else in `fibers`.
+    #[must_use]
+    pub fn closest_hit(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        t_max: f64,
+        ignore_fiber: Option<u32>,
+    ) -> Option<Hit> {
+        let (o, d, t) = (origin.as_vec3(), dir.as_vec3(), t_max as f32);
+        match &self.pattern {
+            Some(pattern) => pattern.closest_hit(o, d, t, ignore_fiber),
+            None => self.fibers.closest_hit(o, d, t, ignore_fiber),
+        }
+    }
+
+    /// Whether a fiber blocks `origin + t dir` for any `t` (shadow rays), `ignore_fiber` skipped.
+    #[must_use]
+    pub fn blocked(&self, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>) -> bool {
+        let (o, d) = (origin.as_vec3(), dir.as_vec3());
+        match &self.pattern {
+            Some(pattern) => pattern.any_hit(o, d, f32::INFINITY, ignore_fiber),
+            None => self.fibers.any_hit(o, d, f32::INFINITY, ignore_fiber),
         }
     }
 }
@@ -253,12 +286,11 @@ pub(crate) fn power_heuristic(a: f64, b: f64) -> f64 {
 /// Closest fiber hit that lies above the ground (fibers below it are hidden by it).
 pub(crate) fn trace(scene: &PathScene, origin: DVec3, dir: DVec3, ignore_fiber: Option<u32>) -> Option<Hit> {
     let t_max = ground_distance(scene, origin, dir).unwrap_or(f64::INFINITY);
-    scene.fibers.closest_hit(origin.as_vec3(), dir.as_vec3(), t_max as f32, ignore_fiber)
+    scene.closest_hit(origin, dir, t_max, ignore_fiber)
 }
 
 pub(crate) fn occluded(scene: &PathScene, origin: DVec3, dir: DVec3, fiber: u32) -> bool {
-    below_ground(scene, origin, dir)
-        || scene.fibers.any_hit(origin.as_vec3(), dir.as_vec3(), f32::INFINITY, Some(fiber))
+    below_ground(scene, origin, dir) || scene.blocked(origin, dir, Some(fiber))
 }
 
 /// Whether a ray from `origin` toward `dir` reaches the scene's ground plane (if any).

@@ -34,6 +34,7 @@ pub mod capsule;
 pub mod embree;
 pub mod grid;
 mod mean_free_path;
+pub mod pattern;
 pub mod testing;
 pub mod throughput;
 
@@ -92,6 +93,9 @@ pub struct Hit {
     pub yarn: u32,
     /// Which copy of the exemplar was hit (always `[0, 0]` for `Tiling::AsIs`).
     pub tile: [i32; 2],
+    /// Which exemplar of a patterned cloth was hit ([`pattern::PatternedFibers`]; 0 otherwise):
+    /// `segment`, `local_position` and `tile` are that exemplar's.
+    pub exemplar: u16,
 }
 
 /// Per-primitive data read only on a hit, in the order of [`FiberScene::capsules`].
@@ -270,7 +274,7 @@ impl FiberScene {
         t_max: f64,
         ignore_fiber: Option<u32>,
     ) -> Option<Hit> {
-        self.walk(origin, dir, t_max, ignore_fiber, false)
+        self.walk(origin, dir, (0.0, t_max), ignore_fiber, false)
     }
 
     /// Whether anything blocks `origin + t * dir` for `0 <= t < t_max` (shadow rays).
@@ -282,16 +286,24 @@ impl FiberScene {
     /// [`Self::any_hit`] for double-precision callers.
     #[must_use]
     pub fn any_hit_f64(&self, origin: DVec3, dir: DVec3, t_max: f64, ignore_fiber: Option<u32>) -> bool {
-        self.walk(origin, dir, t_max, ignore_fiber, true).is_some()
+        self.walk(origin, dir, (0.0, t_max), ignore_fiber, true).is_some()
     }
 
-    /// Clips the ray to the slab (and rectangle), then walks the cells; see the module docs.
-    fn walk(&self, origin: DVec3, dir: DVec3, t_max: f64, ignore: Option<u32>, any: bool) -> Option<Hit> {
+    /// Clips the ray's `span` to the slab (and rectangle), then walks the cells; see the module
+    /// docs.
+    fn walk(
+        &self,
+        origin: DVec3,
+        dir: DVec3,
+        span: (f64, f64),
+        ignore: Option<u32>,
+        any: bool,
+    ) -> Option<Hit> {
         let d = dir.try_normalize()?;
-        if !origin.is_finite() || self.capsules.is_empty() || t_max.is_nan() {
+        if !origin.is_finite() || self.capsules.is_empty() || span.0.is_nan() || span.1.is_nan() {
             return None;
         }
-        let mut span = (0.0, t_max);
+        let mut span = span;
         clip_slab(&mut span, origin.z, d.z, self.z_range.0, self.z_range.1);
         match self.layout {
             Layout::AsIs { lo, hi } => {
@@ -406,6 +418,7 @@ impl FiberScene {
             fiber: self.fibers[index as usize],
             yarn: info.yarn,
             tile,
+            exemplar: 0,
         })
     }
 
