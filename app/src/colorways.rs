@@ -137,7 +137,10 @@ pub fn colorways(options: &ColorwaysOptions) -> Result<()> {
     let mut rendered = Vec::with_capacity(entries.len());
     for (index, (name, file)) in entries.iter().enumerate() {
         let started = Instant::now();
-        let scene = file.build()?;
+        let mut scene = file.build()?;
+        if options.reference {
+            twill_renderer::headless::trace_on_mesh(&mut scene)?;
+        }
         let stem = options.output_dir.join(file_stem(index, name));
         let display = Display { exposure: scene.render.exposure, ..Display::default() };
         let (width, height) = (scene.render.width, scene.render.height);

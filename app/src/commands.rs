@@ -155,10 +155,24 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     render.seed = options.seed.unwrap_or(render.seed);
     let mut scene = file.build()?;
     if let Some(path) = &options.painting {
+        anyhow::ensure!(
+            file.mesh.builtin.is_none() && file.mesh.path.is_none(),
+            "{}: [mesh]: a painting ({}) paints the flat swatch's threads; remove [mesh] to trace it",
+            file.path.display(),
+            path.display()
+        );
         let cells = crate::paint::scene_cells(&scene, &file.path)?;
         let own = twill_precompute::paint::scene_colours(&scene.path_scene, &cells);
         let colours = Painting::load(path)?.colours(&cells, &own, path)?;
         crate::paint::paint_scene(&mut scene, cells, &colours, path)?;
+    }
+    let started = Instant::now();
+    if twill_renderer::headless::trace_on_mesh(&mut scene)? {
+        eprintln!(
+            "the fabric on the mesh: {} fiber segments, shell-mapped ({:.1} s)",
+            scene.path_scene.fibers.segments().len(),
+            started.elapsed().as_secs_f64()
+        );
     }
     let camera = file.camera(file.render.width, file.render.height)?;
     let settings = file.render_settings(options.only);

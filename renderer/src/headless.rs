@@ -17,7 +17,11 @@ use crate::fabric_data::{FabricData, FabricDataError};
 use crate::frame::{Frame, FrameSettings, RenderError, Renderer};
 use crate::gpu::{Gpu, GpuError};
 use crate::plan::Components;
+use crate::shell::fibers::{FiberMapError, map_fabric};
 use crate::shell::{BaseMesh, Shell, ShellError, ShellSpec};
+use twill_precompute::raycast::pattern::PatternedFibers;
+use twill_precompute::raycast::{Extent, FiberScene};
+use twill_precompute::scene::GROUND_GAP_CM;
 
 /// Why a scene could not be rendered headless.
 #[derive(Debug, thiserror::Error)]
@@ -30,11 +34,40 @@ pub enum HeadlessError {
     Shell(#[from] ShellError),
     #[error(transparent)]
     Render(#[from] RenderError),
+    #[error("[mesh]: the fabric on the mesh: {0}")]
+    FiberMap(#[from] FiberMapError),
+    #[error("[mesh]: the fabric on the mesh: {0}")]
+    Fibers(#[from] twill_precompute::raycast::SceneError),
 }
 
 /// The shell of a scene's `[mesh]` (default: the flat swatch) around a fabric slab.
 pub fn shell_for_scene(scene: &Scene, z_range: [f32; 2]) -> Result<Shell, ShellError> {
     shell_for_mesh(&scene.mesh, scene.swatch.size_cm, &scene.base_dir, z_range)
+}
+
+/// Puts the scene's path tracer on its `[mesh]`, when it has one: the fabric's fibers (every
+/// exemplar of patterned cloth, block by block) carried through the shell the GPU renders
+/// (`shell::fibers`, grown around the fibers' own slab) replace the flat swatch in
+/// `scene.path_scene`, and the ground plane, if any, goes under the lowest of them. Returns
+/// whether it did (a scene without `[mesh]` is the flat swatch, as the path tracer has it).
+///
+/// # Errors
+/// A mesh that does not load or grow a shell, or that covers more fabric than the path tracer
+/// takes ([`crate::shell::fibers::MAX_MAPPED_SEGMENTS`]).
+pub fn trace_on_mesh(scene: &mut Scene) -> Result<bool, HeadlessError> {
+    if scene.mesh.builtin.is_none() && scene.mesh.path.is_none() {
+        return Ok(false);
+    }
+    let path_scene = &scene.path_scene;
+    let (z0, z1) =
+        path_scene.pattern.as_ref().map_or_else(|| path_scene.fibers.slab(), PatternedFibers::slab);
+    let shell = shell_for_scene(scene, [z0, z1])?;
+    let on_mesh = map_fabric(&shell, [z0, z1], scene.exemplars(), &scene.pattern_map())?;
+    let fibers = FiberScene::new(&on_mesh, Extent::Unbounded)?;
+    scene.path_scene.ground_z = scene.swatch.ground.then(|| f64::from(fibers.slab().0) - GROUND_GAP_CM);
+    scene.path_scene.fibers = fibers;
+    scene.path_scene.pattern = None;
+    Ok(true)
 }
 
 /// The shell of a `[mesh]` section around a fabric slab; `swatch_cm` is the default size of a

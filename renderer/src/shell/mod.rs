@@ -22,6 +22,7 @@
 
 mod builtin;
 mod error;
+pub mod fibers;
 mod load;
 mod mesh;
 #[cfg(test)]
