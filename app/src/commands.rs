@@ -617,7 +617,10 @@ pub fn bench_accuracy(
 }
 
 /// `twill accuracy budget`: the method's error budget on a flat swatch of the scene's fabric,
-/// seen by the scene's camera under its lights (`shading::budget`).
+/// seen by the scene's camera under its lights (`shading::budget`). A scene with a `[mesh]`
+/// adds the GPU renderer's frames of the curved cloth at three shadow-map sizes, against the
+/// path tracer on the same cloth (`headless::trace_on_mesh`): what global visibility (shadow
+/// maps with PCF, PCSS for SG lights) and the curved shell cost.
 pub fn accuracy_budget(
     scene: Option<&Path>,
     quality: Quality,
@@ -627,8 +630,9 @@ pub fn accuracy_budget(
 ) -> Result<()> {
     let mut file = SceneFile::load_or_default(scene)?;
     refuse_pattern(&file, "`twill accuracy budget` (against path-traced references)")?;
-    file.mesh = twill_precompute::scene::MeshSection::default();
     (file.render.width, file.render.height) = size;
+    let curved = (file.mesh.builtin.is_some() || file.mesh.path.is_some()).then(|| file.clone());
+    file.mesh = twill_precompute::scene::MeshSection::default();
     let scene = file.build()?;
     let bake_settings = apply_overrides(quality.settings(), overrides)?;
     let started = Instant::now();
@@ -657,6 +661,10 @@ pub fn accuracy_budget(
                 let name = "GPU renderer: voxel-volume eye rays".to_owned();
                 budget.add_rung(component, name, &frame.radiance_image(), seconds);
             }
+            if let Some(curved) = &curved {
+                session = budget_on_mesh(session, curved, &baked, size, settings, &mut budget)?;
+            }
+            drop(session);
         }
         Err(e) => eprintln!("no GPU rung: {e}"),
     }
@@ -667,6 +675,63 @@ pub fn accuracy_budget(
     );
     print!("{}", budget.markdown());
     Ok(())
+}
+
+/// The budget's rungs on the curved cloth of `file` (its `[mesh]`): path-traced references of
+/// single and multiple scattering on the mesh, then the GPU renderer's frame of each at shadow
+/// maps of 512, the scene's size and 8192 texels a side.
+fn budget_on_mesh(
+    session: SceneRenderer,
+    file: &SceneFile,
+    baked: &twill_precompute::bake::pipeline::Baked,
+    size: (usize, usize),
+    settings: &twill_precompute::shading::budget::BudgetSettings,
+    budget: &mut twill_precompute::shading::budget::Budget,
+) -> Result<SceneRenderer> {
+    let mut scene = file.build()?;
+    twill_renderer::headless::trace_on_mesh(&mut scene)?;
+    let camera = file.camera(size.0, size.1)?;
+    let mesh = file.mesh.builtin.clone().or_else(|| file.mesh.path.as_ref().map(|p| p.display().to_string()));
+    let mesh = mesh.unwrap_or_default();
+    let references = [Component::Single, Component::Multiple].map(|component| {
+        let started = Instant::now();
+        let reference_settings = pathtrace::RenderSettings {
+            spp: settings.reference_spp,
+            max_depth: file.render.max_depth,
+            component,
+            seed: settings.seed,
+        };
+        let film = pathtrace::render(&scene.path_scene, &camera, &reference_settings, &|_| {});
+        eprintln!(
+            "  done: path-traced {component:?} reference on the mesh ({:.1} s)",
+            started.elapsed().as_secs_f64()
+        );
+        film
+    });
+    let mut session = SceneRenderer::with_gpu(session.gpu, &scene, &[baked], &PatternMap::uniform(0))?;
+    let own_size = scene.gpu.shadow_map_size;
+    for shadow_map_size in [512, own_size, 8192] {
+        for ((components, component), reference) in
+            [(Components::SingleOnly, Component::Single), (Components::MultipleOnly, Component::Multiple)]
+                .into_iter()
+                .zip(&references)
+        {
+            let mut frame_options = frame_settings(&scene, components);
+            (frame_options.width, frame_options.height) = (size.0 as u32, size.1 as u32);
+            frame_options.spp = settings.spp;
+            frame_options.gpu.shadow_map_size = shadow_map_size;
+            session.render(&scene, &frame_options)?;
+            let started = Instant::now();
+            let frame = session.render(&scene, &frame_options)?;
+            let seconds = started.elapsed().as_secs_f64();
+            let name = format!(
+                "GPU renderer on the mesh ({mesh}), shadow maps {shadow_map_size}² (PCF; PCSS for SG lights), \
+                 against the path tracer on the mesh"
+            );
+            budget.add_rung_against(component, name, &frame.radiance_image(), reference, seconds);
+        }
+    }
+    Ok(session)
 }
 
 /// The colours `twill bench recolor` tries: `count` recolourings of every yarn material of the

@@ -132,6 +132,26 @@ impl Budget {
         let reference =
             if component == Component::Single { &self.single_reference } else { &self.multiple_reference };
         let rung = measure(component, name, Estimate { mean: image, variance: None }, reference, seconds);
+        self.insert_after_component(rung);
+    }
+
+    /// Adds a rung of another scene's view, compared with that scene's own path-traced
+    /// `reference` of `component` (`twill accuracy budget` on a mesh: the GPU renderer on the
+    /// curved cloth against the path tracer on the same cloth).
+    pub fn add_rung_against(
+        &mut self,
+        component: Component,
+        name: String,
+        image: &Image,
+        reference: &Film,
+        seconds: f64,
+    ) {
+        let rung = measure(component, name, Estimate { mean: image, variance: None }, reference, seconds);
+        self.insert_after_component(rung);
+    }
+
+    fn insert_after_component(&mut self, rung: Rung) {
+        let component = rung.component;
         let at =
             self.rungs.iter().rposition(|r| r.component == component).map_or(self.rungs.len(), |i| i + 1);
         self.rungs.insert(at, rung);

@@ -177,8 +177,9 @@ pub fn render_flat_with(
         }),
         PrimaryHits::Voxels => {
             let volume = &baked.volume.volume;
+            let swatch = scene.path_scene.fibers.rectangle();
             render_camera_rays(scene, spp, seed, |origin, dir, t_max, _| {
-                match voxel_hit(volume, &baked.volume.segments, origin, dir, t_max) {
+                match voxel_hit(volume, &baked.volume.segments, swatch, origin, dir, t_max) {
                     Some((segment, local)) => shade_at(segment, local, -dir),
                     None => Ok(Rgb::ZERO),
                 }
@@ -192,16 +193,35 @@ pub fn render_flat_with(
 }
 
 /// The GPU's primary hit on a flat swatch ([`PrimaryHits::Voxels`]): the first fiber the ray
-/// crosses among the capsules of the voxels it walks ([`VoxelVolume::first_fiber_hit`]), as
-/// (segment, exemplar-local position of the point where the ray enters it).
+/// crosses among the capsules of the voxels it walks ([`VoxelVolume::first_fiber_hit`]) where
+/// it is over the swatch rectangle (the GPU's shell ends there), as (segment, exemplar-local
+/// position of the point where the ray enters it).
 fn voxel_hit(
     volume: &VoxelVolume,
     segments: &SegmentTable,
+    swatch: Option<(glam::Vec2, glam::Vec2)>,
     origin: DVec3,
     dir: DVec3,
     t_max: f64,
 ) -> Option<(u32, DVec3)> {
-    let (segment, t) = volume.first_fiber_hit(segments, origin, dir, 0.0, t_max)?;
+    let (mut t0, mut t1) = (0.0_f64, t_max);
+    if let Some((min, max)) = swatch {
+        for axis in 0..2 {
+            let (lo, hi) = (f64::from(min[axis]), f64::from(max[axis]));
+            if dir[axis] == 0.0 {
+                if !(lo..=hi).contains(&origin[axis]) {
+                    return None;
+                }
+            } else {
+                let (a, b) = ((lo - origin[axis]) / dir[axis], (hi - origin[axis]) / dir[axis]);
+                (t0, t1) = (t0.max(a.min(b)), t1.min(a.max(b)));
+            }
+        }
+        if t0 >= t1 {
+            return None;
+        }
+    }
+    let (segment, t) = volume.first_fiber_hit(segments, origin, dir, t0, t1)?;
     Some((segment, volume.wrap(origin + t * dir)))
 }
 
@@ -311,7 +331,7 @@ mod tests {
         let (volume, segments) = (one_voxel(false, [1, 2, 1]), one_capsule([1, 2, 1]));
         // Straight down through x = 1.5, y = 2.5: the capsule's top, z = 1.5 + 0.4.
         let down = |x: f64, y: f64, t_max: f64| {
-            voxel_hit(&volume, &segments, DVec3::new(x, y, 10.0), -DVec3::Z, t_max)
+            voxel_hit(&volume, &segments, None, DVec3::new(x, y, 10.0), -DVec3::Z, t_max)
         };
         let (id, p) = down(1.5, 2.5, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
@@ -324,7 +344,7 @@ mod tests {
         assert!(down(1.5, 2.5, 8.0).is_none());
         // Level with the slab along the capsule's axis: it enters the near cap at x = 0.8.
         let (_, p) =
-            voxel_hit(&volume, &segments, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY).unwrap();
+            voxel_hit(&volume, &segments, None, DVec3::new(-1.0, 2.5, 1.5), DVec3::X, f64::INFINITY).unwrap();
         assert!((p - DVec3::new(0.8, 2.5, 1.5)).length() < 1e-6, "{p}");
     }
 
@@ -334,10 +354,19 @@ mod tests {
         // Three periods over and one back: x = 15.5 wraps to 3.5, y = -3.5 to 0.5; the ray
         // enters that copy of the capsule at its top, z = 2.5 + 0.4.
         let origin = DVec3::new(15.5, -3.5, 10.0);
-        let (id, p) = voxel_hit(&volume, &segments, origin, -DVec3::Z, f64::INFINITY).unwrap();
+        let (id, p) = voxel_hit(&volume, &segments, None, origin, -DVec3::Z, f64::INFINITY).unwrap();
         assert_eq!(id, 7);
         assert!((p - DVec3::new(3.5, 0.5, 2.9)).length() < 1e-6, "exemplar-local position {p}");
         let not_periodic = one_voxel(false, [3, 0, 2]);
-        assert!(voxel_hit(&not_periodic, &segments, origin, -DVec3::Z, f64::INFINITY).is_none());
+        assert!(voxel_hit(&not_periodic, &segments, None, origin, -DVec3::Z, f64::INFINITY).is_none());
+        // A swatch rectangle ends the fabric, as the GPU's shell does: a ray down outside it
+        // misses, one slanting into it from outside finds the copy under its inside part.
+        let swatch = Some((glam::Vec2::new(10.0, -5.0), glam::Vec2::new(15.0, 0.0)));
+        assert!(voxel_hit(&volume, &segments, swatch, origin, -DVec3::Z, f64::INFINITY).is_none());
+        let inside = Some((glam::Vec2::new(10.0, -5.0), glam::Vec2::new(16.0, 0.0)));
+        assert_eq!(
+            voxel_hit(&volume, &segments, inside, origin, -DVec3::Z, f64::INFINITY).map(|h| h.0),
+            Some(7)
+        );
     }
 }
