@@ -6,7 +6,10 @@
 //! How it works: one compute dispatch over the texels (shaders/visibility.wgsl) writes
 //! (V · coverage, coverage) per layer, so the blur can renormalize over the fabric's own area.
 //! Each layer's filter is resolved here from its light: PCF's kernel radius, PCSS's penumbra
-//! per cm of blocker-to-receiver distance, and the depth bias in depth units.
+//! per cm of blocker-to-receiver distance, and the depth bias in depth units. The receiver is
+//! the top surface, which the shadow map holds too, so every tap compares against the
+//! receiver's plane at that tap (its slope from X's neighbouring texels), not its depth at the
+//! centre: with a constant bias alone a sloped receiver shadowed itself.
 //!
 //! PCSS for SG lights needs a light size, which an SG does not have; we use the angle α at which
 //! the lobe falls to 1/e of its peak, `cos α = 1 − 1/λ` (α ≈ sqrt(2/λ) for sharp lobes; α = 90°
@@ -21,6 +24,10 @@ use crate::plan::GlobalVisibility;
 
 /// Widest PCSS light angle (an SG wider than this blurs shadows no further).
 const MAX_PCSS_ANGLE_DEG: f64 = 60.0;
+/// The steepest receiver, as the angle between its surface and the light's image plane, whose
+/// plane the filter follows (receiver-plane depth bias, shaders/visibility.wgsl); a steeper one
+/// is taken as this steep.
+pub const MAX_RECEIVER_SLOPE_DEG: f64 = 85.0;
 
 /// The angular radius used for an SG light's PCSS penumbra: `cos α = 1 − 1/λ`, capped.
 #[must_use]
@@ -37,6 +44,9 @@ pub struct VisibilityUniformsGpu {
     /// Per layer: filter (1 PCF, 2 PCSS), PCF radius in texels, PCSS penumbra in texels per cm,
     /// depth bias in depth units.
     pub filters: [[f32; 4]; MAX_SHADOWED_LIGHTS],
+    /// Per layer: the most depth the receiver's plane may change per texel (depth units; see
+    /// [`MAX_RECEIVER_SLOPE_DEG`]).
+    pub slope_limits: [[f32; 4]; MAX_SHADOWED_LIGHTS],
     /// Layers, shadow-map size, depth range of the light frusta in cm.
     pub info: [f32; 4],
 }
@@ -49,6 +59,7 @@ impl VisibilityUniformsGpu {
         let mut uniforms = Self {
             light_clip_from_world: [[[0.0; 4]; 4]; MAX_SHADOWED_LIGHTS],
             filters: [[0.0; 4]; MAX_SHADOWED_LIGHTS],
+            slope_limits: [[0.0; 4]; MAX_SHADOWED_LIGHTS],
             info: [
                 maps.layers.len() as f32,
                 maps.size as f32,
@@ -65,6 +76,8 @@ impl VisibilityUniformsGpu {
             let filter = if layer.filter == GlobalVisibility::Pcss { 2.0 } else { 1.0 };
             uniforms.filters[k] =
                 [filter, settings.pcf_radius_texels as f32, penumbra_per_cm as f32, bias as f32];
+            let most = MAX_RECEIVER_SLOPE_DEG.to_radians().tan() * texel_cm / f64::from(frustum.depth_cm);
+            uniforms.slope_limits[k] = [most as f32, 0.0, 0.0, 0.0];
         }
         uniforms
     }
