@@ -894,10 +894,12 @@ fn patterned_cloth_blocks_render_as_their_own_weave() {
 /// (`headless::trace_on_mesh`), so the GPU's shadow maps (the drape under the sun, PCF) and PCSS
 /// (the cushion under a sharp and a broad SG light) have ground truth. 32x32, a view of the
 /// whole 1 cm mesh, the GPU at 64 spp on the draft bake, the path tracer at 256 spp (seed 7).
-/// Measured 2026-11-28 on lavapipe: the GPU's image mean against the path tracer's −1.0%
-/// (drape) and −4.6% (cushion), with the reference's mean good to 1.3% / 0.7% (one standard
-/// error); per pixel, the RMS difference 0.494 / 0.293 of the mean against the reference's own
-/// noise of 0.412 / 0.237. The control, the flat swatch the path tracer traced before, is
+/// Measured 2026-11-28 on lavapipe: the GPU's image mean against the path tracer's +3.2%
+/// (drape) and +0.3% (cushion), with the reference's mean good to 1.3% / 0.7% (one standard
+/// error); per pixel, the RMS difference 0.490 / 0.286 of the mean against the reference's own
+/// noise of 0.412 / 0.237. (Before the visibility pass's receiver-plane bias the top surface
+/// shadowed itself on slopes: −1.0% / −4.6%; docs/BENCHMARKS.md has the interactive budget's
+/// figures before and after.) The control, the flat swatch the path tracer traced before, is
 /// +145% / +5% off in mean and 2.76 / 0.87 per pixel (held to at least twice the GPU's).
 /// Held to one-sided bands: the mean within 3 points plus three standard errors of the
 /// reference's mean, per pixel within 5 points.
@@ -916,7 +918,7 @@ fn curved_cloth_against_the_path_tracer() {
         )
     };
     // (mesh, lights, measured mean error, measured per-pixel error)
-    let cases = [("drape", vec![SUN], -0.010, 0.494), ("cushion", vec![sg_sharp, sg_fill], -0.046, 0.293)];
+    let cases = [("drape", vec![SUN], 0.032, 0.490), ("cushion", vec![sg_sharp, sg_fill], 0.003, 0.286)];
     let size = 32_u32;
     let mut gpu = Some(gpu);
     let mut failures = Vec::new();
