@@ -38,6 +38,11 @@ fn default_bake() -> &'static Baked {
 
 const SUN: &str =
     "[[lights]]\ntype = \"directional\"\ndirection = [-0.5, 0.3, 0.8]\nirradiance = [3.0, 2.9, 2.7]\n";
+/// A broad SG light from above and in front, and a sharp one (what PCSS shadows).
+const SG_FILL: &str =
+    "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
+const SG_SHARP: &str =
+    "[[lights]]\ntype = \"sg\"\naxis = [0.4, 0.2, 0.9]\nsharpness = 300.0\nintensity = [3.0, 3.0, 3.0]\n";
 
 fn camera_above(tilt: f64) -> String {
     format!(
@@ -76,22 +81,18 @@ fn pass_names(frame: &Frame) -> Vec<String> {
 #[test]
 fn golden_images_and_the_plan_as_executed() {
     let Some(gpu) = Gpu::for_test("golden_images_and_the_plan_as_executed") else { return };
-    let sg_fill =
-        "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
-    let sg_sharp =
-        "[[lights]]\ntype = \"sg\"\naxis = [0.4, 0.2, 0.9]\nsharpness = 300.0\nintensity = [3.0, 3.0, 3.0]\n";
     let oblique = camera_above(0.6);
     let cases: Vec<(&str, Scene)> = vec![
         (
             "swatch_sun_and_sky",
             scene(
                 &format!("{FABRIC}[swatch]\nsize_cm = [1.0, 1.0]\nground = true\n{oblique}"),
-                &[SUN, sg_fill],
+                &[SUN, SG_FILL],
             ),
         ),
         (
             "swatch_sharp_sg",
-            scene(&format!("{FABRIC}[swatch]\nsize_cm = [1.0, 1.0]\nground = true\n{oblique}"), &[sg_sharp]),
+            scene(&format!("{FABRIC}[swatch]\nsize_cm = [1.0, 1.0]\nground = true\n{oblique}"), &[SG_SHARP]),
         ),
         (
             "drape_sun_pcf",
@@ -101,7 +102,7 @@ fn golden_images_and_the_plan_as_executed() {
             "cushion_sg_pcss",
             scene(
                 &format!("{FABRIC}[mesh]\nbuiltin = \"cushion\"\nsize_cm = [1.0, 1.0]\n{oblique}"),
-                &[sg_sharp, sg_fill],
+                &[SG_SHARP, SG_FILL],
             ),
         ),
     ];
@@ -906,10 +907,6 @@ fn patterned_cloth_blocks_render_as_their_own_weave() {
 #[test]
 fn curved_cloth_against_the_path_tracer() {
     let Some(gpu) = Gpu::for_test("curved_cloth_against_the_path_tracer") else { return };
-    let sg_fill =
-        "[[lights]]\ntype = \"sg\"\naxis = [0.3, -0.6, 1.0]\nsharpness = 8.0\nintensity = [1.6, 1.7, 1.8]\n";
-    let sg_sharp =
-        "[[lights]]\ntype = \"sg\"\naxis = [0.4, 0.2, 0.9]\nsharpness = 300.0\nintensity = [3.0, 3.0, 3.0]\n";
     let view = "[camera]\nprojection = \"perspective\"\neye = [0.0, -1.1, 1.1]\ntarget = [0.0, 0.0, 0.1]\n\
                 up = [0.0, 0.0, 1.0]\nfov_y_deg = 40.0\n";
     let head = |mesh: &str| {
@@ -918,7 +915,7 @@ fn curved_cloth_against_the_path_tracer() {
         )
     };
     // (mesh, lights, measured mean error, measured per-pixel error)
-    let cases = [("drape", vec![SUN], 0.032, 0.490), ("cushion", vec![sg_sharp, sg_fill], 0.003, 0.286)];
+    let cases = [("drape", vec![SUN], 0.032, 0.490), ("cushion", vec![SG_SHARP, SG_FILL], 0.003, 0.286)];
     let size = 32_u32;
     let mut gpu = Some(gpu);
     let mut failures = Vec::new();

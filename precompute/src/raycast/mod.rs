@@ -337,43 +337,12 @@ impl FiberScene {
         ignore: Option<u32>,
         any: bool,
     ) -> Option<Hit> {
-        let (mut t_enter, t_end) = span;
-        let start = o + t_enter * d;
-        let mut cell = [(start.x / period.x).floor() as i64, (start.y / period.y).floor() as i64];
-        let step = [d.x.signum() as i64, d.y.signum() as i64];
-        let mut visited = 0u32;
-        loop {
-            let boundary = |axis: usize, c: i64| {
-                let (dc, oc, p) = if axis == 0 { (d.x, o.x, period.x) } else { (d.y, o.y, period.y) };
-                if dc > 0.0 {
-                    ((c + 1) as f64 * p - oc) / dc
-                } else if dc < 0.0 {
-                    (c as f64 * p - oc) / dc
-                } else {
-                    f64::INFINITY
-                }
-            };
-            let next = [boundary(0, cell[0]), boundary(1, cell[1])];
-            let t_exit = next[0].min(next[1]).min(t_end);
-            if t_exit > t_enter {
-                let piece_end = if t_exit < t_end { (t_exit + CELL_OVERLAP).min(t_end) } else { t_end };
-                let offset = DVec2::new(cell[0] as f64 * period.x, cell[1] as f64 * period.y);
-                let tile = [cell[0] as i32, cell[1] as i32];
-                if let Some(hit) = self.trace_piece(o, d, t_enter, piece_end, offset, tile, ignore, any) {
-                    return Some(hit);
-                }
-            }
-            if t_exit >= t_end {
-                return None;
-            }
-            visited += 1;
-            if unbounded && visited >= MAX_UNBOUNDED_CELLS {
-                return None;
-            }
-            let axis = usize::from(next[1] < next[0]);
-            cell[axis] += step[axis];
-            t_enter = t_enter.max(t_exit);
-        }
+        let most = unbounded.then_some(MAX_UNBOUNDED_CELLS);
+        walk_lattice(o, d, span, period, most, |cell, t_from, t_to| {
+            let offset = DVec2::new(cell[0] as f64 * period.x, cell[1] as f64 * period.y);
+            let tile = [cell[0] as i32, cell[1] as i32];
+            self.trace_piece(o, d, t_from, t_to, offset, tile, ignore, any)
+        })
     }
 
     /// Walks the grid with the ray piece `t_from..t_to` in the frame of the cell at `offset`.
@@ -441,6 +410,55 @@ impl FiberScene {
             let hit = self.capsules[item as usize].intersect_piece(origin, dir, best_t, ray_origin)?;
             (self.fibers[item as usize] != ignore).then_some(hit)
         })
+    }
+}
+
+/// Walks the cells of the lattice of `side`-sized rectangles (cell `[i, j]` covering
+/// `[i, i + 1) side.x × [j, j + 1) side.y`) that the xy projection of `o + t d` crosses for `t`
+/// in `span`, nearest first (a 2D DDA), and calls `piece(cell, t_from, t_to)` with the ray's
+/// piece over each, extended by [`CELL_OVERLAP`] past an inner border so a hit exactly on it is
+/// not lost to rounding; returns the first piece's answer that is `Some`. With `most`, gives up
+/// after that many cells.
+pub(crate) fn walk_lattice<T>(
+    o: DVec3,
+    d: DVec3,
+    (mut t_enter, t_end): (f64, f64),
+    side: DVec2,
+    most: Option<u32>,
+    mut piece: impl FnMut([i64; 2], f64, f64) -> Option<T>,
+) -> Option<T> {
+    let start = o + t_enter * d;
+    let mut cell = [(start.x / side.x).floor() as i64, (start.y / side.y).floor() as i64];
+    let step = [d.x.signum() as i64, d.y.signum() as i64];
+    let mut visited = 0u32;
+    loop {
+        let boundary = |axis: usize, c: i64| {
+            if d[axis] > 0.0 {
+                ((c + 1) as f64 * side[axis] - o[axis]) / d[axis]
+            } else if d[axis] < 0.0 {
+                (c as f64 * side[axis] - o[axis]) / d[axis]
+            } else {
+                f64::INFINITY
+            }
+        };
+        let next = [boundary(0, cell[0]), boundary(1, cell[1])];
+        let t_exit = next[0].min(next[1]).min(t_end);
+        if t_exit > t_enter {
+            let piece_end = if t_exit < t_end { (t_exit + CELL_OVERLAP).min(t_end) } else { t_end };
+            if let Some(found) = piece(cell, t_enter, piece_end) {
+                return Some(found);
+            }
+        }
+        if t_exit >= t_end {
+            return None;
+        }
+        visited += 1;
+        if most.is_some_and(|most| visited >= most) {
+            return None;
+        }
+        let axis = usize::from(next[1] < next[0]);
+        cell[axis] += step[axis];
+        t_enter = t_enter.max(t_exit);
     }
 }
 

@@ -20,7 +20,7 @@
 
 use glam::{DVec2, DVec3, Vec2, Vec3};
 
-use super::{CELL_OVERLAP, Extent, FiberScene, Hit, SceneError, clip_slab};
+use super::{CELL_OVERLAP, Extent, FiberScene, Hit, SceneError, clip_slab, walk_lattice};
 use crate::bake::pattern::PatternMap;
 use crate::fabric::{Exemplar, Tiling};
 
@@ -182,49 +182,19 @@ impl PatternedFibers {
         clip_slab(&mut span, origin.z, d.z, self.z_range.0, self.z_range.1);
         clip_slab(&mut span, origin.x, d.x, min.x, max.x);
         clip_slab(&mut span, origin.y, d.y, min.y, max.y);
-        let (mut t_enter, t_end) = span;
-        if t_enter >= t_end {
+        if span.0 >= span.1 {
             return None;
         }
-        let start = origin + t_enter * d;
-        let mut block = [(start.x / self.block.x).floor() as i64, (start.y / self.block.y).floor() as i64];
-        let step = [d.x.signum() as i64, d.y.signum() as i64];
-        // The rectangle bounds the walk: a ray crosses at most this many blocks.
-        let blocks_across = ((max - min) / self.block).ceil();
-        let most = (blocks_across.x + blocks_across.y) as u64 + 4;
-        for _ in 0..most {
-            let boundary = |axis: usize, b: i64| {
-                let (db, ob, side) = (d[axis], origin[axis], self.block[axis]);
-                if db > 0.0 {
-                    ((b + 1) as f64 * side - ob) / db
-                } else if db < 0.0 {
-                    (b as f64 * side - ob) / db
-                } else {
-                    f64::INFINITY
-                }
-            };
-            let next = [boundary(0, block[0]), boundary(1, block[1])];
-            let t_exit = next[0].min(next[1]).min(t_end);
-            if t_exit > t_enter {
-                let piece_end = if t_exit < t_end { (t_exit + CELL_OVERLAP).min(t_end) } else { t_end };
-                let e = usize::from(self.map.exemplar_at(block[0], block[1]));
-                let (first, last) = (self.fiber_offsets[e], self.fiber_offsets[e + 1]);
-                let own_ignore = ignore.filter(|f| (first..last).contains(f)).map(|f| f - first);
-                if let Some(mut hit) = self.scenes[e].walk(origin, d, (t_enter, piece_end), own_ignore, any) {
-                    hit.fiber += first;
-                    hit.yarn += self.yarn_offsets[e];
-                    hit.exemplar = e as u16;
-                    return Some(hit);
-                }
-            }
-            if t_exit >= t_end {
-                return None;
-            }
-            let axis = usize::from(next[1] < next[0]);
-            block[axis] += step[axis];
-            t_enter = t_enter.max(t_exit);
-        }
-        None
+        walk_lattice(origin, d, span, self.block, None, |block, t_from, t_to| {
+            let e = usize::from(self.map.exemplar_at(block[0], block[1]));
+            let (first, last) = (self.fiber_offsets[e], self.fiber_offsets[e + 1]);
+            let own_ignore = ignore.filter(|f| (first..last).contains(f)).map(|f| f - first);
+            let mut hit = self.scenes[e].walk(origin, d, (t_from, t_to), own_ignore, any)?;
+            hit.fiber += first;
+            hit.yarn += self.yarn_offsets[e];
+            hit.exemplar = e as u16;
+            Some(hit)
+        })
     }
 }
 
