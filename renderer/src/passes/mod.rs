@@ -446,7 +446,7 @@ mod tests {
             (
                 "VisibilityUniforms",
                 &pass_source("visibility.wgsl"),
-                rust_struct!(VisibilityUniformsGpu; light_clip_from_world, filters, info),
+                rust_struct!(VisibilityUniformsGpu; light_clip_from_world, filters, slope_limits, info),
             ),
             ("BlurUniforms", &pass_source("blur.wgsl"), rust_struct!(BlurUniformsGpu; axis)),
             (
