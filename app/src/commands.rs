@@ -138,6 +138,19 @@ pub(crate) fn refuse_pattern(file: &SceneFile, command: &str) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a scene with a `[mesh]` for a command that paints the flat swatch's threads (paint
+/// cells run along the flat exemplar's yarns): it would show the flat swatch, not the cloth on
+/// the mesh the viewer and `twill render` draw.
+pub(crate) fn refuse_mesh(file: &SceneFile, command: &str) -> Result<()> {
+    anyhow::ensure!(
+        file.mesh.is_flat_swatch(),
+        "{}: [mesh]: {command} paints the flat swatch's threads, not the cloth on the mesh; \
+         remove [mesh] to paint the flat swatch",
+        file.path.display()
+    );
+    Ok(())
+}
+
 /// Options of `twill reference` (command-line overrides of the scene's settings).
 pub struct ReferenceOptions {
     pub image: ImageOptions,
@@ -155,12 +168,7 @@ pub fn reference(options: &ReferenceOptions) -> Result<()> {
     render.seed = options.seed.unwrap_or(render.seed);
     let mut scene = file.build()?;
     if let Some(path) = &options.painting {
-        anyhow::ensure!(
-            file.mesh.builtin.is_none() && file.mesh.path.is_none(),
-            "{}: [mesh]: a painting ({}) paints the flat swatch's threads; remove [mesh] to trace it",
-            file.path.display(),
-            path.display()
-        );
+        refuse_mesh(&file, &format!("`twill reference --painting {}`", path.display()))?;
         let cells = crate::paint::scene_cells(&scene, &file.path)?;
         let own = twill_precompute::paint::scene_colours(&scene.path_scene, &cells);
         let colours = Painting::load(path)?.colours(&cells, &own, path)?;
@@ -1172,4 +1180,29 @@ pub fn bench_raycast(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What works on one exemplar or on the flat swatch says so, naming the file and section;
+    /// the flat swatch, given as the built-in `swatch` or not at all, passes.
+    #[test]
+    fn one_exemplar_and_flat_swatch_commands_refuse_what_they_cannot_draw() {
+        let mut file = SceneFile::default_scene();
+        refuse_mesh(&file, "`twill paint`").unwrap();
+        file.mesh.builtin = Some("swatch".into());
+        refuse_mesh(&file, "`twill paint`").unwrap();
+        file.mesh.builtin = Some("cushion".into());
+        let message = refuse_mesh(&file, "`twill paint`").unwrap_err().to_string();
+        assert!(message.contains("[mesh]") && message.contains("`twill paint`"), "{message}");
+        let patterned = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/scenes/patterned.toml");
+        let patterned = SceneFile::load(&patterned).unwrap();
+        let message = refuse_pattern(&patterned, "`twill paint`").unwrap_err().to_string();
+        assert!(
+            message.contains("patterned.toml: [pattern]") && message.contains("twill reference"),
+            "{message}"
+        );
+    }
 }

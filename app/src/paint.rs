@@ -33,7 +33,7 @@ use twill_precompute::pathtrace::{self, Camera, Component, RenderSettings};
 use twill_precompute::scene::{Scene, SceneFile};
 use twill_renderer::export::{Display, write_image};
 
-use crate::commands::{parse_size, refuse_pattern, rows_bar};
+use crate::commands::{parse_size, refuse_mesh, refuse_pattern, rows_bar};
 
 /// Largest image side of a paint precompute (what `PaintSettings` accepts).
 const MAX_SIDE: usize = 4096;
@@ -224,6 +224,7 @@ fn precompute(options: &PrecomputeOptions) -> Result<()> {
         bail!("{given} {width}x{height}: a paint precompute takes 1 to {MAX_SIDE} pixels on a side");
     }
     refuse_pattern(&file, "`twill paint` (the path tracer's paths)")?;
+    refuse_mesh(&file, "`twill paint`")?;
     check_folder_of(&options.output)?;
     let gradient_spp = if options.gradient_spp > options.spp {
         eprintln!(
@@ -458,6 +459,7 @@ fn verify(options: &VerifyOptions) -> Result<()> {
     let data = PaintData::load(&options.file)?;
     let file = SceneFile::load_or_default(options.scene.as_deref())?;
     refuse_pattern(&file, "`twill paint` (the path tracer's paths)")?;
+    refuse_mesh(&file, "`twill paint`")?;
     let seed = options.seed.unwrap_or(data.settings.seed.wrapping_add(1));
     let second_seed = seed
         .checked_add(1)
@@ -568,6 +570,7 @@ fn commit(file: &Path, scene: Option<&Path>, painting: &Path, output: &Path) -> 
     let data = PaintData::load(file)?;
     let scene_file = SceneFile::load_or_default(scene)?;
     refuse_pattern(&scene_file, "`twill paint` (the path tracer's paths)")?;
+    refuse_mesh(&scene_file, "`twill paint`")?;
     let (_, _, cells) = precomputed_scene(&data, file, &scene_file)?;
     // Unpainted cells take the paint file's colours, as `apply` shows them.
     let colours = load_painting(painting, &cells, &data.scene_painting())?;

@@ -449,6 +449,14 @@ impl Default for MeshSection {
     }
 }
 
+impl MeshSection {
+    /// No surface but the flat swatch: neither a mesh file nor a built-in other than `swatch`.
+    #[must_use]
+    pub fn is_flat_swatch(&self) -> bool {
+        self.path.is_none() && self.builtin.as_deref().is_none_or(|name| name == "swatch")
+    }
+}
+
 /// `[gpu]`: settings of the GPU renderer (`twill render`, the viewer).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

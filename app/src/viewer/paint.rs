@@ -215,6 +215,11 @@ impl PaintSession {
                         remove [pattern] to paint [fabric]'s weave"
                 .into());
         }
+        if !scene.mesh.is_flat_swatch() {
+            return Err("paint mode paints the flat swatch's threads, not the cloth on the mesh: \
+                        set the mesh to the flat swatch to paint"
+                .into());
+        }
         let size = paint_size(viewport, form.side);
         let [w, h] = size;
         let camera = scene.camera(w as usize, h as usize).map_err(|e| format!("the camera: {e}"))?;
