@@ -138,12 +138,11 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     if (id.x >= size.x || id.y >= size.y) {
         return;
     }
-    let x = textureLoad(top_positions, vec2<i32>(id.xy), 0);
     let layers = u32(vis.info.x);
     for (var layer = 0u; layer < layers; layer++) {
         var v = vec2<f32>(0.0, 0.0);
-        if (x.w > 0.5) {
-            let here = in_shadow_map(layer, vec2<i32>(id.xy));
+        let here = in_shadow_map(layer, vec2<i32>(id.xy));
+        if (here.w > 0.0) {
             let slope = receiver_slope(layer, vec2<i32>(id.xy), here);
             let f = vis.filters[layer];
             var lit = 1.0;

@@ -639,7 +639,7 @@ pub fn accuracy_budget(
     let mut file = SceneFile::load_or_default(scene)?;
     refuse_pattern(&file, "`twill accuracy budget` (against path-traced references)")?;
     (file.render.width, file.render.height) = size;
-    let curved = (file.mesh.builtin.is_some() || file.mesh.path.is_some()).then(|| file.clone());
+    let curved = file.mesh.names_a_surface().then(|| file.clone());
     file.mesh = twill_precompute::scene::MeshSection::default();
     let scene = file.build()?;
     let bake_settings = apply_overrides(quality.settings(), overrides)?;

@@ -450,6 +450,12 @@ impl Default for MeshSection {
 }
 
 impl MeshSection {
+    /// A surface is given, a built-in or a mesh file (else the flat swatch of `[swatch]`).
+    #[must_use]
+    pub fn names_a_surface(&self) -> bool {
+        self.builtin.is_some() || self.path.is_some()
+    }
+
     /// No surface but the flat swatch: neither a mesh file nor a built-in other than `swatch`.
     #[must_use]
     pub fn is_flat_swatch(&self) -> bool {

@@ -55,7 +55,7 @@ pub fn shell_for_scene(scene: &Scene, z_range: [f32; 2]) -> Result<Shell, ShellE
 /// A mesh that does not load or grow a shell, or that covers more fabric than the path tracer
 /// takes ([`crate::shell::fibers::MAX_MAPPED_SEGMENTS`]).
 pub fn trace_on_mesh(scene: &mut Scene) -> Result<bool, HeadlessError> {
-    if scene.mesh.builtin.is_none() && scene.mesh.path.is_none() {
+    if !scene.mesh.names_a_surface() {
         return Ok(false);
     }
     let path_scene = &scene.path_scene;

@@ -462,8 +462,9 @@ pub(crate) fn walk_lattice<T>(
     }
 }
 
-/// Narrows `span` to where `o + t d` (one coordinate) lies in `[lo, hi]`.
-fn clip_slab(span: &mut (f64, f64), o: f64, d: f64, lo: f64, hi: f64) {
+/// Narrows `span` to where `o + t d` (one coordinate) lies in `[lo, hi]` (empty, `span.0 >=
+/// span.1`, when it never does).
+pub fn clip_slab(span: &mut (f64, f64), o: f64, d: f64, lo: f64, hi: f64) {
     if d == 0.0 {
         if o < lo || o > hi {
             *span = (1.0, 0.0);

@@ -44,6 +44,18 @@ pub enum PatternSceneError {
     MissingExemplar { named: usize, count: usize },
 }
 
+/// Where each exemplar's numbers start when the things `count` counts (fibers, yarns) are
+/// numbered across `exemplars` in order, and one past the last: `[0, n0, n0 + n1, …]`. How a
+/// patterned cloth numbers its fibers and yarns (the module docs).
+#[must_use]
+pub fn numbered_across(exemplars: &[Exemplar], count: impl Fn(&Exemplar) -> usize) -> Vec<u32> {
+    let mut starts = vec![0_u32];
+    for exemplar in exemplars {
+        starts.push(starts[starts.len() - 1] + count(exemplar) as u32);
+    }
+    starts
+}
+
 /// Patterned cloth ready for ray casting; see the module docs.
 #[derive(Debug)]
 pub struct PatternedFibers {
@@ -56,7 +68,7 @@ pub struct PatternedFibers {
     rect: (DVec2, DVec2),
     /// Global number of each exemplar's first fiber, and one past the last exemplar's last.
     fiber_offsets: Vec<u32>,
-    /// Global number of each exemplar's first yarn.
+    /// Global number of each exemplar's first yarn (and one past the last).
     yarn_offsets: Vec<u32>,
     /// z range of every exemplar's fibers, padded by [`CELL_OVERLAP`].
     z_range: (f64, f64),
@@ -87,7 +99,6 @@ impl PatternedFibers {
         }
         let mut block = None;
         let mut scenes = Vec::with_capacity(exemplars.len());
-        let (mut fiber_offsets, mut yarn_offsets) = (vec![0_u32], vec![0_u32]);
         for (e, exemplar) in exemplars.iter().enumerate() {
             let Tiling::Periodic { period } = exemplar.tiling else {
                 return Err(PatternSceneError::NotPeriodic { exemplar: e });
@@ -99,11 +110,10 @@ impl PatternedFibers {
             }
             let scene = FiberScene::new(exemplar, Extent::Unbounded)
                 .map_err(|source| PatternSceneError::Scene { exemplar: e, source })?;
-            fiber_offsets.push(fiber_offsets[e] + exemplar.fibers.len() as u32);
-            yarn_offsets.push(yarn_offsets[e] + exemplar.yarns.len() as u32);
             scenes.push(scene);
         }
-        yarn_offsets.pop();
+        let fiber_offsets = numbered_across(exemplars, |e| e.fibers.len());
+        let yarn_offsets = numbered_across(exemplars, |e| e.yarns.len());
         let z_range = scenes
             .iter()
             .filter(|s| s.primitive_count() > 0)

@@ -27,6 +27,7 @@ use crate::image::{Film, PixelRow};
 use crate::pathtrace::integrator::pixel_rng;
 use crate::pathtrace::{Component, Light};
 use crate::raycast::Hit;
+use crate::raycast::clip_slab;
 use crate::scene::{Scene, camera_from};
 use crate::sh::sh_count;
 
@@ -204,24 +205,16 @@ fn voxel_hit(
     dir: DVec3,
     t_max: f64,
 ) -> Option<(u32, DVec3)> {
-    let (mut t0, mut t1) = (0.0_f64, t_max);
+    let mut span = (0.0, t_max);
     if let Some((min, max)) = swatch {
         for axis in 0..2 {
-            let (lo, hi) = (f64::from(min[axis]), f64::from(max[axis]));
-            if dir[axis] == 0.0 {
-                if !(lo..=hi).contains(&origin[axis]) {
-                    return None;
-                }
-            } else {
-                let (a, b) = ((lo - origin[axis]) / dir[axis], (hi - origin[axis]) / dir[axis]);
-                (t0, t1) = (t0.max(a.min(b)), t1.min(a.max(b)));
-            }
+            clip_slab(&mut span, origin[axis], dir[axis], f64::from(min[axis]), f64::from(max[axis]));
         }
-        if t0 >= t1 {
+        if span.0 >= span.1 {
             return None;
         }
     }
-    let (segment, t) = volume.first_fiber_hit(segments, origin, dir, t0, t1)?;
+    let (segment, t) = volume.first_fiber_hit(segments, origin, dir, span.0, span.1)?;
     Some((segment, volume.wrap(origin + t * dir)))
 }
 
@@ -359,8 +352,8 @@ mod tests {
         assert!((p - DVec3::new(3.5, 0.5, 2.9)).length() < 1e-6, "exemplar-local position {p}");
         let not_periodic = one_voxel(false, [3, 0, 2]);
         assert!(voxel_hit(&not_periodic, &segments, None, origin, -DVec3::Z, f64::INFINITY).is_none());
-        // A swatch rectangle ends the fabric, as the GPU's shell does: a ray down outside it
-        // misses, one slanting into it from outside finds the copy under its inside part.
+        // A swatch rectangle ends the fabric, as the GPU's shell does: the same ray down misses
+        // when the rectangle stops short of it, and hits when the rectangle takes it in.
         let swatch = Some((glam::Vec2::new(10.0, -5.0), glam::Vec2::new(15.0, 0.0)));
         assert!(voxel_hit(&volume, &segments, swatch, origin, -DVec3::Z, f64::INFINITY).is_none());
         let inside = Some((glam::Vec2::new(10.0, -5.0), glam::Vec2::new(16.0, 0.0)));

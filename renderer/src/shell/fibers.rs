@@ -23,6 +23,8 @@ use rayon::prelude::*;
 use super::Shell;
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::fabric::{BlockGrid, Exemplar, Fiber, Tiling};
+use twill_precompute::raycast::clip_slab;
+use twill_precompute::raycast::pattern::numbered_across;
 
 /// Most segments a mapped fabric may have (about 100 bytes each in the path tracer's scene).
 pub const MAX_MAPPED_SEGMENTS: usize = 30_000_000;
@@ -212,14 +214,7 @@ pub fn map_fabric(
     }
     let locator = UvLocator::new(shell);
     let z = [f64::from(z_range[0]), f64::from(z_range[1])];
-    let yarn_offsets: Vec<u32> = exemplars
-        .iter()
-        .scan(0_u32, |next, e| {
-            let first = *next;
-            *next += e.yarns.len() as u32;
-            Some(first)
-        })
-        .collect();
+    let yarn_offsets = numbered_across(exemplars, |e| e.yarns.len());
     let fibers: Vec<Fiber> = regions
         .par_iter()
         .flat_map_iter(|&(e, lo, hi, cut)| {
@@ -290,20 +285,11 @@ fn cut_to_rectangle(points: &[DVec3], lo: DVec2, hi: DVec2) -> Vec<Vec<DVec3>> {
 
 /// The parameter interval of the segment `a..b` inside the rectangle `lo..hi` (Liang–Barsky).
 fn segment_in_rectangle(a: DVec2, b: DVec2, lo: DVec2, hi: DVec2) -> Option<(f64, f64)> {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+    let mut span = (0.0, 1.0);
     for axis in 0..2 {
-        if d[axis] == 0.0 {
-            if a[axis] < lo[axis] || a[axis] > hi[axis] {
-                return None;
-            }
-            continue;
-        }
-        let (ta, tb) = ((lo[axis] - a[axis]) / d[axis], (hi[axis] - a[axis]) / d[axis]);
-        t0 = t0.max(ta.min(tb));
-        t1 = t1.min(ta.max(tb));
+        clip_slab(&mut span, a[axis], b[axis] - a[axis], lo[axis], hi[axis]);
     }
-    (t0 < t1).then_some((t0, t1))
+    (span.0 < span.1).then_some(span)
 }
 
 /// The polyline `flat` carried onto the shell, in pieces: it ends where it leaves the mesh's UV
