@@ -30,6 +30,9 @@
 //! per sample, then the method):
 //! 1. path-traced indirect light at the hit point (equals the reference: checks that single +
 //!    multiple is all the light);
+//!    1′. the same incident light projected on the bake's SH (order n) and scattered through
+//!    the method's `C_S` table: what the SH truncation alone costs, at the exact point and
+//!    with exact light transport (no clamp);
 //! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell, its paths from segment midpoints (the paper) or exposed starts
@@ -61,12 +64,13 @@ use glam::DVec3;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 
-use super::ShadingError;
+use super::multiple::scatter_transferred;
 use super::render::{ClampAtZero, MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use super::visibility::ssdf_lookup;
+use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::Cancel;
-use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf};
+use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf, uniform_sphere};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
 use crate::bake::svf::{VisibilityImages, render_exemplar, visibility_origin, visibility_point_fraction};
 use crate::image::{Estimate, Film, Image, compare};
@@ -74,6 +78,7 @@ use crate::pathtrace::integrator::{below_ground, occluded, radiance_from, russia
 use crate::pathtrace::{Component, Light, RenderSettings, render};
 use crate::raycast::Hit;
 use crate::scene::{Scene, camera_from};
+use crate::sh::{sh_count, sh_eval};
 
 /// How finely the budget samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -330,6 +335,19 @@ pub fn error_budget(
         })?;
         push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
     }
+    let order = baked.transfer.iirtf.sh_order;
+    let t = Instant::now();
+    let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+        incident_sh_scattered(scene, baked, hit, fibers.world_position_f64(hit), wo, rng)
+    })?;
+    push(
+        Component::Multiple,
+        format!(
+            "1' rung 1's incident indirect light in SH of order {order}, scattered through C_S (no clamp)"
+        ),
+        &film,
+        t.elapsed().as_secs_f64(),
+    );
     if settings.split_transfer {
         for (part, name) in [
             (
@@ -568,6 +586,53 @@ fn indirect_light_part(
         next = trace(path_scene, position, wi, Some(h.fiber));
     }
     total
+}
+
+/// One sample of rung 1′: the indirect light arriving at `origin` (one path of the path
+/// tracer, as rung 1), projected on the bake's SH basis (order n) and scattered toward `wo` by
+/// the method's `C_S` table of `hit`'s segment (`multiple::scatter_transferred`). Its mean is
+/// exactly what the method would shade at the hit point from a transfer without error, so
+/// rung 1 minus rung 1′ is what truncating the incident light and the fiber's scattering to
+/// order n costs. The direction is drawn from an even mix of the uniform sphere (every SH
+/// coefficient needs the whole sphere) and the fiber's scattering function (where the light
+/// that counts comes from), and weighted by the mix's density.
+fn incident_sh_scattered(
+    scene: &Scene,
+    baked: &Baked,
+    hit: &Hit,
+    origin: DVec3,
+    wo: DVec3,
+    rng: &mut Pcg64Mcg,
+) -> Result<Rgb, ShadingError> {
+    let Some(seg) = SegmentShading::of(baked, hit.segment)? else {
+        return Ok(Rgb::ZERO);
+    };
+    let slot = seg.fiber.material;
+    let Some(Some(cs)) = baked.cs_tables.get(slot) else {
+        return Err(ShadingError::MissingCsTable { material: slot });
+    };
+    let material = &scene.path_scene.yarn_materials[hit.yarn as usize];
+    let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
+    let wi = if rng.random::<f64>() < 0.5 {
+        uniform_sphere(rng.random(), rng.random())
+    } else {
+        match material.sample(t, n, wo, [rng.random(), rng.random(), rng.random()]) {
+            Some((wi, _)) => wi,
+            None => return Ok(Rgb::ZERO),
+        }
+    };
+    let pdf = 0.5 / (4.0 * std::f64::consts::PI) + 0.5 * material.pdf(t, n, wo, wi);
+    let settings =
+        RenderSettings { spp: 1, max_depth: scene.render.max_depth, component: Component::All, seed: 0 };
+    let incident = radiance_from(&scene.path_scene, origin, wi, Some(hit.fiber), &settings, rng) / pdf;
+    if incident == Rgb::ZERO {
+        return Ok(Rgb::ZERO);
+    }
+    let order = cs.sh_order();
+    let mut basis = vec![0.0; sh_count(order)];
+    sh_eval(order, wi, &mut basis);
+    let projected: Vec<Rgb> = basis.iter().map(|y| incident * *y).collect();
+    Ok(scatter_transferred(cs, &projected, seg.tangent, wo))
 }
 
 /// One sample of the indirect light at `origin` scattered toward `wo` by `hit`'s fiber: a
