@@ -494,7 +494,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3, split_transfer: false };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
-    assert_eq!(budget.rungs.len(), 15);
+    assert_eq!(budget.rungs.len(), 16);
     // The clamp at zero on the same samples: on each sample (4″) lifts the mean at least as
     // much as on each pixel's mean (4, the method), which lifts it at least as much as no
     // clamp (4′).

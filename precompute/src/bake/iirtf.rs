@@ -1213,7 +1213,7 @@ pub fn folds_lobes(order: usize, forward0: Rgb, forward_cosine: Rgb) -> bool {
 /// ([`forward_lobe_min_sharpness`]) then keeps the lobes and a zero matrix; any other keeps
 /// its matrix and no lobes. `tick(paths)` is called every [`CHECK_EVERY`] paths and returns
 /// false to stop (then `None`).
-fn bake_cell(
+pub(crate) fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
     order: usize,

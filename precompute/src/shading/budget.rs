@@ -34,6 +34,8 @@
 //!    the method's `C_S` table: what the SH truncation alone costs, at the exact point and
 //!    with exact light transport (no clamp);
 //! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
+//!    2′. the IIRTF of the hit's segment alone (the bake's sampler, SH order, paths and starts,
+//!    matrices only), shaded as rung 3: the transfer without the cells' averaging;
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell, its paths from segment midpoints (the paper) or exposed starts
 //!    (`BakeSettings::exposed_starts`);
@@ -57,20 +59,26 @@
 //! component's ladder. The GPU rung minus the last
 //! CPU rung is what the GPU renderer itself adds beyond its primary hits.
 
+use std::collections::{BTreeSet, HashMap};
 use std::fmt::Write as _;
+use std::sync::Mutex;
 use std::time::Instant;
 
 use glam::DVec3;
 use rand::Rng;
 use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
 
-use super::multiple::scatter_transferred;
+use super::multiple::{hemisphere_light_sh, multiple_scattering_in_cell, scatter_transferred};
 use super::render::{ClampAtZero, MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use super::visibility::ssdf_lookup;
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::Cancel;
-use crate::bake::iirtf::{IirtfOptions, TransferPart, bake_iirtf, uniform_sphere};
+use crate::bake::iirtf::{
+    CellTransfer, IirtfOptions, TransferPart, TransferSampler, bake_cell, bake_iirtf, cell_stream,
+    uniform_sphere,
+};
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
 use crate::bake::svf::{VisibilityImages, render_exemplar, visibility_origin, visibility_point_fraction};
 use crate::image::{Estimate, Film, Image, compare};
@@ -324,6 +332,7 @@ pub fn error_budget(
     let segments = fibers.segments();
     let midpoint =
         |hit: &Hit| segments[hit.segment as usize].midpoint().as_dvec3() + fibers.tile_offset(hit.tile);
+    let order = baked.transfer.iirtf.sh_order;
     for (name, at_hit) in [
         ("1 path-traced indirect light at the hit point (exact)", true),
         ("2 path-traced indirect light at the segment midpoint", false),
@@ -334,20 +343,34 @@ pub fn error_budget(
             Ok(indirect_light(scene, hit, origin, wo, rng))
         })?;
         push(Component::Multiple, name.to_string(), &film, t.elapsed().as_secs_f64());
+        if at_hit {
+            let t = Instant::now();
+            let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+                incident_sh_scattered(scene, baked, hit, fibers.world_position_f64(hit), wo, rng)
+            })?;
+            push(
+                Component::Multiple,
+                format!(
+                    "1' rung 1's incident indirect light in SH of order {order}, scattered through C_S (no clamp)"
+                ),
+                &film,
+                t.elapsed().as_secs_f64(),
+            );
+        } else {
+            let t = Instant::now();
+            let film = per_segment_transfer(scene, baked, settings)?;
+            push(
+                Component::Multiple,
+                format!(
+                    "2' the IIRTF of the hit's segment alone ({} paths, {}, matrices only, no clamp)",
+                    baked.settings.iirtf_paths_per_cell,
+                    if baked.settings.exposed_starts { "exposed starts" } else { "from its midpoint" }
+                ),
+                &film,
+                t.elapsed().as_secs_f64(),
+            );
+        }
     }
-    let order = baked.transfer.iirtf.sh_order;
-    let t = Instant::now();
-    let film = render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
-        incident_sh_scattered(scene, baked, hit, fibers.world_position_f64(hit), wo, rng)
-    })?;
-    push(
-        Component::Multiple,
-        format!(
-            "1' rung 1's incident indirect light in SH of order {order}, scattered through C_S (no clamp)"
-        ),
-        &film,
-        t.elapsed().as_secs_f64(),
-    );
     if settings.split_transfer {
         for (part, name) in [
             (
@@ -427,6 +450,66 @@ pub fn error_budget(
         reference_seconds,
         single_reference,
         multiple_reference,
+    })
+}
+
+/// Rung 2′: the method's transfer with each cell replaced by the hit's own segment. Every
+/// segment a primary hit lands on gets the IIRTF of a cell that holds it alone, baked with the
+/// bake's sampler, SH order, paths per cell and starts (its matrix only: no fiber lobes), and
+/// the hit is shaded with it as rung 3 shades with its cell's. Against rung 3 it shows what
+/// averaging the transfer over a cell costs, against rung 2 what the transfer itself costs
+/// (the light's SH and the paths' noise) where the cells do not average.
+fn per_segment_transfer(
+    scene: &Scene,
+    baked: &Baked,
+    settings: &BudgetSettings,
+) -> Result<Film, ShadingError> {
+    let hit_segments = Mutex::new(BTreeSet::new());
+    render_primary_hits(scene, settings.spp, settings.seed, |hit, _, _| {
+        hit_segments
+            .lock()
+            .map_err(|_| ShadingError::Budget("a worker panicked".into()))?
+            .insert(hit.segment);
+        Ok(Rgb::ZERO)
+    })?;
+    let segments: Vec<u32> = hit_segments
+        .into_inner()
+        .map_err(|_| ShadingError::Budget("a worker panicked".into()))?
+        .into_iter()
+        .collect();
+    let inputs =
+        BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings: baked.settings };
+    let (_, yarn_materials) = yarn_materials(&inputs)?;
+    let sampler = TransferSampler::new(&scene.exemplar, &yarn_materials, baked.transfer.iirtf.light_domain)
+        .map_err(|e| ShadingError::Budget(format!("the per-segment transfer's sampler: {e}")))?
+        .with_exposed_starts(baked.settings.exposed_starts);
+    let order = baked.transfer.iirtf.sh_order;
+    let paths = baked.settings.iirtf_paths_per_cell;
+    let transfers: HashMap<u32, CellTransfer> = segments
+        .par_iter()
+        .filter_map(|&k| {
+            bake_cell(&sampler, &[k], order, paths, false, cell_stream(settings.seed, k), &|_| true)
+                .map(|transfer| (k, transfer))
+        })
+        .collect();
+    let mut c_light = vec![Rgb::ZERO; sh_count(order)];
+    for light in &scene.path_scene.lights {
+        for (sum, c) in c_light.iter_mut().zip(hemisphere_light_sh(light, order, &baked.cg)) {
+            *sum += c;
+        }
+    }
+    render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, _| {
+        let Some(seg) = SegmentShading::of(baked, hit.segment)? else {
+            return Ok(Rgb::ZERO);
+        };
+        let slot = seg.fiber.material;
+        let Some(Some(cs)) = baked.cs_tables.get(slot) else {
+            return Err(ShadingError::MissingCsTable { material: slot });
+        };
+        let Some(transfer) = transfers.get(&hit.segment) else {
+            return Ok(Rgb::ZERO);
+        };
+        Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, &c_light))
     })
 }
 
