@@ -69,7 +69,7 @@ use rand::Rng;
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use super::multiple::{hemisphere_light_sh, multiple_scattering_in_cell, scatter_transferred};
+use super::multiple::{multiple_scattering_in_cell, scatter_transferred, transfer_light_sh};
 use super::render::{ClampAtZero, MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
 use super::visibility::ssdf_lookup;
 use super::{SegmentShading, ShadingError};
@@ -492,20 +492,12 @@ fn per_segment_transfer(
                 .map(|transfer| (k, transfer))
         })
         .collect();
-    let mut c_light = vec![Rgb::ZERO; sh_count(order)];
-    for light in &scene.path_scene.lights {
-        for (sum, c) in c_light.iter_mut().zip(hemisphere_light_sh(light, order, &baked.cg)) {
-            *sum += c;
-        }
-    }
+    let c_light = transfer_light_sh(baked, scene.path_scene.lights.iter().map(|light| (light, 1.0)));
     render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, _| {
         let Some(seg) = SegmentShading::of(baked, hit.segment)? else {
             return Ok(Rgb::ZERO);
         };
-        let slot = seg.fiber.material;
-        let Some(Some(cs)) = baked.cs_tables.get(slot) else {
-            return Err(ShadingError::MissingCsTable { material: slot });
-        };
+        let cs = seg.cs_table(baked)?;
         let Some(transfer) = transfers.get(&hit.segment) else {
             return Ok(Rgb::ZERO);
         };
@@ -690,10 +682,7 @@ fn incident_sh_scattered(
     let Some(seg) = SegmentShading::of(baked, hit.segment)? else {
         return Ok(Rgb::ZERO);
     };
-    let slot = seg.fiber.material;
-    let Some(Some(cs)) = baked.cs_tables.get(slot) else {
-        return Err(ShadingError::MissingCsTable { material: slot });
-    };
+    let cs = seg.cs_table(baked)?;
     let material = &scene.path_scene.yarn_materials[hit.yarn as usize];
     let (t, n) = (hit.tangent.as_dvec3(), hit.normal.as_dvec3());
     let wi = if rng.random::<f64>() < 0.5 {

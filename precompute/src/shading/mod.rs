@@ -51,6 +51,7 @@ pub use visibility::{
 
 use glam::DVec3;
 
+use crate::bake::cs_table::CsTable;
 use crate::bake::pipeline::Baked;
 use crate::bcsdf::MaterialDesc;
 use crate::params::ParamError;
@@ -113,5 +114,14 @@ impl SegmentShading {
             return Ok(None);
         };
         Ok(Some(Self { tangent, fiber: FiberConstants::new(params, material as usize)? }))
+    }
+
+    /// The bake's `C_S` table of the segment's material (multiple scattering's fiber side).
+    pub fn cs_table<'a>(&self, baked: &'a Baked) -> Result<&'a CsTable, ShadingError> {
+        let material = self.fiber.material;
+        match baked.cs_tables.get(material) {
+            Some(Some(cs)) => Ok(cs),
+            _ => Err(ShadingError::MissingCsTable { material }),
+        }
     }
 }

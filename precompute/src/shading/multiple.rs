@@ -139,6 +139,22 @@ pub fn upper_fit_share(sharpness: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// The light SH the transfer takes in `baked` (bands `0..=` its order): the sum over `lights`
+/// of `V̄ · hemisphere_light_sh(light)`, V̄ each light's blurred global visibility (lights with
+/// V̄ = 0 skipped).
+pub fn transfer_light_sh<'a>(baked: &Baked, lights: impl IntoIterator<Item = (&'a Light, f64)>) -> Vec<Rgb> {
+    let order = baked.transfer.iirtf.sh_order;
+    let mut c_light = vec![Rgb::ZERO; sh_count(order)];
+    for (light, v_blurred) in lights {
+        if v_blurred != 0.0 {
+            for (sum, c) in c_light.iter_mut().zip(hemisphere_light_sh(light, order, &baked.cg)) {
+                *sum += c * v_blurred;
+            }
+        }
+    }
+    c_light
+}
+
 /// `C_S[θo] · (R_ωo · A_C · c_light)` per channel for a segment of unit tangent `t` in the
 /// cell whose transfer is `transfer`, seen from unit `wo`; `cs` is the segment's material's
 /// table. `c_light` holds `(L+1)²` coefficients, L = `cs.sh_order()`.
@@ -219,10 +235,7 @@ pub fn multiple_scattering(
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
-    let material = seg.fiber.material;
-    let Some(Some(cs)) = baked.cs_tables.get(material) else {
-        return Err(ShadingError::MissingCsTable { material });
-    };
+    let cs = seg.cs_table(baked)?;
     let grid = &baked.transfer.cells;
     let cells = &baked.transfer.iirtf.cells;
     let own_cell = &cells[grid.cell_of_segment(segment) as usize];

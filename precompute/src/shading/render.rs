@@ -18,7 +18,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use super::ShadingError;
-use super::multiple::{hemisphere_light_sh, lobe_scattering, multiple_scattering};
+use super::multiple::{lobe_scattering, multiple_scattering, transfer_light_sh};
 use super::single::single_scattering;
 use crate::Rgb;
 use crate::bake::pipeline::Baked;
@@ -29,7 +29,6 @@ use crate::pathtrace::{Component, Light};
 use crate::raycast::Hit;
 use crate::raycast::clip_slab;
 use crate::scene::{Scene, camera_from};
-use crate::sh::sh_count;
 
 /// Radiance leaving `segment` of `baked` at `position` (exemplar coordinates; `None`: transfer
 /// constant per cell, see [`multiple_scattering`]) toward unit `wo` (fabric space) under
@@ -67,15 +66,8 @@ fn shade_segment(
         }
     }
     if component != Component::Single {
-        let order = baked.transfer.iirtf.sh_order;
-        let mut c_light = vec![Rgb::ZERO; sh_count(order)];
-        for (light, _, v_blurred) in lights {
-            if *v_blurred != 0.0 {
-                for (sum, c) in c_light.iter_mut().zip(hemisphere_light_sh(light, order, &baked.cg)) {
-                    *sum += c * *v_blurred;
-                }
-            }
-        }
+        let c_light =
+            transfer_light_sh(baked, lights.iter().map(|(light, _, v_blurred)| (light, *v_blurred)));
         // Truncated SH and a noisy transfer can go negative. What is clamped (per channel, as
         // the GPU's shade pass does) is the radiance shaded, single and multiple scattering
         // together, not the multiple-scattering term alone: a clamp lifts the mean wherever it
