@@ -116,7 +116,7 @@ impl Quality {
                 visibility_bits: true,
                 sos_count: 32,
                 sos_sharpness: 128.0,
-                cell_size_mfp: 4.0,
+                cell_size_mfp: 3.0,
                 cell_depth_mfp: 0.5,
                 iirtf_paths_per_cell: 96,
                 sh_order: 2,
