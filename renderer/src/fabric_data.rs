@@ -10,6 +10,9 @@
 //! Cells are stored sparsely: only a cell that holds segments has a transfer matrix and fiber
 //! lobes, in its *slot* (slots number those cells in global cell order, so each exemplar's are
 //! contiguous), and `cell_slots` maps every cell of the grid to 1 + its slot, or 0 when empty.
+//! The segment cells (`bake::cells`, one segment each, matrices only) are numbered after every
+//! exemplar's lattice cells, so that the lobes buffer stops at the last lattice slot: a
+//! segment cell would hold 3,920 bytes of zeros there (about 43 MB on the default fabric).
 //! Most of a grid is empty (air above and below the yarns, the gaps between them: 6,013 of the
 //! default fabric's 9,025 interactive cells, 249,191 of `large`'s 269,664 at `paper`), and an
 //! empty cell now costs 4 bytes instead of a matrix.
@@ -115,8 +118,8 @@ pub struct ExemplarGpu {
 const _: () = assert!(size_of::<ExemplarGpu>() == 112);
 
 impl ExemplarGpu {
-    /// Cells in the exemplar's whole lattice: every block's (`CellGrid::cell_count`; a patterned
-    /// exemplar spans several blocks).
+    /// Cells in the exemplar's whole lattice: every block's (`CellGrid::lattice_cell_count`; a
+    /// patterned exemplar spans several blocks). Its segment cells, if any, follow them.
     #[must_use]
     pub fn cell_count(&self) -> usize {
         self.cell_dims.iter().map(|&d| d as usize).product::<usize>()
@@ -142,9 +145,14 @@ pub struct SegmentGpu {
     pub sos_rotation: f32,
     /// Fiber radius (cm): the capsule eye rays test.
     pub radius: f32,
-    pub pad: u32,
+    /// Global id of the segment's own cell (`CellGrid::segment_cell`), or [`NO_SEGMENT_CELL`]
+    /// where the bake has none (`BakeSettings::segment_transfer_paths` off).
+    pub segment_cell: u32,
 }
 const _: () = assert!(size_of::<SegmentGpu>() == 48);
+
+/// [`SegmentGpu::segment_cell`] of a segment without a cell of its own.
+pub const NO_SEGMENT_CELL: u32 = u32::MAX;
 
 /// Twin of `MaterialGpu` in `shaders/shared/fabric_data.wgsl`.
 #[repr(C)]
@@ -188,13 +196,16 @@ pub struct FabricArrays {
     /// f16 pairs, one matrix per slot (see the module doc).
     pub iirtf: Vec<u32>,
     /// Per global cell: 1 + its slot if it holds segments (and so a transfer matrix), 0 if
-    /// empty. Slots number the cells that hold segments in global cell order, so each
-    /// exemplar's are contiguous.
+    /// empty. Slots number the lattice cells that hold segments in global cell order, so each
+    /// exemplar's are contiguous, and then the segment cells that have a transfer
+    /// (`bake::cells`), likewise.
     pub cell_slots: Vec<u32>,
     /// Slots: the cells that hold segments.
     pub slot_count: usize,
+    /// The lattice cells' slots, the first ones: the only ones with fiber lobes.
+    pub lattice_slot_count: usize,
     /// The fiber lobes (`CellTransfer::forward`, `reflected` and their shapes), twin of `lobes`
-    /// in `shaders/shared/fabric_data.wgsl`: per slot [`LOBE_PACKED_FLOATS`] floats in
+    /// in `shaders/shared/fabric_data.wgsl`: per lattice slot [`LOBE_PACKED_FLOATS`] floats in
     /// `CellTransfer::pack_lobes`' layout, zeros for a cell without lobes (one that folded its
     /// light into its matrix). Empty for a set baked without fiber lobes in which no cell has
     /// them (the buffer is then one zeroed vec4, never read).
@@ -297,6 +308,7 @@ impl FabricArrays {
             iirtf: Vec::new(),
             cell_slots: Vec::new(),
             slot_count: 0,
+            lattice_slot_count: 0,
             lobes: Vec::new(),
             lobe_cells: 0,
             cs_table: Vec::new(),
@@ -364,9 +376,11 @@ impl FabricArrays {
                 cell_blocks_y: cells.blocks()[1],
             });
             let lobe_sh = twill_precompute::sh::sh_count(LOBE_SH_ORDER);
+            let lattice = cells.lattice_cell_count();
             for (c, cell) in baked.transfer.iirtf.cells.iter().enumerate() {
                 // Only cells that hold segments get a slot: its lobes and its matrix, packed here.
-                if cell.paths == 0 {
+                // Segment cells get theirs after every exemplar's lattice (below).
+                if cell.paths == 0 || c >= lattice {
                     out.cell_slots.push(0);
                     continue;
                 }
@@ -387,23 +401,7 @@ impl FabricArrays {
                 let start = out.lobes.len();
                 out.lobes.resize(start + LOBE_PACKED_FLOATS, 0.0);
                 cell.pack_lobes(&mut out.lobes[start..]);
-                if cell.is_empty() {
-                    // A slot without a matrix transfers nothing.
-                    iirtf_values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
-                    continue;
-                }
-                let largest = cell.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs()));
-                for channel in 0..3 {
-                    for entry in &cell.matrix {
-                        let value = entry[channel];
-                        iirtf_values.push(value);
-                        if largest > 0.0 && value.abs() >= 1e-3 * largest {
-                            let (rounded, value) = (f64::from(f16_round_trip(value)), f64::from(value));
-                            let rel = (rounded - value).abs() / value.abs();
-                            out.iirtf_f16_max_rel_error = out.iirtf_f16_max_rel_error.max(rel);
-                        }
-                    }
-                }
+                push_matrix(cell, sh_count, &mut iirtf_values, &mut out.iirtf_f16_max_rel_error);
             }
             // A bake made with fiber lobes keeps its buffer even when every cell folded its light
             // into its matrix: a recolouring can give a cell lobes again.
@@ -420,7 +418,10 @@ impl FabricArrays {
                     cell: to_u32(cell_base, "cell")? + cells.cell_of_segment(to_u32(k, "segment")?),
                     sos_rotation: baked.visibility.sum_of_sg.rotation(k * visibility_points),
                     radius: baked.volume.segments.radius[k],
-                    pad: 0,
+                    segment_cell: match cells.segment_cell(to_u32(k, "segment")?) {
+                        Some(c) => to_u32(cell_base, "cell")? + c,
+                        None => NO_SEGMENT_CELL,
+                    },
                 });
             }
             if let Some(slot) = baked.materials.iter().position(|m| matches!(m, MaterialDesc::Lambert { .. }))
@@ -465,6 +466,18 @@ impl FabricArrays {
                 }
             }
             out.gn_table.extend_from_slice(baked.gn.data());
+        }
+        // The segment cells' slots (`bake::cells`), after every exemplar's lattice slots, so
+        // that the lobes (lattice cells only: a segment cell has none) end with the lattice's.
+        out.lattice_slot_count = slots;
+        for (ex, baked) in out.exemplars.iter().zip(exemplars) {
+            let first = ex.cell_offset as usize + baked.transfer.cells.lattice_cell_count();
+            let segment_cells = baked.transfer.iirtf.cells.iter().skip(baked.transfer.cells.lattice_cell_count());
+            for (c, cell) in segment_cells.enumerate().filter(|(_, cell)| cell.paths > 0) {
+                slots += 1;
+                out.cell_slots[first + c] = to_u32(slots, "slot")?;
+                push_matrix(cell, sh_count, &mut iirtf_values, &mut out.iirtf_f16_max_rel_error);
+            }
         }
         out.iirtf = pack_f16_pairs(&iirtf_values);
         out.slot_count = slots;
@@ -751,6 +764,28 @@ impl FabricData {
     }
 }
 
+/// Appends `cell`'s matrix channel-planar (`3 n²` values, n = `sh_count`; zeros for a cell
+/// that keeps all of its light in fiber lobes) to `values`, raising `max_rel_error` to the
+/// largest relative f16 rounding error of its entries above 1e-3 of its largest.
+fn push_matrix(cell: &CellTransfer, sh_count: usize, values: &mut Vec<f32>, max_rel_error: &mut f64) {
+    if cell.is_empty() {
+        // A slot without a matrix transfers nothing.
+        values.extend(std::iter::repeat_n(0.0, 3 * sh_count * sh_count));
+        return;
+    }
+    let largest = cell.matrix.iter().flatten().fold(0.0_f32, |m, v| m.max(v.abs()));
+    for channel in 0..3 {
+        for entry in &cell.matrix {
+            let value = entry[channel];
+            values.push(value);
+            if largest > 0.0 && value.abs() >= 1e-3 * largest {
+                let (rounded, value) = (f64::from(f16_round_trip(value)), f64::from(value));
+                *max_rel_error = max_rel_error.max((rounded - value).abs() / value.abs());
+            }
+        }
+    }
+}
+
 /// Writes one cell of a recolouring: its IIRTF (f16 bits) and its fiber lobes
 /// ([`Recolouring::write_cell`]).
 pub type WriteRecolouredCell<'a> = dyn Fn(usize, &mut [u16], &mut [f32]) + Sync + 'a;
@@ -801,7 +836,11 @@ impl FabricData {
         let Some(ex) = a.exemplars.get(r.exemplar) else {
             return Err(FabricDataError::Inconsistent(format!("no exemplar {} to recolour", r.exemplar)));
         };
-        let (first_cell, cells) = (ex.cell_offset as usize, ex.cell_count());
+        // The exemplar's cells: its lattice's, then its segment cells if it has them, up to the
+        // next exemplar's first cell.
+        let first_cell = ex.cell_offset as usize;
+        let end_cell = a.exemplars.get(r.exemplar + 1).map_or(a.cell_slots.len(), |next| next.cell_offset as usize);
+        let cells = end_cell.saturating_sub(first_cell);
         if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars
         {
             return Err(FabricDataError::Inconsistent(format!(
@@ -841,54 +880,60 @@ impl FabricData {
         queue.write_buffer(&cs_buffer, (cs_range.start * 4) as u64, bytemuck::cast_slice(&cs));
         written.push("cs_table");
         // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words. The
-        // exemplar's cells with segments have contiguous slots, in cell order.
+        // exemplar's lattice cells with segments have contiguous slots, in cell order, and so
+        // do its segment cells with a transfer (after every exemplar's lattice slots); only
+        // the lattice's have lobes.
         let Some(exemplar_slots) = a.cell_slots.get(first_cell..first_cell + cells) else {
             return Err(FabricDataError::Inconsistent("the exemplar's cells lie outside the buffer".into()));
         };
-        let occupied: Vec<usize> = (0..cells).filter(|&c| exemplar_slots[c] != 0).collect();
-        let Some(&first_occupied) = occupied.first() else {
-            return Ok(written);
-        };
-        let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
-        let start = first_slot * cell_values;
-        let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
-        let Some(exemplar_halves) = halves.get_mut(start..start + filled * cell_values) else {
-            return Err(FabricDataError::Inconsistent(
-                "the exemplar's IIRTF cells lie outside the buffer".into(),
-            ));
-        };
-        let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
+        let lattice = ex.cell_count().min(cells);
         let with_lobes = !a.lobes.is_empty(); // holds_lobes(), while a.iirtf is borrowed
-        let lobe_values: &mut [f32] = if with_lobes {
-            let Some(lobes) = a.lobes.get_mut(lobe_range.clone()) else {
+        let mut lobes_written = false;
+        for (range, lobed) in [(0..lattice, with_lobes), (lattice..cells, false)] {
+            let occupied: Vec<usize> = range.filter(|&c| exemplar_slots[c] != 0).collect();
+            let Some(&first_occupied) = occupied.first() else {
+                continue;
+            };
+            let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
+            let start = first_slot * cell_values;
+            let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
+            let Some(range_halves) = halves.get_mut(start..start + filled * cell_values) else {
                 return Err(FabricDataError::Inconsistent(
-                    "the exemplar's fiber lobes lie outside the buffer".into(),
+                    "the exemplar's IIRTF cells lie outside the buffer".into(),
                 ));
             };
-            lobes
-        } else {
-            &mut []
-        };
-        if with_lobes {
-            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
-                .enumerate()
-                .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
-        } else {
-            exemplar_halves
-                .par_chunks_mut(cell_values)
-                .enumerate()
-                .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
+            let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
+            if lobed {
+                let Some(lobe_values) = a.lobes.get_mut(lobe_range.clone()) else {
+                    return Err(FabricDataError::Inconsistent(
+                        "the exemplar's fiber lobes lie outside the buffer".into(),
+                    ));
+                };
+                (range_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
+                    .enumerate()
+                    .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
+            } else {
+                range_halves
+                    .par_chunks_mut(cell_values)
+                    .enumerate()
+                    .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
+            }
+            let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
+            queue.write_buffer(
+                &iirtf_buffer,
+                (word_start * 4) as u64,
+                bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
+            );
+            if lobed {
+                let lobes = &a.lobes[lobe_range.clone()];
+                queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
+                lobes_written = true;
+            }
         }
-        let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
-        queue.write_buffer(
-            &iirtf_buffer,
-            (word_start * 4) as u64,
-            bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
-        );
-        written.push("iirtf");
-        if with_lobes {
-            let lobes = &a.lobes[lobe_range.clone()];
-            queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
+        if exemplar_slots.iter().any(|&slot| slot != 0) {
+            written.push("iirtf");
+        }
+        if lobes_written {
             written.push("lobes");
             a.lobe_cells = a.count_lobe_cells();
         }

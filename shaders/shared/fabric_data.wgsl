@@ -95,8 +95,11 @@ struct SegmentGpu {
     sos_rotation: f32,
     // Fiber radius (cm): the capsule eye rays test.
     radius: f32,
-    _pad0: u32,
+    // Global id of the segment's own cell (CellGrid::segment_cell), NO_SEGMENT_CELL if none.
+    segment_cell: u32,
 }
+
+const NO_SEGMENT_CELL: u32 = 0xffffffffu;
 
 struct MaterialGpu {
     c_r: vec3<f32>,

@@ -575,16 +575,41 @@ fn transferred_at(e: u32, segment: u32, p: vec3<f32>, c_in: ptr<function, array<
     }
 }
 
-// The cells whose transfer is interpolated at the shaded point p (cell_interpolation), or,
-// where all eight are empty, the segment's own cell alone (weight 1) if it has a transfer;
-// every weight 0 if neither.
+// Whether the cell in `slot` keeps fiber lobes: a nonzero strength (each strength[0] sums
+// non-negative shares; a cell without lobes is all zeros, one whose lobes carry no light has
+// no strength either). The buffer stops at the last lattice slot (a segment cell has no lobes,
+// fabric_data.rs), and a bake without lobes binds one zeroed vec4.
+fn slot_keeps_lobes(slot: u32) -> bool {
+    let base = slot * LOBE_PACKED_VEC4S;
+    if (base + LOBE_PACKED_VEC4S > arrayLength(&lobes)) {
+        return false;
+    }
+    return any(lobes[base].xyz != vec3<f32>(0.0)) || any(lobes[base + LOBE_SH_COUNT].xyz != vec3<f32>(0.0));
+}
+
+// The cells whose transfer is shaded at point p of `segment` (multiple.rs
+// segment_transfer, multiple_scattering): its own segment cell alone (weight 1) where the bake
+// has one for it and its lattice cell keeps no fiber lobes; else the lattice cells interpolated
+// around p (cell_interpolation), or, where all eight are empty, the segment's lattice cell
+// alone if it has a transfer; every weight 0 if none.
 fn transfer_cells(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
+    let s = segments[segment];
+    if (s.segment_cell != NO_SEGMENT_CELL) {
+        let own_slot = cell_slots[s.segment_cell];
+        let lattice_slot = cell_slots[s.cell];
+        if (own_slot != 0u && !(lattice_slot != 0u && slot_keeps_lobes(lattice_slot - 1u))) {
+            var alone: CellWeights;
+            alone.slots[0] = own_slot - 1u;
+            alone.weights[0] = 1.0;
+            return alone;
+        }
+    }
     var around = cell_interpolation(e, p);
     var found = false;
     for (var k = 0u; k < 8u; k++) {
         found = found || around.weights[k] > 0.0;
     }
-    let own = cell_slots[segments[segment].cell];
+    let own = cell_slots[s.cell];
     if (!found && own != 0u) {
         around.slots[0] = own - 1u;
         around.weights[0] = 1.0;
@@ -823,15 +848,13 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         if (!(w > 0.0)) {
             continue;
         }
-        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
-        let forward0 = lobes[base].xyz;
-        let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
-        // A cell without lobes is all zeros; one whose lobes carry no light has no strength
-        // either (each strength[0] sums non-negative shares): both add nothing.
-        if (all(forward0 == vec3<f32>(0.0)) && all(reflected0 == vec3<f32>(0.0))) {
+        if (!slot_keeps_lobes((*at).around.slots[k])) {
             (*at).around.weights[k] = 0.0;
             continue;
         }
+        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
+        let forward0 = lobes[base].xyz;
+        let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
         any = true;
         (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
         for (var lobe = 0u; lobe < 2u; lobe++) {

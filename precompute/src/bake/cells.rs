@@ -24,6 +24,16 @@
 //! Cell ids are block-major: `id = block * cells_per_block + (iz * dy + iy) * dx + ix` with
 //! `block = by * nx + bx`. Cells that contain no segment midpoint are allowed; their IIRTF is
 //! defined as zero (nothing can be shaded with it, since no segment maps there).
+//!
+//! **Segment cells** ([`CellGrid::with_segment_cells`], `BakeSettings::segment_transfer_paths`):
+//! after the lattice's cells, one cell per segment holding that segment alone (id
+//! `lattice_cell_count() + k`). A lattice cell 2.5ℓ across holds both sides of a yarn and a
+//! view sees one of them, so its transfer, the mean over both, is too dark for front-lit views
+//! and too bright for backlit ones; a segment's own transfer is not (docs/BENCHMARKS.md, "Where
+//! the transfer loses multiple scattering"). Every per-cell stage (the IIRTF, the recolouring
+//! basis, shards, the bake file, the GPU's slots) treats them as cells; only shading tells
+//! them apart ([`CellGrid::segment_cell`]), and [`CellGrid::interpolation`] and
+//! [`CellGrid::cell_of_segment`] stay on the lattice.
 
 use glam::DVec3;
 
@@ -60,9 +70,13 @@ pub struct CellGrid {
     cell_size: DVec3,
     periodic: bool,
     cell_of_segment: Vec<u32>,
-    /// Segment ids sorted by cell; `cell_starts[c]..cell_starts[c + 1]` are cell `c`'s.
+    /// Segment ids sorted by cell; `cell_starts[c]..cell_starts[c + 1]` are cell `c`'s (the
+    /// segment cells' after the lattice's: `0..n` again).
     segments_by_cell: Vec<u32>,
     cell_starts: Vec<u32>,
+    /// Whether one cell per segment follows the lattice's (module docs).
+    #[serde(default)]
+    segment_cells: bool,
 }
 
 impl CellGrid {
@@ -127,9 +141,10 @@ impl CellGrid {
             cell_of_segment: Vec::new(),
             segments_by_cell: Vec::new(),
             cell_starts: Vec::new(),
+            segment_cells: false,
         };
         grid.cell_of_segment = segments.iter().map(|s| grid.cell_of_point(s.midpoint().as_dvec3())).collect();
-        let cells = grid.cell_count();
+        let cells = grid.lattice_cell_count();
         let mut counts = vec![0_u32; cells + 1];
         for &c in &grid.cell_of_segment {
             counts[c as usize + 1] += 1;
@@ -148,10 +163,75 @@ impl CellGrid {
         Ok(grid)
     }
 
-    /// Total number of cells (all blocks).
+    /// The grid a bake with `settings` uses: its cell size and depth, and segment cells if it
+    /// asks for them (`BakeSettings::segment_transfer_paths`).
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn for_bake(
+        exemplar: &Exemplar,
+        mean_free_path_cm: f64,
+        settings: &super::settings::BakeSettings,
+    ) -> Result<Self, CellError> {
+        let grid = Self::new(exemplar, mean_free_path_cm, settings.cell_size_mfp, settings.cell_depth_mfp)?;
+        Ok(if settings.segment_transfer_paths > 0 { grid.with_segment_cells() } else { grid })
+    }
+
+    /// The grid with one cell per segment after the lattice's (module docs); unchanged if it
+    /// has them already.
+    #[must_use]
+    pub fn with_segment_cells(mut self) -> Self {
+        if self.segment_cells {
+            return self;
+        }
+        let n = self.segment_count() as u32;
+        let end = *self.cell_starts.last().expect("cell_starts holds cell_count() + 1 entries");
+        self.segments_by_cell.extend(0..n);
+        self.cell_starts.extend((1..=n).map(|k| end + k));
+        self.segment_cells = true;
+        self
+    }
+
+    /// The grid without its segment cells (the lattice alone).
+    #[must_use]
+    pub fn lattice_only(mut self) -> Self {
+        if self.segment_cells {
+            let lattice = self.lattice_cell_count();
+            self.cell_starts.truncate(lattice + 1);
+            self.segments_by_cell.truncate(self.segment_count());
+            self.segment_cells = false;
+        }
+        self
+    }
+
+    /// Total number of cells: the lattice's (all blocks), then the segment cells if any.
     #[must_use]
     pub fn cell_count(&self) -> usize {
+        self.lattice_cell_count() + if self.segment_cells { self.segment_count() } else { 0 }
+    }
+
+    /// Cells of the lattice (all blocks), the ids below the segment cells'.
+    #[must_use]
+    pub fn lattice_cell_count(&self) -> usize {
         self.cells_per_block() * self.blocks[0] as usize * self.blocks[1] as usize
+    }
+
+    /// Whether the grid has a cell per segment (module docs).
+    #[must_use]
+    pub fn has_segment_cells(&self) -> bool {
+        self.segment_cells
+    }
+
+    /// The cell holding segment `k` alone, if the grid has segment cells.
+    #[must_use]
+    pub fn segment_cell(&self, k: u32) -> Option<u32> {
+        self.segment_cells.then(|| self.lattice_cell_count() as u32 + k)
+    }
+
+    /// Whether cell `c` is a segment cell (module docs).
+    #[must_use]
+    pub fn is_segment_cell(&self, c: u32) -> bool {
+        c as usize >= self.lattice_cell_count()
     }
 
     /// Cells per block along x, y, z.
@@ -450,5 +530,33 @@ mod tests {
         let a: f64 = w.iter().filter(|e| e.0 == grid.cell_at(ix, iy, iz)).map(|e| e.1).sum();
         let b: f64 = w.iter().filter(|e| e.0 == grid.cell_at((ix + 1) % nx, iy, iz)).map(|e| e.1).sum();
         assert!((a - 0.5).abs() < 1e-9 && (b - 0.5).abs() < 1e-9, "{a} {b}");
+    }
+
+    #[test]
+    fn segment_cells_follow_the_lattice_one_segment_each_and_leave_it_unchanged() {
+        let mut ex = synthetic_weave(&SyntheticWeave::small());
+        ex.blocks = BlockGrid { nx: 2, ny: 1 };
+        let lattice = CellGrid::new(&ex, 0.004, 1.0, 0.5).unwrap();
+        let grid = lattice.clone().with_segment_cells();
+        let (n, first) = (ex.segment_count(), lattice.cell_count());
+        assert!(grid.has_segment_cells() && !lattice.has_segment_cells());
+        assert_eq!((grid.lattice_cell_count(), grid.cell_count()), (first, first + n));
+        for c in 0..first as u32 {
+            assert_eq!(grid.segments_in_cell(c), lattice.segments_in_cell(c));
+            assert!(!grid.is_segment_cell(c));
+        }
+        for k in 0..n as u32 {
+            let own = grid.segment_cell(k).expect("a segment cell");
+            assert_eq!(own, first as u32 + k);
+            assert!(grid.is_segment_cell(own));
+            assert_eq!(grid.segments_in_cell(own), &[k]);
+            // Shading's lattice lookups do not see the segment cells.
+            assert_eq!(grid.cell_of_segment(k), lattice.cell_of_segment(k));
+            assert_eq!(lattice.segment_cell(k), None);
+        }
+        let p = ex.segments()[0].midpoint().as_dvec3();
+        assert_eq!(grid.interpolation(p), lattice.interpolation(p));
+        assert_eq!(grid.clone().with_segment_cells(), grid, "adding them twice adds nothing");
+        assert_eq!(grid.lattice_only(), lattice);
     }
 }

@@ -5,7 +5,7 @@
 //! |---|---|
 //! | mean free path | geometry, `mfp_samples`, `seed` |
 //! | visibility (SVF → SSDF → PCA, sum of SGs, the kept bits) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `visibility_bits`, `sos_count`, `sos_sharpness`, `seed` |
-//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts` |
+//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts`, `segment_transfer_paths` |
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
 //! | C_G table | `sh_order` |
@@ -100,15 +100,16 @@ impl Stage {
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
 /// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
 /// walk weighed at the materials' colours, the recolouring basis's paths, 8: 24 longitudinal
-/// Fourier terms, 9: 24 azimuthal ones; volume 3: touching occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 9, 1, 1, 1, 3];
+/// Fourier terms, 9: 24 azimuthal ones, 10: segment cells, `bake::cells`; volume 3: touching
+/// occupancy and the segments' capsules).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 10, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
 /// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms; 8: 24 longitudinal
 /// terms per lobe shape; 9: 24 azimuthal terms per elevation node; 10: the sum of SGs' packed
-/// axes).
-pub const BAKE_LAYOUT_VERSION: u32 = 10;
+/// axes; 11: `CellGrid`'s segment cells, `BakeSettings::segment_transfer_paths`).
+pub const BAKE_LAYOUT_VERSION: u32 = 11;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -178,6 +179,18 @@ impl VisibilityData {
 pub struct TransferData {
     pub cells: CellGrid,
     pub iirtf: Iirtf,
+}
+
+impl TransferData {
+    /// The transfer without its segment cells (`bake::cells`): the lattice's cells alone, as a
+    /// bake with `segment_transfer_paths = 0` holds them (the error budget's rungs 3 and 3i).
+    #[must_use]
+    pub fn without_segment_cells(&self) -> Self {
+        let cells = self.cells.clone().lattice_only();
+        let mut iirtf = self.iirtf.clone();
+        iirtf.cells.truncate(cells.cell_count());
+        Self { cells, iirtf }
+    }
 }
 
 /// Voxel volume of segment ids and the per-segment table.
@@ -459,7 +472,8 @@ pub fn recolour_basis(
         .usize(s.cs_theta_count)
         .u64(s.seed)
         .bool(s.fiber_lobes)
-        .bool(s.exposed_starts);
+        .bool(s.exposed_starts)
+        .usize(s.segment_transfer_paths);
     let key = h.finish();
     let name = "recolour_basis";
     if let Some(file) = cache.and_then(|c| c.load(key)) {
@@ -471,7 +485,7 @@ pub fn recolour_basis(
             Err(e) => log::warn!("ignoring cached {name}: {e}"),
         }
     }
-    let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
+    let cells = CellGrid::for_bake(inputs.exemplar, mfp.mean_cm, s)?;
     let basis =
         bake_recolour_basis(inputs.exemplar, inputs.materials, &cells, s, cancel, progress).map_err(|e| {
             match e {
@@ -490,8 +504,8 @@ pub fn recolour_basis(
 /// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
 /// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell; 11: the shapes' azimuthal
 /// Fourier terms; 12: 24 longitudinal terms per shape; 13: 24 azimuthal
-/// terms per elevation node).
-const RECOLOUR_VERSION: u32 = 13;
+/// terms per elevation node; 14: segment cells, `RecolourBasis::lattice_cells`).
+const RECOLOUR_VERSION: u32 = 14;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {
@@ -629,7 +643,7 @@ fn bake_stages(
         }
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
-            let cells = CellGrid::new(inputs.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
+            let cells = CellGrid::for_bake(inputs.exemplar, mfp.mean_cm, s)?;
             let iirtf = match precomputed_cells {
                 Some(precomputed) if precomputed.len() == cells.cell_count() => Iirtf {
                     sh_order: s.sh_order,
@@ -1135,7 +1149,8 @@ impl StageKeys {
             .usize(s.sh_order)
             .u64(s.seed)
             .u32(u32::from(s.fiber_lobes))
-            .u32(u32::from(s.exposed_starts));
+            .u32(u32::from(s.exposed_starts))
+            .usize(s.segment_transfer_paths);
         h.finish()
     }
 }
@@ -1192,6 +1207,7 @@ pub(crate) mod tests {
             seed: 3,
             fiber_lobes: false,
             exposed_starts: true,
+            segment_transfer_paths: 0,
         }
     }
 

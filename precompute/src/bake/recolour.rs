@@ -437,6 +437,10 @@ pub struct RecolourBasis {
     pub fiber_lobes: bool,
     /// Material slots of the bake (the length colours must have).
     pub slot_count: usize,
+    /// The grid's lattice cells (`CellGrid::lattice_cell_count`): the cells from this id on
+    /// are segment cells, which always fold their lobes into their matrix (the bake gives
+    /// them no lobes: `bake::cells`).
+    pub lattice_cells: usize,
     pub cells: Vec<CellBasis>,
     /// C_S parts per slot (`None` for Lambertian slots, which have no table).
     pub cs_parts: Vec<Option<CsParts>>,
@@ -503,7 +507,7 @@ impl RecolourBasis {
         let layout = self.layout();
         let entry = |e: usize| basis.entry(e, &prepared);
         let n2 = layout.matrix().len();
-        if self.keeps_lobes(basis, &prepared) {
+        if self.keeps_lobes(cell, basis, &prepared) {
             let strength = |r: std::ops::Range<usize>| r.map(|e| entry(e).0).collect();
             let shape = |r: std::ops::Range<usize>| r.map(|e| entry(e).0.iter().sum()).collect();
             return Ok(super::iirtf::CellTransfer {
@@ -526,12 +530,12 @@ impl RecolourBasis {
         })
     }
 
-    /// Whether a nonempty cell keeps its lobes at the colours `prepared` holds: the bake's rule
-    /// on its forward (0) coefficient and cosine there ([`forward_lobe_folds`]); never without
-    /// fiber lobes.
-    fn keeps_lobes(&self, basis: &CellBasis, prepared: &CellColours) -> bool {
+    /// Whether nonempty cell `cell` keeps its lobes at the colours `prepared` holds: the
+    /// bake's rule on its forward (0) coefficient and cosine there ([`forward_lobe_folds`]);
+    /// never without fiber lobes, never in a segment cell.
+    fn keeps_lobes(&self, cell: usize, basis: &CellBasis, prepared: &CellColours) -> bool {
         let layout = self.layout();
-        self.fiber_lobes && {
+        self.fiber_lobes && cell < self.lattice_cells && {
             let forward0 = basis.entry(layout.forward().start, prepared).0;
             !forward_lobe_folds(self.sh_order, forward0, basis.entry(layout.cosine(), prepared).0)
         }
@@ -602,7 +606,7 @@ impl RecolourBasis {
         }
         let prepared = basis.prepare(colours);
         let entry = |e: usize| basis.entry(e, &prepared).0;
-        if !self.keeps_lobes(basis, &prepared) {
+        if !self.keeps_lobes(cell, basis, &prepared) {
             if !planar.is_empty() {
                 for e in layout.matrix() {
                     for (ch, value) in entry(e).into_iter().enumerate() {
@@ -735,8 +739,8 @@ pub fn bake_recolour_basis(
 ) -> Result<RecolourBasis, RecolourError> {
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let slots = materials.len();
-    let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
-    let shape = CellShape { order, paths, slots, lobes: settings.fiber_lobes };
+    let (order, paths) = (settings.sh_order, settings.cell_paths());
+    let shape = CellShape { order, paths: paths.lattice, slots, lobes: settings.fiber_lobes };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -744,7 +748,17 @@ pub fn bake_recolour_basis(
         settings.seed,
         cancel,
         progress,
-        &|segments, stream, tick| bake_cell_basis(&sampler, segments, shape, stream, tick),
+        &|cell, segments, stream, tick| {
+            if !grid.is_segment_cell(cell) {
+                return bake_cell_basis(&sampler, segments, shape, stream, tick);
+            }
+            // A segment cell an eye does not see stays empty, as in the bake; one it sees gets
+            // the lobes' entries like every cell (one layout), folded where it is evaluated.
+            if !sampler.eye_sees(segments[0], stream) {
+                return tick(paths.segment).then(CellBasis::empty);
+            }
+            bake_cell_basis(&sampler, segments, CellShape { paths: paths.segment, ..shape }, stream, tick)
+        },
     )
     .map_err(IirtfError::from)?;
     let cs_parts = materials
@@ -760,6 +774,7 @@ pub fn bake_recolour_basis(
         light_domain,
         fiber_lobes: settings.fiber_lobes,
         slot_count: slots,
+        lattice_cells: grid.lattice_cell_count(),
         cells,
         cs_parts,
     })
@@ -791,8 +806,8 @@ pub fn same_paths_iirtf(
         return Err(RecolourError::SlotCount { colours: colours.len(), slots: materials.len() });
     }
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
-    let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
-    let shape = CellShape { order, paths, slots: colours.len(), lobes: settings.fiber_lobes };
+    let (order, paths) = (settings.sh_order, settings.cell_paths());
+    let shape = CellShape { order, paths: paths.lattice, slots: colours.len(), lobes: settings.fiber_lobes };
     let cells = for_each_cell(
         grid,
         0..grid.cell_count(),
@@ -800,7 +815,16 @@ pub fn same_paths_iirtf(
         settings.seed,
         cancel,
         &|_| {},
-        &|segments, stream, tick| same_paths_cell(&sampler, segments, shape, colours, stream, tick),
+        &|cell, segments, stream, tick| {
+            if !grid.is_segment_cell(cell) {
+                return same_paths_cell(&sampler, segments, shape, colours, stream, tick);
+            }
+            if !sampler.eye_sees(segments[0], stream) {
+                return tick(paths.segment).then(super::iirtf::CellTransfer::empty);
+            }
+            let segment_shape = CellShape { paths: paths.segment, lobes: false, ..shape };
+            same_paths_cell(&sampler, segments, segment_shape, colours, stream, tick)
+        },
     )
     .map_err(IirtfError::from)?;
     Ok(super::iirtf::Iirtf { sh_order: order, light_domain, cells })
@@ -1437,7 +1461,7 @@ mod tests {
         let (exemplar, materials) = tiny(WeavePreset::Plain);
         let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
         let mfp = crate::raycast::mean_free_path(&fibers, 4000, 1);
-        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+        let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, &s).unwrap();
         (exemplar, grid, materials)
     }
 
@@ -1757,7 +1781,7 @@ mod tests {
         let s = Quality::Interactive.settings();
         let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
         let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
-        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+        let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, &s).unwrap();
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
         (exemplar, materials, s, grid, basis)
@@ -1815,7 +1839,7 @@ mod tests {
         for fiber_lobes in [false, true] {
             let s = BakeSettings { fiber_lobes, ..Quality::Interactive.settings() };
             let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
-            let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+            let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, &s).unwrap();
             let start = std::time::Instant::now();
             let basis =
                 bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
@@ -1921,7 +1945,7 @@ mod tests {
         }
         let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
         let mfp = crate::raycast::mean_free_path(&fibers, s.mfp_samples, s.seed);
-        let grid = CellGrid::new(&exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp).unwrap();
+        let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, &s).unwrap();
         let n = sh_count(s.sh_order);
         let directions = [
             (

@@ -22,6 +22,21 @@ fn one() -> usize {
     1
 }
 
+/// Paths per IIRTF cell: in the lattice's cells and in the segment cells (`bake::cells`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CellPaths {
+    pub lattice: usize,
+    pub segment: usize,
+}
+
+impl CellPaths {
+    /// The paths of cell `c` of `grid`.
+    #[must_use]
+    pub fn of(self, grid: &super::cells::CellGrid, c: u32) -> usize {
+        if grid.is_segment_cell(c) { self.segment } else { self.lattice }
+    }
+}
+
 /// The named quality presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -92,6 +107,14 @@ pub struct BakeSettings {
     /// the fiber axis (the paper), which averages in the parts of the cell under other fibers.
     #[serde(default)]
     pub exposed_starts: bool,
+    /// Paths of each segment's own transfer: besides the lattice's cells, every segment an eye
+    /// sees gets a cell of its own (`bake::cells` segment cells, matrices only), and a segment
+    /// whose lattice cell keeps no fiber lobes is shaded with it instead of the cells
+    /// interpolated around it: a cell's transfer averages the sides of a yarn a view does not
+    /// see (front-lit oblique views came out 10–25 points dark, backlit ones as bright;
+    /// docs/BENCHMARKS.md). 0: the cells alone (the paper).
+    #[serde(default)]
+    pub segment_transfer_paths: usize,
 }
 
 impl Quality {
@@ -126,6 +149,7 @@ impl Quality {
                 seed: 1,
                 fiber_lobes: true,
                 exposed_starts: true,
+                segment_transfer_paths: 480,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
@@ -144,6 +168,7 @@ impl Quality {
                 seed: 1,
                 fiber_lobes: true,
                 exposed_starts: true,
+                segment_transfer_paths: 480,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
@@ -162,12 +187,19 @@ impl Quality {
                 seed: 1,
                 fiber_lobes: false,
                 exposed_starts: false,
+                segment_transfer_paths: 0,
             },
         }
     }
 }
 
 impl BakeSettings {
+    /// Paths traced in a lattice cell and in a segment cell (`bake::cells`).
+    #[must_use]
+    pub fn cell_paths(&self) -> CellPaths {
+        CellPaths { lattice: self.iirtf_paths_per_cell, segment: self.segment_transfer_paths }
+    }
+
     /// The SH order of the C_G table and of a light's coefficients: the transfer's, or that of
     /// the fiber lobes' strength ([`super::iirtf::LOBE_SH_ORDER`]) where it is higher.
     #[must_use]
@@ -185,6 +217,7 @@ impl BakeSettings {
         check_range("cell_size_mfp", self.cell_size_mfp, 0.25, 64.0)?;
         check_range("cell_depth_mfp", self.cell_depth_mfp, 0.25, 64.0)?;
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
+        check_count("segment_transfer_paths", self.segment_transfer_paths, 0, 100_000_000)?;
         check_count("sh_order", self.sh_order, 0, crate::sh::EULER_MAX_ORDER)?;
         check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;
         check_range(

@@ -51,8 +51,9 @@ pub const MAX_SHARDS: usize = 4096;
 /// visibility points per segment, and `e{i}.images` that many images per segment; 4: each
 /// shape opens with its azimuthal Fourier terms; 5: the same layout, its IIRTF cells from the
 /// colour-free walk, so that parts of two walks never merge into one bake; 6: 24 longitudinal
-/// terms per shape; 7: 24 azimuthal terms per elevation node).
-pub const PART_LAYOUT_VERSION: u32 = 7;
+/// terms per shape; 7: 24 azimuthal terms per elevation node; 8: the cells include the segment
+/// cells, `bake::cells`).
+pub const PART_LAYOUT_VERSION: u32 = 8;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -199,7 +200,7 @@ pub fn bake_part(
         let images = render_segments(&scene, &ids, s.svf_resolution, s.visibility_points, cancel, &|f| {
             progress(Stage::Visibility, f);
         })?;
-        let grid = CellGrid::new(input.exemplar, mfp.mean_cm, s.cell_size_mfp, s.cell_depth_mfp)?;
+        let grid = CellGrid::for_bake(input.exemplar, mfp.mean_cm, s)?;
         // Balanced by work: a cell with segments costs its paths, an empty one nothing.
         let weights: Vec<u64> =
             (0..grid.cell_count() as u32).map(|c| u64::from(!grid.segments_in_cell(c).is_empty())).collect();
@@ -526,6 +527,7 @@ mod tests {
             seed: 5,
             fiber_lobes: false,
             exposed_starts: true,
+            segment_transfer_paths: 0,
         }
     }
 

@@ -397,20 +397,41 @@ pub fn error_budget(
         baked.transfer.iirtf.sh_order,
         baked.settings.iirtf_paths_per_cell
     );
-    for (name, interpolate_transfer, clamp) in [
-        (format!("3 IIRTF per cell: {cells}"), false, ClampAtZero::PixelMean),
-        ("4 the method: IIRTF interpolated between cells".into(), true, ClampAtZero::PixelMean),
+    // Rungs 3 and 3i are the lattice's cells alone; the method (4) shades a segment with its own
+    // transfer where the bake has one and its lattice cell keeps no lobes
+    // (`BakeSettings::segment_transfer_paths`, multiple::segment_transfer).
+    let segment_cells = baked.transfer.cells.has_segment_cells();
+    let lattice = segment_cells.then(|| Baked { transfer: baked.transfer.without_segment_cells(), ..baked.clone() });
+    let lattice = lattice.as_ref().unwrap_or(baked);
+    let method = if segment_cells {
+        format!(
+            "4 the method: each segment's own transfer ({} paths) where its cell keeps no lobes, else IIRTF interpolated between cells",
+            baked.settings.segment_transfer_paths
+        )
+    } else {
+        "4 the method: IIRTF interpolated between cells".into()
+    };
+    let mut method_rungs = vec![(format!("3 IIRTF per cell: {cells}"), lattice, false, ClampAtZero::PixelMean)];
+    if segment_cells {
+        let name = "3i IIRTF interpolated between cells (rung 4 without the segments' own transfers)";
+        method_rungs.push((name.into(), lattice, true, ClampAtZero::PixelMean));
+    }
+    method_rungs.extend([
+        (method, baked, true, ClampAtZero::PixelMean),
         (
             "4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(),
+            baked,
             true,
             ClampAtZero::Never,
         ),
         (
             "4'' the method with its clamp on each sample, not on each pixel's mean".into(),
+            baked,
             true,
             ClampAtZero::EachSample,
         ),
-    ] {
+    ]);
+    for (name, baked, interpolate_transfer, clamp) in method_rungs {
         let t = Instant::now();
         let options = MethodOptions { interpolate_transfer, clamp, primary: PrimaryHits::Exact };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;

@@ -236,6 +236,9 @@ pub fn multiple_scattering(
         return Ok(Rgb::ZERO);
     };
     let cs = seg.cs_table(baked)?;
+    if let Some(own) = segment_transfer(baked, segment) {
+        return Ok(multiple_scattering_in_cell(cs, own, seg.tangent, wo, c_light));
+    }
     let grid = &baked.transfer.cells;
     let cells = &baked.transfer.iirtf.cells;
     let own_cell = &cells[grid.cell_of_segment(segment) as usize];
@@ -250,6 +253,22 @@ pub fn multiple_scattering(
         }
     }
     Ok(scatter_transferred(cs, &transferred, seg.tangent, wo))
+}
+
+/// The transfer `segment` is shaded with instead of the cells around it: its segment cell's
+/// (`bake::cells`), where the bake has one for it (`BakeSettings::segment_transfer_paths`, a segment
+/// an eye sees) and its own lattice cell keeps no fiber lobes. A segment cell holds all of its
+/// segment's light in its matrix, so such a segment takes no lobes either
+/// ([`lobe_scattering`]). Where the lattice cell keeps lobes, their model (sharp forward
+/// light, in the fiber frame) is what matters there, and the cells are used as before.
+#[must_use]
+pub fn segment_transfer(baked: &Baked, segment: u32) -> Option<&CellTransfer> {
+    let grid = &baked.transfer.cells;
+    let cells = &baked.transfer.iirtf.cells;
+    let cell = grid.segment_cell(segment)?;
+    let own = cells.get(grid.cell_of_segment(segment) as usize)?;
+    let transfer = cells.get(cell as usize)?;
+    (!own.has_lobes() && transfer.paths > 0).then_some(transfer)
 }
 
 /// The largest mean cosine a forward lobe is given (λ about 500): beyond it the paths' estimate
@@ -462,6 +481,9 @@ pub fn lobe_scattering(
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
+    if segment_transfer(baked, segment).is_some() {
+        return Ok(Rgb::ZERO);
+    }
     let grid = &baked.transfer.cells;
     let own = (grid.cell_of_segment(segment), 1.0);
     let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));

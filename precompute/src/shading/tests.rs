@@ -1192,6 +1192,7 @@ fn tiny_baked() -> &'static Baked {
             seed: 3,
             fiber_lobes: false,
             exposed_starts: false,
+            segment_transfer_paths: 0,
         };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
         bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked

@@ -167,10 +167,11 @@ pub enum Knob {
     SigmaGlo,
     FiberLobes,
     ExposedStarts,
+    SegmentPaths,
 }
 
 impl Knob {
-    pub const ALL: [Knob; 14] = [
+    pub const ALL: [Knob; 15] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::VisibilityBits,
@@ -185,6 +186,7 @@ impl Knob {
         Knob::SigmaGlo,
         Knob::FiberLobes,
         Knob::ExposedStarts,
+        Knob::SegmentPaths,
     ];
 
     /// Its name: the bake knob's (`--set`), or the frame setting's.
@@ -205,6 +207,7 @@ impl Knob {
             Self::SigmaGlo => "sigma_glo_cm",
             Self::FiberLobes => "fiber_lobes",
             Self::ExposedStarts => "exposed_starts",
+            Self::SegmentPaths => "segment_transfer_paths",
         }
     }
 
@@ -238,6 +241,7 @@ impl Knob {
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
             Self::VisibilityBits | Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
+            Self::SegmentPaths => vec![0.0, 24.0, 48.0, 96.0, 192.0],
         }
     }
 
@@ -258,6 +262,7 @@ impl Knob {
             Self::SigmaGlo => frame.gpu.sigma_glo_cm = value,
             Self::FiberLobes => bake.fiber_lobes = value >= 0.5,
             Self::ExposedStarts => bake.exposed_starts = value >= 0.5,
+            Self::SegmentPaths => bake.segment_transfer_paths = count,
         }
     }
 
@@ -279,6 +284,7 @@ impl Knob {
             Self::SigmaGlo => frame.gpu.sigma_glo_cm,
             Self::FiberLobes => f64::from(u8::from(bake.fiber_lobes)),
             Self::ExposedStarts => f64::from(u8::from(bake.exposed_starts)),
+            Self::SegmentPaths => bake.segment_transfer_paths as f64,
         }
     }
 }
