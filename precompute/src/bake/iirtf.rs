@@ -404,6 +404,23 @@ pub struct IirtfNoise {
 }
 
 impl Iirtf {
+    /// Empties the segment cells (`bake::cells`) of the segments whose lattice cell keeps fiber
+    /// lobes: shading never reads them (`shading::multiple::segment_transfer`), so a bake
+    /// neither traces nor stores them. Every way of making a transfer ends with this (a bake,
+    /// a merge of shards, a recolouring), so they hold the same cells.
+    pub fn drop_segment_cells_under_lobes(&mut self, grid: &CellGrid) {
+        for k in 0..grid.segment_count() as u32 {
+            let (Some(c), own) = (grid.segment_cell(k), grid.cell_of_segment(k) as usize) else {
+                return;
+            };
+            if self.cells.get(own).is_some_and(CellTransfer::has_lobes)
+                && let Some(cell) = self.cells.get_mut(c as usize)
+            {
+                *cell = CellTransfer::empty();
+            }
+        }
+    }
+
     #[must_use]
     pub fn noise(&self) -> IirtfNoise {
         let (mut v, mut e, mut count) = (0.0, 0.0, 0.0);
@@ -1079,9 +1096,44 @@ pub fn bake_iirtf(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<Iirtf, IirtfError> {
-    let all = 0..grid.cell_count();
-    let cells = bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
-    Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells })
+    let lattice = grid.lattice_cell_count();
+    if !grid.has_segment_cells() {
+        let all = 0..lattice;
+        let cells = bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
+        return Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells });
+    }
+    // The lattice first, then the segment cells whose lattice cell keeps no lobes (the others
+    // are never shaded: `Iirtf::drop_segment_cells_under_lobes`), progress weighted by paths.
+    let paths = settings.cell_paths();
+    let lattice_work = (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
+    let share = lattice_work as f64 / (lattice_work + grid.segment_count() * paths.segment).max(1) as f64;
+    let mut cells = bake_cells_where(
+        exemplar,
+        yarn_materials,
+        grid,
+        settings,
+        options,
+        0..lattice,
+        cancel,
+        &|f| progress(f * share),
+        &|_| true,
+    )?;
+    let lobed: Vec<bool> = cells.iter().map(CellTransfer::has_lobes).collect();
+    let needed = |c: u32| !lobed[grid.cell_of_segment(c - lattice as u32) as usize];
+    cells.extend(bake_cells_where(
+        exemplar,
+        yarn_materials,
+        grid,
+        settings,
+        options,
+        lattice..grid.cell_count(),
+        cancel,
+        &|f| progress(share + f * (1.0 - share)),
+        &needed,
+    )?);
+    let mut iirtf = Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells };
+    iirtf.drop_segment_cells_under_lobes(grid);
+    Ok(iirtf)
 }
 
 /// The IIRTF of cells `cells` of `grid` only, in order: each cell draws from its own stream,
@@ -1097,6 +1149,22 @@ pub fn bake_iirtf_cells(
     cells: std::ops::Range<usize>,
     cancel: &Cancel,
     progress: Progress<'_>,
+) -> Result<Vec<CellTransfer>, IirtfError> {
+    bake_cells_where(exemplar, yarn_materials, grid, settings, options, cells, cancel, progress, &|_| true)
+}
+
+/// [`bake_iirtf_cells`], leaving empty the segment cells `segment_cell_needed` rejects.
+#[allow(clippy::too_many_arguments)]
+fn bake_cells_where(
+    exemplar: &Exemplar,
+    yarn_materials: &[Material],
+    grid: &CellGrid,
+    settings: &BakeSettings,
+    options: &IirtfOptions,
+    cells: std::ops::Range<usize>,
+    cancel: &Cancel,
+    progress: Progress<'_>,
+    segment_cell_needed: &(dyn Fn(u32) -> bool + Sync),
 ) -> Result<Vec<CellTransfer>, IirtfError> {
     if grid.segment_count() != exemplar.segment_count() {
         return Err(IirtfError::GridMismatch {
@@ -1116,7 +1184,7 @@ pub fn bake_iirtf_cells(
         if !grid.is_segment_cell(cell) {
             return bake_cell(&sampler, segments, order, paths.lattice, lobes, stream, tick);
         }
-        if !sampler.eye_sees(segments[0], stream) {
+        if !segment_cell_needed(cell) || !sampler.eye_sees(segments[0], stream) {
             return tick(paths.segment).then(CellTransfer::empty);
         }
         // Matrices only: a segment cell serves segments whose lattice cell keeps no lobes.

@@ -636,7 +636,9 @@ fn bake_stages(
         if let Some(basis) = recolour {
             stage_runner.recoloured(Stage::Transfer, transfer_key);
             let colours: Vec<SlotColour> = materials.iter().map(SlotColour::of).collect();
-            TransferData { cells: previous.transfer.cells.clone(), iirtf: basis.iirtf(&colours)? }
+            let mut iirtf = basis.iirtf(&colours)?;
+            iirtf.drop_segment_cells_under_lobes(&previous.transfer.cells);
+            TransferData { cells: previous.transfer.cells.clone(), iirtf }
         } else {
             stage_runner.keep(Stage::Transfer, transfer_key);
             previous.transfer.clone()
@@ -645,11 +647,15 @@ fn bake_stages(
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::for_bake(inputs.exemplar, mfp.mean_cm, s)?;
             let iirtf = match precomputed_cells {
-                Some(precomputed) if precomputed.len() == cells.cell_count() => Iirtf {
-                    sh_order: s.sh_order,
-                    light_domain: IirtfOptions::default().light_domain,
-                    cells: precomputed,
-                },
+                Some(precomputed) if precomputed.len() == cells.cell_count() => {
+                    let mut iirtf = Iirtf {
+                        sh_order: s.sh_order,
+                        light_domain: IirtfOptions::default().light_domain,
+                        cells: precomputed,
+                    };
+                    iirtf.drop_segment_cells_under_lobes(&cells);
+                    iirtf
+                }
                 Some(precomputed) => {
                     return Err(BakeError::Fabric(format!(
                         "{} precomputed IIRTF cells for a grid of {}",

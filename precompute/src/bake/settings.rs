@@ -149,7 +149,7 @@ impl Quality {
                 seed: 1,
                 fiber_lobes: true,
                 exposed_starts: true,
-                segment_transfer_paths: 480,
+                segment_transfer_paths: 0,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,

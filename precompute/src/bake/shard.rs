@@ -15,6 +15,11 @@
 //! the sums of SGs, the tables and the voxel volume — is the same code on the same data, so the
 //! merged bake equals the single-process bake whatever `N`.
 //!
+//! Segment cells (`bake::cells`, `BakeSettings::segment_transfer_paths`) are cells like the
+//! others here. A single-process bake skips those whose lattice cell keeps fiber lobes (it bakes
+//! the lattice first); a shard cannot know that and bakes them, and the merge empties them
+//! (`Iirtf::drop_segment_cells_under_lobes`), so the two still agree byte for byte.
+//!
 //! The IIRTF entries are kept as the bake stores them (f32; rounding them again when merging
 //! changes nothing), and empty cells (no segments, no paths) without entries, as in a bake file.
 //! With fiber lobes (`BakeSettings::fiber_lobes`) every nonempty cell's flag says whether it
