@@ -64,11 +64,14 @@ fn draft_bake(file: &SceneFile, visibility_bits: bool) -> Baked {
         exemplar: &scene.exemplar,
         materials: &scene.material_descs,
         // The SH transfer alone: the fiber lobes have their own bake (`lobe_bake`). Three
-        // visibility points per segment, so every function reads images past the first.
+        // visibility points per segment, so every function reads images past the first. A
+        // transfer of its own for each segment an eye sees (few paths: parity, not accuracy),
+        // so that the multiple-scattering cases take both the segments' and the cells'.
         settings: BakeSettings {
             fiber_lobes: false,
             visibility_points: 3,
             visibility_bits,
+            segment_transfer_paths: 16,
             ..Quality::Draft.settings()
         },
     };
@@ -559,7 +562,14 @@ fn lobe_bake() -> &'static Baked {
         let scene = silk_scene(&[sun_toml()]);
         // Two visibility points per segment, as the interactive preset: the whole-frame
         // parity then also checks which image each pixel's hit takes.
-        let settings = BakeSettings { fiber_lobes: true, visibility_points: 2, ..Quality::Draft.settings() };
+        // Segment transfers too: the segments under cells that keep lobes take the lobes, the
+        // others their own transfer, on both sides.
+        let settings = BakeSettings {
+            fiber_lobes: true,
+            visibility_points: 2,
+            segment_transfer_paths: 16,
+            ..Quality::Draft.settings()
+        };
         let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
         let started = std::time::Instant::now();
         let baked =

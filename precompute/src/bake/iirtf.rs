@@ -337,6 +337,16 @@ impl CellTransfer {
         !self.forward.is_empty()
     }
 
+    /// Whether the cell has lobes that carry light (a nonzero forward or reflected strength
+    /// (0), each a sum of non-negative shares): the test that sends a segment to its lattice
+    /// cells instead of its own transfer (`shading::multiple::segment_transfer`; WGSL
+    /// `slot_keeps_lobes` reads the same f32 values).
+    #[must_use]
+    pub fn keeps_lobe_light(&self) -> bool {
+        let lit = |v: &[[f32; 3]]| v.first().is_some_and(|c| c.iter().any(|&x| x != 0.0));
+        lit(&self.forward) || lit(&self.reflected)
+    }
+
     /// Writes the cell's lobes in the GPU's layout ([`LOBE_PACKED_FLOATS`] floats) into `out`:
     /// zeros for a cell without lobes.
     ///
@@ -413,7 +423,7 @@ impl Iirtf {
             let (Some(c), own) = (grid.segment_cell(k), grid.cell_of_segment(k) as usize) else {
                 return;
             };
-            if self.cells.get(own).is_some_and(CellTransfer::has_lobes)
+            if self.cells.get(own).is_some_and(CellTransfer::keeps_lobe_light)
                 && let Some(cell) = self.cells.get_mut(c as usize)
             {
                 *cell = CellTransfer::empty();
@@ -1118,7 +1128,7 @@ pub fn bake_iirtf(
         &|f| progress(f * share),
         &|_| true,
     )?;
-    let lobed: Vec<bool> = cells.iter().map(CellTransfer::has_lobes).collect();
+    let lobed: Vec<bool> = cells.iter().map(CellTransfer::keeps_lobe_light).collect();
     let needed = |c: u32| !lobed[grid.cell_of_segment(c - lattice as u32) as usize];
     cells.extend(bake_cells_where(
         exemplar,

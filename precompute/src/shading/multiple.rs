@@ -257,7 +257,8 @@ pub fn multiple_scattering(
 
 /// The transfer `segment` is shaded with instead of the cells around it: its segment cell's
 /// (`bake::cells`), where the bake has one for it (`BakeSettings::segment_transfer_paths`, a segment
-/// an eye sees) and its own lattice cell keeps no fiber lobes. A segment cell holds all of its
+/// an eye sees) and its own lattice cell keeps no fiber lobes that carry light
+/// ([`CellTransfer::keeps_lobe_light`]). A segment cell holds all of its
 /// segment's light in its matrix, so such a segment takes no lobes either
 /// ([`lobe_scattering`]). Where the lattice cell keeps lobes, their model (sharp forward
 /// light, in the fiber frame) is what matters there, and the cells are used as before.
@@ -268,7 +269,7 @@ pub fn segment_transfer(baked: &Baked, segment: u32) -> Option<&CellTransfer> {
     let cell = grid.segment_cell(segment)?;
     let own = cells.get(grid.cell_of_segment(segment) as usize)?;
     let transfer = cells.get(cell as usize)?;
-    (!own.has_lobes() && transfer.paths > 0).then_some(transfer)
+    (!own.keeps_lobe_light() && transfer.paths > 0).then_some(transfer)
 }
 
 /// The largest mean cosine a forward lobe is given (λ about 500): beyond it the paths' estimate
