@@ -472,7 +472,8 @@ impl FabricArrays {
         out.lattice_slot_count = slots;
         for (ex, baked) in out.exemplars.iter().zip(exemplars) {
             let first = ex.cell_offset as usize + baked.transfer.cells.lattice_cell_count();
-            let segment_cells = baked.transfer.iirtf.cells.iter().skip(baked.transfer.cells.lattice_cell_count());
+            let segment_cells =
+                baked.transfer.iirtf.cells.iter().skip(baked.transfer.cells.lattice_cell_count());
             for (c, cell) in segment_cells.enumerate().filter(|(_, cell)| cell.paths > 0) {
                 slots += 1;
                 out.cell_slots[first + c] = to_u32(slots, "slot")?;
@@ -839,7 +840,8 @@ impl FabricData {
         // The exemplar's cells: its lattice's, then its segment cells if it has them, up to the
         // next exemplar's first cell.
         let first_cell = ex.cell_offset as usize;
-        let end_cell = a.exemplars.get(r.exemplar + 1).map_or(a.cell_slots.len(), |next| next.cell_offset as usize);
+        let end_cell =
+            a.exemplars.get(r.exemplar + 1).map_or(a.cell_slots.len(), |next| next.cell_offset as usize);
         let cells = end_cell.saturating_sub(first_cell);
         if r.materials.len() != slots || r.cs_tables.len() != slots || a.materials.len() != slots * exemplars
         {
@@ -909,9 +911,11 @@ impl FabricData {
                         "the exemplar's fiber lobes lie outside the buffer".into(),
                     ));
                 };
-                (range_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
-                    .enumerate()
-                    .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
+                (range_halves
+                    .par_chunks_mut(cell_values)
+                    .zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
+                .enumerate()
+                .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
             } else {
                 range_halves
                     .par_chunks_mut(cell_values)

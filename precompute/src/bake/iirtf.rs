@@ -1109,13 +1109,15 @@ pub fn bake_iirtf(
     let lattice = grid.lattice_cell_count();
     if !grid.has_segment_cells() {
         let all = 0..lattice;
-        let cells = bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
+        let cells =
+            bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
         return Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells });
     }
     // The lattice first, then the segment cells whose lattice cell keeps no lobes (the others
     // are never shaded: `Iirtf::drop_segment_cells_under_lobes`), progress weighted by paths.
     let paths = settings.cell_paths();
-    let lattice_work = (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
+    let lattice_work =
+        (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
     let share = lattice_work as f64 / (lattice_work + grid.segment_count() * paths.segment).max(1) as f64;
     let mut cells = bake_cells_where(
         exemplar,
@@ -1190,16 +1192,24 @@ fn bake_cells_where(
     let order = settings.sh_order;
     let paths = settings.cell_paths();
     let lobes = settings.fiber_lobes && options.part == TransferPart::All;
-    Ok(for_each_cell(grid, cells, paths, settings.seed, cancel, progress, &|cell, segments, stream, tick| {
-        if !grid.is_segment_cell(cell) {
-            return bake_cell(&sampler, segments, order, paths.lattice, lobes, stream, tick);
-        }
-        if !segment_cell_needed(cell) || !sampler.eye_sees(segments[0], stream) {
-            return tick(paths.segment).then(CellTransfer::empty);
-        }
-        // Matrices only: a segment cell serves segments whose lattice cell keeps no lobes.
-        bake_cell(&sampler, segments, order, paths.segment, false, stream, tick)
-    })?)
+    Ok(for_each_cell(
+        grid,
+        cells,
+        paths,
+        settings.seed,
+        cancel,
+        progress,
+        &|cell, segments, stream, tick| {
+            if !grid.is_segment_cell(cell) {
+                return bake_cell(&sampler, segments, order, paths.lattice, lobes, stream, tick);
+            }
+            if !segment_cell_needed(cell) || !sampler.eye_sees(segments[0], stream) {
+                return tick(paths.segment).then(CellTransfer::empty);
+            }
+            // Matrices only: a segment cell serves segments whose lattice cell keeps no lobes.
+            bake_cell(&sampler, segments, order, paths.segment, false, stream, tick)
+        },
+    )?)
 }
 
 /// What [`for_each_cell`] runs per cell: `(cell, segments, stream, tick)` to the cell's
@@ -1239,15 +1249,20 @@ pub(crate) fn for_each_cell<T: Send>(
                     if c >= end || stop.load(Ordering::Relaxed) {
                         return;
                     }
-                    let cell = job(c as u32, grid.segments_in_cell(c as u32), cell_stream(seed, c as u32), &|done| {
-                        if cancel.is_cancelled() {
-                            stop.store(true, Ordering::Relaxed);
-                            return false;
-                        }
-                        let all = paths_done.fetch_add(done, Ordering::Relaxed) + done;
-                        progress(all as f64 / total_paths);
-                        true
-                    });
+                    let cell = job(
+                        c as u32,
+                        grid.segments_in_cell(c as u32),
+                        cell_stream(seed, c as u32),
+                        &|done| {
+                            if cancel.is_cancelled() {
+                                stop.store(true, Ordering::Relaxed);
+                                return false;
+                            }
+                            let all = paths_done.fetch_add(done, Ordering::Relaxed) + done;
+                            progress(all as f64 / total_paths);
+                            true
+                        },
+                    );
                     let Some(cell) = cell else { return };
                     results.lock().expect("a worker panicked")[c - first] = Some(cell);
                 }
@@ -1502,7 +1517,9 @@ mod tests {
         let seen = |k: u32| sampler.eye_sees(k, cell_stream(settings.seed, grid.segment_cell(k).unwrap()));
         let segments = exemplar.segments();
         let mut by_height: Vec<u32> = (0..segments.len() as u32).collect();
-        by_height.sort_by(|&a, &b| segments[a as usize].midpoint().z.total_cmp(&segments[b as usize].midpoint().z));
+        by_height.sort_by(|&a, &b| {
+            segments[a as usize].midpoint().z.total_cmp(&segments[b as usize].midpoint().z)
+        });
         let share = |ks: &[u32]| ks.iter().filter(|&&k| seen(k)).count() as f64 / ks.len() as f64;
         let (bottom, top) = (share(&by_height[..300]), share(&by_height[by_height.len() - 300..]));
         // The top segments are seen; most of the bottom layer lies under the yarns above it

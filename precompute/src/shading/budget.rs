@@ -401,7 +401,8 @@ pub fn error_budget(
     // transfer where the bake has one and its lattice cell keeps no lobes
     // (`BakeSettings::segment_transfer_paths`, multiple::segment_transfer).
     let segment_cells = baked.transfer.cells.has_segment_cells();
-    let lattice = segment_cells.then(|| Baked { transfer: baked.transfer.without_segment_cells(), ..baked.clone() });
+    let lattice =
+        segment_cells.then(|| Baked { transfer: baked.transfer.without_segment_cells(), ..baked.clone() });
     let lattice = lattice.as_ref().unwrap_or(baked);
     let method = if segment_cells {
         format!(
@@ -411,7 +412,8 @@ pub fn error_budget(
     } else {
         "4 the method: IIRTF interpolated between cells".into()
     };
-    let mut method_rungs = vec![(format!("3 IIRTF per cell: {cells}"), lattice, false, ClampAtZero::PixelMean)];
+    let mut method_rungs =
+        vec![(format!("3 IIRTF per cell: {cells}"), lattice, false, ClampAtZero::PixelMean)];
     if segment_cells {
         let name = "3i IIRTF interpolated between cells (rung 4 without the segments' own transfers)";
         method_rungs.push((name.into(), lattice, true, ClampAtZero::PixelMean));
