@@ -828,6 +828,7 @@ impl FabricData {
             self.buffer("iirtf").clone(),
             self.buffer("lobes").clone(),
         );
+        let cell_slots_buffer = self.buffer("cell_slots").clone();
         let a = &mut self.arrays;
         let exemplars = a.exemplars.len();
         let slots = a.materials.len() / exemplars.max(1);
@@ -881,63 +882,67 @@ impl FabricData {
         a.cs_table[cs_range.clone()].copy_from_slice(&cs);
         queue.write_buffer(&cs_buffer, (cs_range.start * 4) as u64, bytemuck::cast_slice(&cs));
         written.push("cs_table");
-        // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words. The
-        // exemplar's lattice cells with segments have contiguous slots, in cell order, and so
-        // do its segment cells with a transfer (after every exemplar's lattice slots); only
-        // the lattice's have lobes.
-        let Some(exemplar_slots) = a.cell_slots.get(first_cell..first_cell + cells) else {
+        // The recolouring basis holds the lattice's cells alone (`RecolourBasis::segment_cells`):
+        // the exemplar's segment cells (after its lattice's) lose their slots, so that their
+        // segments take the lattice's cells at the new colours, until a rebake's upload gives
+        // them back.
+        let lattice = ex.cell_count().min(cells);
+        let Some(segment_slots) = a.cell_slots.get_mut(first_cell + lattice..first_cell + cells) else {
             return Err(FabricDataError::Inconsistent("the exemplar's cells lie outside the buffer".into()));
         };
-        let lattice = ex.cell_count().min(cells);
+        if segment_slots.iter().any(|&slot| slot != 0) {
+            segment_slots.fill(0);
+            let offset = ((first_cell + lattice) * 4) as u64;
+            queue.write_buffer(&cell_slots_buffer, offset, bytemuck::cast_slice(segment_slots));
+            written.push("cell_slots");
+        }
+        // IIRTF cells, as f16 halves written into the packed pairs; sent on whole words. The
+        // exemplar's lattice cells with segments have contiguous slots, in cell order.
+        let exemplar_slots = &a.cell_slots[first_cell..first_cell + lattice];
+        let occupied: Vec<usize> = (0..lattice).filter(|&c| exemplar_slots[c] != 0).collect();
+        let Some(&first_occupied) = occupied.first() else {
+            return Ok(written);
+        };
+        let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
+        let start = first_slot * cell_values;
+        let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
+        let Some(exemplar_halves) = halves.get_mut(start..start + filled * cell_values) else {
+            return Err(FabricDataError::Inconsistent(
+                "the exemplar's IIRTF cells lie outside the buffer".into(),
+            ));
+        };
+        let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
         let with_lobes = !a.lobes.is_empty(); // holds_lobes(), while a.iirtf is borrowed
-        let mut lobes_written = false;
-        for (range, lobed) in [(0..lattice, with_lobes), (lattice..cells, false)] {
-            let occupied: Vec<usize> = range.filter(|&c| exemplar_slots[c] != 0).collect();
-            let Some(&first_occupied) = occupied.first() else {
-                continue;
-            };
-            let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
-            let start = first_slot * cell_values;
-            let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
-            let Some(range_halves) = halves.get_mut(start..start + filled * cell_values) else {
+        let lobe_values: &mut [f32] = if with_lobes {
+            let Some(lobes) = a.lobes.get_mut(lobe_range.clone()) else {
                 return Err(FabricDataError::Inconsistent(
-                    "the exemplar's IIRTF cells lie outside the buffer".into(),
+                    "the exemplar's fiber lobes lie outside the buffer".into(),
                 ));
             };
-            let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
-            if lobed {
-                let Some(lobe_values) = a.lobes.get_mut(lobe_range.clone()) else {
-                    return Err(FabricDataError::Inconsistent(
-                        "the exemplar's fiber lobes lie outside the buffer".into(),
-                    ));
-                };
-                (range_halves
-                    .par_chunks_mut(cell_values)
-                    .zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
+            lobes
+        } else {
+            &mut []
+        };
+        if with_lobes {
+            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
                 .enumerate()
                 .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
-            } else {
-                range_halves
-                    .par_chunks_mut(cell_values)
-                    .enumerate()
-                    .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
-            }
-            let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
-            queue.write_buffer(
-                &iirtf_buffer,
-                (word_start * 4) as u64,
-                bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
-            );
-            if lobed {
-                let lobes = &a.lobes[lobe_range.clone()];
-                queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
-                lobes_written = true;
-            }
+        } else {
+            exemplar_halves
+                .par_chunks_mut(cell_values)
+                .enumerate()
+                .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
         }
-        if exemplar_slots.iter().any(|&slot| slot != 0) {
-            written.push("iirtf");
-        }
-        if lobes_written {
+        let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
+        queue.write_buffer(
+            &iirtf_buffer,
+            (word_start * 4) as u64,
+            bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
+        );
+        written.push("iirtf");
+        if with_lobes {
+            let lobes = &a.lobes[lobe_range.clone()];
+            queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
             written.push("lobes");
             a.lobe_cells = a.count_lobe_cells();
         }

@@ -30,8 +30,8 @@
 //! `lattice_cell_count() + k`). A lattice cell 2.5ℓ across holds both sides of a yarn and a
 //! view sees one of them, so its transfer, the mean over both, is too dark for front-lit views
 //! and too bright for backlit ones; a segment's own transfer is not (docs/BENCHMARKS.md, "Where
-//! the transfer loses multiple scattering"). Every per-cell stage (the IIRTF, the recolouring
-//! basis, shards, the bake file, the GPU's slots) treats them as cells; only shading tells
+//! the transfer loses multiple scattering"). The IIRTF, shards, the bake file and the GPU's
+//! slots treat them as cells (the recolouring basis holds the lattice's alone); shading tells
 //! them apart ([`CellGrid::segment_cell`]), and [`CellGrid::interpolation`] and
 //! [`CellGrid::cell_of_segment`] stay on the lattice.
 

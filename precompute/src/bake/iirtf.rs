@@ -415,9 +415,9 @@ pub struct IirtfNoise {
 
 impl Iirtf {
     /// Empties the segment cells (`bake::cells`) of the segments whose lattice cell keeps fiber
-    /// lobes: shading never reads them (`shading::multiple::segment_transfer`), so a bake
-    /// neither traces nor stores them. Every way of making a transfer ends with this (a bake,
-    /// a merge of shards, a recolouring), so they hold the same cells.
+    /// lobes that carry light: shading never reads them (`shading::multiple::segment_transfer`),
+    /// so a bake neither traces nor stores them. A bake and a merge of shards both end with
+    /// this, so they hold the same cells.
     pub fn drop_segment_cells_under_lobes(&mut self, grid: &CellGrid) {
         for k in 0..grid.segment_count() as u32 {
             let (Some(c), own) = (grid.segment_cell(k), grid.cell_of_segment(k) as usize) else {
@@ -1124,7 +1124,7 @@ pub fn bake_iirtf(
         yarn_materials,
         grid,
         settings,
-        options,
+        *options,
         0..lattice,
         cancel,
         &|f| progress(f * share),
@@ -1137,7 +1137,7 @@ pub fn bake_iirtf(
         yarn_materials,
         grid,
         settings,
-        options,
+        *options,
         lattice..grid.cell_count(),
         cancel,
         &|f| progress(share + f * (1.0 - share)),
@@ -1162,7 +1162,7 @@ pub fn bake_iirtf_cells(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<Vec<CellTransfer>, IirtfError> {
-    bake_cells_where(exemplar, yarn_materials, grid, settings, options, cells, cancel, progress, &|_| true)
+    bake_cells_where(exemplar, yarn_materials, grid, settings, *options, cells, cancel, progress, &|_| true)
 }
 
 /// [`bake_iirtf_cells`], leaving empty the segment cells `segment_cell_needed` rejects.
@@ -1172,7 +1172,7 @@ fn bake_cells_where(
     yarn_materials: &[Material],
     grid: &CellGrid,
     settings: &BakeSettings,
-    options: &IirtfOptions,
+    options: IirtfOptions,
     cells: std::ops::Range<usize>,
     cancel: &Cancel,
     progress: Progress<'_>,

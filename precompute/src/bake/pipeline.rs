@@ -420,13 +420,13 @@ pub fn bake_material_preview(
     // multiple scattering then, as without one.
     let recolour = recolour.filter(|basis| basis.fits(inputs.materials));
     if let Some(basis) = recolour
-        && (basis.cells.len() != previous.transfer.iirtf.cells.len()
+        && (basis.cells.len() + basis.segment_cells != previous.transfer.iirtf.cells.len()
             || basis.slot_count != inputs.materials.len()
             || basis.sh_order != previous.settings.sh_order)
     {
         return Err(BakeError::Fabric(format!(
             "the recolouring basis ({} cells, {} slots, SH order {}) was not made for this bake ({} cells, {} slots, SH order {})",
-            basis.cells.len(),
+            basis.cells.len() + basis.segment_cells,
             basis.slot_count,
             basis.sh_order,
             previous.transfer.iirtf.cells.len(),
@@ -504,7 +504,7 @@ pub fn recolour_basis(
 /// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
 /// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell; 11: the shapes' azimuthal
 /// Fourier terms; 12: 24 longitudinal terms per shape; 13: 24 azimuthal
-/// terms per elevation node; 14: segment cells, `RecolourBasis::lattice_cells`).
+/// terms per elevation node; 14: `RecolourBasis::segment_cells`).
 const RECOLOUR_VERSION: u32 = 14;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
@@ -636,9 +636,8 @@ fn bake_stages(
         if let Some(basis) = recolour {
             stage_runner.recoloured(Stage::Transfer, transfer_key);
             let colours: Vec<SlotColour> = materials.iter().map(SlotColour::of).collect();
-            let mut iirtf = basis.iirtf(&colours)?;
-            iirtf.drop_segment_cells_under_lobes(&previous.transfer.cells);
-            TransferData { cells: previous.transfer.cells.clone(), iirtf }
+            // The basis holds the lattice's cells: the segment cells stay empty until a rebake.
+            TransferData { cells: previous.transfer.cells.clone(), iirtf: basis.iirtf(&colours)? }
         } else {
             stage_runner.keep(Stage::Transfer, transfer_key);
             previous.transfer.clone()

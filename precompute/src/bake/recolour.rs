@@ -437,10 +437,12 @@ pub struct RecolourBasis {
     pub fiber_lobes: bool,
     /// Material slots of the bake (the length colours must have).
     pub slot_count: usize,
-    /// The grid's lattice cells (`CellGrid::lattice_cell_count`): the cells from this id on
-    /// are segment cells, which always fold their lobes into their matrix (the bake gives
-    /// them no lobes: `bake::cells`).
-    pub lattice_cells: usize,
+    /// The grid's segment cells (`bake::cells`), which the basis does not hold: a recoloured
+    /// transfer ([`Self::iirtf`]) has them empty, so its segments are shaded with the lattice's
+    /// cells until the rebake that follows. With them the basis would be several times larger
+    /// (about 50 KB a cell; 10,000 more cells on the default fabric at interactive quality).
+    pub segment_cells: usize,
+    /// The lattice's cells (`CellGrid::lattice_cell_count`).
     pub cells: Vec<CellBasis>,
     /// C_S parts per slot (`None` for Lambertian slots, which have no table).
     pub cs_parts: Vec<Option<CsParts>>,
@@ -507,7 +509,7 @@ impl RecolourBasis {
         let layout = self.layout();
         let entry = |e: usize| basis.entry(e, &prepared);
         let n2 = layout.matrix().len();
-        if self.keeps_lobes(cell, basis, &prepared) {
+        if self.keeps_lobes(basis, &prepared) {
             let strength = |r: std::ops::Range<usize>| r.map(|e| entry(e).0).collect();
             let shape = |r: std::ops::Range<usize>| r.map(|e| entry(e).0.iter().sum()).collect();
             return Ok(super::iirtf::CellTransfer {
@@ -530,12 +532,12 @@ impl RecolourBasis {
         })
     }
 
-    /// Whether nonempty cell `cell` keeps its lobes at the colours `prepared` holds: the
-    /// bake's rule on its forward (0) coefficient and cosine there ([`forward_lobe_folds`]);
-    /// never without fiber lobes, never in a segment cell.
-    fn keeps_lobes(&self, cell: usize, basis: &CellBasis, prepared: &CellColours) -> bool {
+    /// Whether a nonempty cell keeps its lobes at the colours `prepared` holds: the bake's rule
+    /// on its forward (0) coefficient and cosine there ([`forward_lobe_folds`]); never without
+    /// fiber lobes.
+    fn keeps_lobes(&self, basis: &CellBasis, prepared: &CellColours) -> bool {
         let layout = self.layout();
-        self.fiber_lobes && cell < self.lattice_cells && {
+        self.fiber_lobes && {
             let forward0 = basis.entry(layout.forward().start, prepared).0;
             !forward_lobe_folds(self.sh_order, forward0, basis.entry(layout.cosine(), prepared).0)
         }
@@ -561,10 +563,11 @@ impl RecolourBasis {
     pub fn iirtf(&self, colours: &[SlotColour]) -> Result<super::iirtf::Iirtf, RecolourError> {
         use rayon::prelude::*;
         self.check_colours(colours)?;
-        let cells = (0..self.cells.len())
+        let mut cells = (0..self.cells.len())
             .into_par_iter()
             .map(|c| self.cell_transfer(c, colours))
             .collect::<Result<Vec<_>, _>>()?;
+        cells.resize(self.cells.len() + self.segment_cells, super::iirtf::CellTransfer::empty());
         Ok(super::iirtf::Iirtf { sh_order: self.sh_order, light_domain: self.light_domain, cells })
     }
 
@@ -606,7 +609,7 @@ impl RecolourBasis {
         }
         let prepared = basis.prepare(colours);
         let entry = |e: usize| basis.entry(e, &prepared).0;
-        if !self.keeps_lobes(cell, basis, &prepared) {
+        if !self.keeps_lobes(basis, &prepared) {
             if !planar.is_empty() {
                 for e in layout.matrix() {
                     for (ch, value) in entry(e).into_iter().enumerate() {
@@ -739,26 +742,16 @@ pub fn bake_recolour_basis(
 ) -> Result<RecolourBasis, RecolourError> {
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
     let slots = materials.len();
-    let (order, paths) = (settings.sh_order, settings.cell_paths());
-    let shape = CellShape { order, paths: paths.lattice, slots, lobes: settings.fiber_lobes };
+    let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
+    let shape = CellShape { order, paths, slots, lobes: settings.fiber_lobes };
     let cells = for_each_cell(
         grid,
-        0..grid.cell_count(),
-        paths,
+        0..grid.lattice_cell_count(),
+        settings.cell_paths(),
         settings.seed,
         cancel,
         progress,
-        &|cell, segments, stream, tick| {
-            if !grid.is_segment_cell(cell) {
-                return bake_cell_basis(&sampler, segments, shape, stream, tick);
-            }
-            // A segment cell an eye does not see stays empty, as in the bake; one it sees gets
-            // the lobes' entries like every cell (one layout), folded where it is evaluated.
-            if !sampler.eye_sees(segments[0], stream) {
-                return tick(paths.segment).then(CellBasis::empty);
-            }
-            bake_cell_basis(&sampler, segments, CellShape { paths: paths.segment, ..shape }, stream, tick)
-        },
+        &|_, segments, stream, tick| bake_cell_basis(&sampler, segments, shape, stream, tick),
     )
     .map_err(IirtfError::from)?;
     let cs_parts = materials
@@ -774,7 +767,7 @@ pub fn bake_recolour_basis(
         light_domain,
         fiber_lobes: settings.fiber_lobes,
         slot_count: slots,
-        lattice_cells: grid.lattice_cell_count(),
+        segment_cells: grid.cell_count() - grid.lattice_cell_count(),
         cells,
         cs_parts,
     })
@@ -806,27 +799,20 @@ pub fn same_paths_iirtf(
         return Err(RecolourError::SlotCount { colours: colours.len(), slots: materials.len() });
     }
     let (sampler, light_domain) = colour_free_sampler(exemplar, materials, grid, settings)?;
-    let (order, paths) = (settings.sh_order, settings.cell_paths());
-    let shape = CellShape { order, paths: paths.lattice, slots: colours.len(), lobes: settings.fiber_lobes };
-    let cells = for_each_cell(
+    let (order, paths) = (settings.sh_order, settings.iirtf_paths_per_cell);
+    let shape = CellShape { order, paths, slots: colours.len(), lobes: settings.fiber_lobes };
+    let mut cells = for_each_cell(
         grid,
-        0..grid.cell_count(),
-        paths,
+        0..grid.lattice_cell_count(),
+        settings.cell_paths(),
         settings.seed,
         cancel,
         &|_| {},
-        &|cell, segments, stream, tick| {
-            if !grid.is_segment_cell(cell) {
-                return same_paths_cell(&sampler, segments, shape, colours, stream, tick);
-            }
-            if !sampler.eye_sees(segments[0], stream) {
-                return tick(paths.segment).then(super::iirtf::CellTransfer::empty);
-            }
-            let segment_shape = CellShape { paths: paths.segment, lobes: false, ..shape };
-            same_paths_cell(&sampler, segments, segment_shape, colours, stream, tick)
-        },
+        &|_, segments, stream, tick| same_paths_cell(&sampler, segments, shape, colours, stream, tick),
     )
     .map_err(IirtfError::from)?;
+    // The segment cells empty, as the basis leaves them (`RecolourBasis::segment_cells`).
+    cells.resize(grid.cell_count(), super::iirtf::CellTransfer::empty());
     Ok(super::iirtf::Iirtf { sh_order: order, light_domain, cells })
 }
 
@@ -1461,7 +1447,7 @@ mod tests {
         let (exemplar, materials) = tiny(WeavePreset::Plain);
         let fibers = crate::raycast::FiberScene::new(&exemplar, crate::raycast::Extent::Unbounded).unwrap();
         let mfp = crate::raycast::mean_free_path(&fibers, 4000, 1);
-        let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, &s).unwrap();
+        let grid = CellGrid::for_bake(&exemplar, mfp.mean_cm, s).unwrap();
         (exemplar, grid, materials)
     }
 
@@ -1719,7 +1705,7 @@ mod tests {
         let same = same_paths_iirtf(&exemplar, &materials, &grid, &s, &diagonal, &Cancel::new()).unwrap();
         let from_basis = basis.iirtf(&diagonal).unwrap();
         let mut checked = 0;
-        for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+        for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0) {
             let reweighed = reweighed_dc(&sampler, &grid, c, &s, &[0.3, 0.9]);
             let got = f64::from(exact.cells[c].matrix[0][0]);
             assert!(
@@ -1751,7 +1737,7 @@ mod tests {
         let (sampler, _) = colour_free_sampler(&exemplar, &materials, &grid, &s).unwrap();
         let colour = |tau: f64| SlotColour { tau: Rgb::splat(tau), c_r: Rgb::splat(COLOUR_FREE_C_R) };
         let (mut worst_diagonal, mut worst_off) = (0.0_f64, 0.0_f64);
-        for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+        for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0) {
             for tau in [0.2, 0.5, 0.75, 0.9, 0.98] {
                 let exact = reweighed_dc(&sampler, &grid, c, &s, &[tau, tau]);
                 let approx =
@@ -1808,7 +1794,7 @@ mod tests {
             [0.3, 0.6],
         ] {
             let (mut exact_sum, mut approx_sum, mut single_sum) = (0.0, 0.0, 0.0);
-            for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0).take(300) {
+            for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0).take(300) {
                 let exact =
                     reweighed_dc(&sampler, &grid, c, &s, &pair) * 4.0 * PI * y00 * 4.0 * PI / (4.0 * PI);
                 let cell = &basis.cells[c];
@@ -2159,7 +2145,7 @@ mod tests {
             .with_exposed_starts(s.exposed_starts);
         let (mut mean, mut var) = ([0.0; 6], [0.0; 6]);
         let count = s.iirtf_paths_per_cell as f64;
-        for c in (0..grid.cell_count()).filter(|&c| kept[c]) {
+        for c in (0..grid.lattice_cell_count()).filter(|&c| kept[c]) {
             let segments = grid.segments_in_cell(c as u32);
             let stream = super::super::iirtf::cell_stream(s.seed, c as u32);
             let (mut sum, mut sum2) = ([0.0; 6], [0.0; 6]);
@@ -2303,7 +2289,7 @@ mod tests {
             _ => f64::from(t.matrix[0][0]),
         };
         let (mut kept, mut folded, mut worst) = (0, 0, [0.0_f64; 3]);
-        for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+        for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0) {
             let (a, b) = (&same.cells[c], &from_basis.cells[c]);
             assert_eq!(a.has_lobes(), b.has_lobes(), "cell {c}: the fold decisions differ");
             let lobe_lengths = |t: &super::super::iirtf::CellTransfer| {
@@ -2434,7 +2420,7 @@ mod tests {
             let ours = basis.iirtf(&colours).unwrap();
             let direct = direct_bake(&exemplar, &grid, &materials, &s);
             let (mut cells, mut forward_dc, mut lambdas) = (0, 0.0, Vec::new());
-            for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+            for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0) {
                 let (a, b) = (&ours.cells[c], &direct.cells[c]);
                 let cell = &basis.cells[c];
                 let prepared = cell.prepare(&colours);
@@ -2503,7 +2489,7 @@ mod tests {
             ("black warp", vec![colour(0.02), own[1]], Some(false)),
             ("τ 0.25", vec![colour(0.25), colour(0.25)], None),
         ] {
-            for c in (0..grid.cell_count()).filter(|&c| basis.cells[c].paths > 0) {
+            for c in (0..grid.lattice_cell_count()).filter(|&c| basis.cells[c].paths > 0) {
                 let cell = &basis.cells[c];
                 let prepared = cell.prepare(&colours);
                 let entry = |e: usize| cell.entry(e, &prepared);
