@@ -637,6 +637,14 @@ fn sh_orders_above_what_the_shaders_hold_are_refused_naming_the_limit() {
 /// → 9.8% / 7.5% → 8.4% / 8.4% → 5.6% (single scattering had moved with the thirteenth
 /// session's sum of SGs at their visible directions without reaching the band's edge); CPU
 /// method 13.5% → 11.0% / 6.0% → 8.5% / 8.8% → 8.5%, backlit −6.5% → −8.0%.
+///
+/// Re-measured 2026-11-28 (twenty-second session), since the draft preset's IIRTF cells are 3ℓ
+/// across instead of 4ℓ (over the 100 configurations of `twill accuracy` at draft: 11.3% →
+/// 9.0% on the GPU, docs/BENCHMARKS.md "The draft preset's cells, switched"). Here GPU multiple
+/// / all 8.4% → 7.8% / 5.6% → 6.4%, grazing −22.3% → −18.7%, but the backlit case +4.7% →
+/// +9.7% (not traced); CPU method multiple / all 8.5% → 6.5%
+/// / 8.5% → 5.2%, grazing +5.9% → +3.4%, backlit −8.0% → −1.8%. The bands follow this
+/// measurement; the backlit GPU case is a known cost of the switch.
 #[test]
 fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     use twill_renderer::accuracy::sweep::{Fabric, Method, ReferenceCache, SweepSettings, run};
@@ -668,8 +676,8 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
     // Per method: (single, multiple, all) image-mean error and per-pixel error; then the
     // grazing (1) and backlit (2) configurations' relative error of all light.
     let measured: [([f64; 3], [f64; 3], [f64; 2]); 2] = [
-        ([0.098, 0.084, 0.056], [0.941, 0.557, 0.601], [-0.223, 0.047]),
-        ([0.110, 0.085, 0.085], [1.041, 0.594, 0.648], [0.059, -0.080]),
+        ([0.098, 0.078, 0.064], [0.941, 0.523, 0.594], [-0.187, 0.097]),
+        ([0.110, 0.065, 0.052], [1.041, 0.531, 0.636], [0.034, -0.018]),
     ];
     let mut failures = Vec::new();
     for (point, (mean, pixel, cases)) in sweep.points.iter().zip(measured) {
@@ -752,7 +760,9 @@ fn default_scene_image_mean_against_the_path_tracer() {
 /// their mean (paths that cross a block edge; the same seed gives the same random numbers per
 /// pixel) and from the other weave's by 1.51 / 1.72 (held to at most 0.3 of the latter), and the
 /// GPU's block middles are +6.7% / −6.3% of the path tracer's in mean (the draft method's error
-/// on this view; held to one-sided bands of 4 points).
+/// on this view; held to one-sided bands of 4 points). Re-measured 2026-11-28 (twenty-second
+/// session) with the draft's cells 3ℓ across instead of 4ℓ: +11.0% / −2.6% (the twill's block
+/// middles brighter; the bands follow).
 #[test]
 fn patterned_cloth_blocks_render_as_their_own_weave() {
     let Some(gpu) = Gpu::for_test("patterned_cloth_blocks_render_as_their_own_weave") else { return };
@@ -877,7 +887,7 @@ fn patterned_cloth_blocks_render_as_their_own_weave() {
         if own.is_nan() || own > 0.3 * other {
             failures.push(format!("weave {weave}: the path tracer's blocks are not their own weave's ({own:.3} against {other:.3})"));
         }
-        let measured = [0.067, -0.063][weave];
+        let measured = [0.110, -0.026][weave];
         if let Err(e) = twill_tests::check_band(
             &format!("weave {weave}, GPU against the path tracer"),
             gpu_error,
@@ -1304,7 +1314,11 @@ fn live_recolouring_of_patterned_cloth_writes_every_exemplar() {
 ///   walked with its colours (another draw of that noise) these were −3.31% / −2.08% / −0.76%
 ///   and 26.2% (2026-11-26, exposed starts; +4.2% / +1.6% / −1.7% and 34.6% with independent
 ///   starts a day earlier). One-sided bands of half a point on the means and one on the
-///   per-pixel figure, which must also stay within the seed-to-seed difference.
+///   per-pixel figure, which must also stay within the seed-to-seed difference. Re-measured
+///   2026-11-28 (twenty-second session) with the draft's cells 3ℓ across instead of 4ℓ: means
+///   +0.38% / +0.40% / +0.17%, per-pixel RMS 2.68% (seed to seed 38.7%): smaller cells hold
+///   fewer paths' worth of each mixed class's weights, which the basis takes from the cell's
+///   (0, 0) entry. The per-pixel band follows; the means stay within theirs.
 #[test]
 fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     use twill_precompute::Rgb;
@@ -1392,11 +1406,73 @@ fn live_recolouring_writes_the_basis_in_place_and_follows_a_rebake() {
     }
     let (live_rms, floor) = (rms(&live, &rebaked), rms(&reseeded, &rebaked));
     eprintln!("per-pixel RMS: live {:.2}%, seed to seed {:.2}%", 100.0 * live_rms, 100.0 * floor);
-    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.0109, 0.01) {
+    if let Err(e) = twill_tests::check_band("per-pixel RMS", live_rms, 0.0268, 0.01) {
         failures.push(e);
     }
     if live_rms > floor {
         failures.push(format!("per-pixel RMS {live_rms:.4} above the seed-to-seed difference {floor:.4}"));
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// A live recolouring of a bake with segment transfers (`BakeSettings::segment_transfer_paths`):
+/// the recolouring basis holds the lattice's cells alone, so the live write takes the segment
+/// cells' slots away and the frame equals the whole-bake preview's (whose segment cells are
+/// empty), uploaded afresh: every segment is shaded with the lattice's cells at the new colours,
+/// none with its own transfer at the old ones. The rebake has its segment transfers again.
+#[test]
+fn live_recolouring_with_segment_transfers_shades_with_the_cells_until_the_rebake() {
+    use twill_precompute::Rgb;
+    use twill_precompute::bake::pipeline::{bake_material_preview, recolour_basis};
+    use twill_precompute::bake::settings::BakeSettings;
+    use twill_precompute::bcsdf::{FiberParams, MaterialDesc};
+    let Some(gpu) =
+        Gpu::for_test("live_recolouring_with_segment_transfers_shades_with_the_cells_until_the_rebake")
+    else {
+        return;
+    };
+    let settings0 = BakeSettings { segment_transfer_paths: 16, ..Quality::Draft.settings() };
+    let scene0 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
+    let before =
+        bake(&scene0.bake_inputs(settings0)[0], None, &Cancel::new(), &|_, _| {}).expect("bake").baked;
+    let segment_cells = |b: &Baked| {
+        let grid = &b.transfer.cells;
+        (grid.lattice_cell_count()..grid.cell_count())
+            .filter(|&c| b.transfer.iirtf.cells[c].paths > 0)
+            .count()
+    };
+    assert!(segment_cells(&before) > 1000, "{} segment cells with a transfer", segment_cells(&before));
+    let basis =
+        recolour_basis(&scene0.bake_inputs(settings0)[0], None, &Cancel::new(), &|_| {}).expect("basis");
+    let mut scene1 = scene(&format!("{FABRIC}{}", camera_above(0.5)), &[SUN]);
+    scene1.material_descs = scene0
+        .material_descs
+        .iter()
+        .map(|m| match *m {
+            MaterialDesc::Fiber(p) => MaterialDesc::Fiber(FiberParams { c_tt: Rgb::new(0.2, 0.5, 0.9), ..p }),
+            MaterialDesc::Lambert { .. } => panic!("the default fabric is fiber"),
+        })
+        .collect();
+    let mut settings = frame_settings(&scene1, Components::MultipleOnly);
+    (settings.width, settings.height, settings.spp) = (32, 32, 4);
+    let pattern = PatternMap::uniform(0);
+    let mut session = SceneRenderer::with_gpu(gpu, &scene0, &[&before], &pattern).expect("scene uploads");
+    let written = session.renderer.recolour(0, &basis, &scene1.material_descs).expect("recolours");
+    assert!(written.contains(&"cell_slots") && written.contains(&"iirtf"), "{written:?}");
+    let live = session.render(&scene1, &settings).expect("frame renders").radiance_image();
+    let inputs1 = scene1.bake_inputs(settings0);
+    let preview = bake_material_preview(&inputs1[0], &before, Some(&basis), None, &Cancel::new(), &|_, _| {})
+        .expect("preview")
+        .baked;
+    assert_eq!(segment_cells(&preview), 0, "the preview's segment cells are empty");
+    let mut fresh = SceneRenderer::with_gpu(session.gpu, &scene1, &[&preview], &pattern).expect("uploads");
+    let packed = fresh.render(&scene1, &settings).expect("frame renders").radiance_image();
+    let largest = packed.pixels.iter().map(|p| p.max_element()).fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    for (a, b) in live.pixels.iter().zip(&packed.pixels) {
+        assert!((*a - *b).abs().max_element() <= 1e-6 * largest, "in place {a:?} vs packed {b:?}");
+    }
+    // The rebake at the new colours has its segment transfers again.
+    let rebaked = bake(&inputs1[0], None, &Cancel::new(), &|_, _| {}).expect("rebake").baked;
+    assert!(segment_cells(&rebaked) > 1000, "{} segment cells with a transfer", segment_cells(&rebaked));
 }

@@ -3,7 +3,7 @@
 //! single scattering against `Component::Single`, multiple against `Component::Multiple`.
 //!
 //! The method approximates (16 × 16 visibility images compressed to 8 PCA components, 16
-//! sum-of-SG lobes, IIRTF cells 4 mean free paths across and 0.5 deep with 96 paths each, SH
+//! sum-of-SG lobes, IIRTF cells 3 mean free paths across and 0.5 deep with 96 paths each, SH
 //! order 2), so the images are not expected to agree within noise. Each comparison prints the
 //! relative error of the image mean and the per-pixel RMSE (relative to the reference mean)
 //! and holds both to one-sided bands around what was measured (`twill_tests::check_band`: a
@@ -129,10 +129,18 @@ fn check(label: &str, light: LightSection, component: Component, measured: &Meas
 
 // Before this bake (paper visibility from the fiber axis, 4ℓ cubic cells, uniform light
 // directions in the IIRTF): single −14..−17%, multiple −26..−30%.
+//
+// Every band re-measured 2026-11-28 (twenty-second session), since the draft preset's cells are
+// 3ℓ across instead of 4ℓ (over the 100 configurations of `twill accuracy` at draft, 11.3% →
+// 9.0% on the GPU). Multiple scattering on this front-lit view: directional +3.3% → +3.8% (per
+// pixel 0.887 → 0.801), SG λ = 8 −9.5% → −11.4%, SG λ = 300 −12.1% → −14.2%; the per-pixel
+// figures 0.629 → 0.645 and 0.715 → 0.735. Single scattering had improved since its bands were
+// set, through earlier sessions' visibility changes that left it inside them (directional
+// −6.4% → −1.0%, SG λ = 8 −8.9% → −7.4%, SG λ = 300 −11.1% → −10.0%): the bands now follow.
 
 #[test]
 fn directional_light_single_scattering() {
-    check("directional, single", directional(), Component::Single, &Measured { mean: -0.0639, pixel: 1.012 });
+    check("directional, single", directional(), Component::Single, &Measured { mean: -0.0101, pixel: 0.936 });
 }
 
 #[test]
@@ -143,30 +151,30 @@ fn directional_light_multiple_scattering() {
         Component::Multiple,
         // Exposed IIRTF path starts (2026-11-26): mean +3.6% → +3.3%, per pixel 0.823 → 0.887
         // (the transfer of the points an eye sees varies more from cell to cell).
-        &Measured { mean: 0.0327, pixel: 0.887 },
+        &Measured { mean: 0.0381, pixel: 0.801 },
     );
 }
 
 #[test]
 fn soft_sg_light_single_scattering() {
-    check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.0889, pixel: 0.633 });
+    check("SG λ = 8, single", sg(8.0), Component::Single, &Measured { mean: -0.0738, pixel: 0.633 });
 }
 
 // Multiple scattering under SG lights moved with the exposed IIRTF path starts (2026-11-26):
 // λ = 8 −15.1% → −9.5%, λ = 300 −18.1% → −12.1% (per pixel 0.626 → 0.629, 0.699 → 0.715).
 #[test]
 fn soft_sg_light_multiple_scattering() {
-    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, &Measured { mean: -0.0945, pixel: 0.629 });
+    check("SG λ = 8, multiple", sg(8.0), Component::Multiple, &Measured { mean: -0.1143, pixel: 0.645 });
 }
 
 #[test]
 fn sharp_sg_light_single_scattering() {
-    check("SG λ = 300, single", sg(300.0), Component::Single, &Measured { mean: -0.1112, pixel: 0.800 });
+    check("SG λ = 300, single", sg(300.0), Component::Single, &Measured { mean: -0.1001, pixel: 0.777 });
 }
 
 #[test]
 fn sharp_sg_light_multiple_scattering() {
-    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, &Measured { mean: -0.1211, pixel: 0.715 });
+    check("SG λ = 300, multiple", sg(300.0), Component::Multiple, &Measured { mean: -0.1420, pixel: 0.735 });
 }
 
 // ---------------------------------------------------------------------------------------------

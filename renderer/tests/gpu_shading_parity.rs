@@ -1264,8 +1264,12 @@ fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
         let n = arrays.header.sh_count as usize;
         assert_eq!(arrays.iirtf.len(), (arrays.slot_count * 3 * n * n).div_ceil(2), "{label}");
         // Without lobes the buffer is empty (bound as one zeroed vec4); with them
-        // LOBE_PACKED_FLOATS per slot, and as many non-zero ones as cells with lobes.
-        let expected_len = if expected { arrays.slot_count * LOBE_PACKED_FLOATS } else { 0 };
+        // LOBE_PACKED_FLOATS per lattice slot (the segment cells' slots come after them and
+        // have none), and as many non-zero ones as cells with lobes.
+        let lattice = baked.transfer.cells.lattice_cell_count();
+        assert_eq!(arrays.lattice_slot_count, held[..lattice].iter().filter(|&&h| h).count(), "{label}");
+        assert!(arrays.slot_count > arrays.lattice_slot_count, "{label}: segment cells have slots");
+        let expected_len = if expected { arrays.lattice_slot_count * LOBE_PACKED_FLOATS } else { 0 };
         assert_eq!(arrays.holds_lobes(), expected, "{label}");
         assert_eq!(arrays.lobes.len(), expected_len, "{label}");
         assert_eq!(arrays.lobe_cells, baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count());

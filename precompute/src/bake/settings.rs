@@ -2,10 +2,11 @@
 //!
 //! `paper` is the 2017 paper's configuration (128x128 visibility images, 48 PCA components,
 //! Q = 48 SGs of sharpness 128, cells of about one mean free path, 50,000 paths per cell, SH
-//! order 5, 512 θo values); `interactive` is sized to bake the default fabric (~20k segments) in
-//! about 25 seconds on two cores (its 480 paths per cell keep the order-4 transfer's noise from
-//! showing as flat patches, one per segment, in multiple scattering); `draft` is the fastest
-//! useful bake, for the first picture.
+//! order 5, 512 θo values); `interactive` bakes the default fabric (~20k segments) in about 70
+//! seconds on two cores (its 480 paths per cell keep the order-4 transfer's noise from showing
+//! as flat patches, one per segment, in multiple scattering; its segment transfers, 480 paths
+//! for each segment an eye sees, take two thirds of it and halve the cotton's error); `draft`
+//! is the fastest useful bake, for the first picture (about 4 seconds).
 //!
 //! The IIRTF dominates the cost (about 20 µs per path, bound by ray casting), so the cheaper
 //! presets use larger cells (the paper finds cells up to 2ℓ lose little; beyond that multiple

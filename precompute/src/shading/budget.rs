@@ -38,8 +38,12 @@
 //!    matrices only), shaded as rung 3: the transfer without the cells' averaging;
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
 //!    and paths per cell, its paths from segment midpoints (the paper) or exposed starts
-//!    (`BakeSettings::exposed_starts`);
-//! 4. the method: the IIRTF interpolated between cells at the hit point;
+//!    (`BakeSettings::exposed_starts`); the lattice's cells alone;
+//!    3i. (a bake with segment transfers) the lattice's cells interpolated at the hit point:
+//!    the method without the segments' own transfers;
+//! 4. the method: the IIRTF interpolated between cells at the hit point, or the segment's own
+//!    transfer where the bake has one and its cell keeps no lobes
+//!    (`BakeSettings::segment_transfer_paths`, `multiple::segment_transfer`);
 //! 5. the method on the GPU's primary hits (as single-scattering rung 6);
 //!
 //! and beside them 4′, the method without its clamp at zero (on this ladder the radiance shaded

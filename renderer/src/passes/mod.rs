@@ -473,7 +473,7 @@ mod tests {
             (
                 "SegmentGpu",
                 &shared,
-                rust_struct!(SegmentGpu; direction, material, midpoint, half_length, cell, sos_rotation, radius),
+                rust_struct!(SegmentGpu; direction, material, midpoint, half_length, cell, sos_rotation, radius, segment_cell),
             ),
             (
                 "MaterialGpu",
