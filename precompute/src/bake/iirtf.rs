@@ -416,13 +416,13 @@ pub struct IirtfNoise {
 impl Iirtf {
     /// Empties the segment cells (`bake::cells`) of the segments whose lattice cell keeps fiber
     /// lobes that carry light: shading never reads them (`shading::multiple::segment_transfer`),
-    /// so a bake neither traces nor stores them. A bake and a merge of shards both end with
-    /// this, so they hold the same cells.
+    /// so a bake does not store them. [`bake_iirtf`] never traces them (it bakes the lattice
+    /// first); a merge of shards, whose shards could not know, ends with this, so the two hold
+    /// the same cells.
     pub fn drop_segment_cells_under_lobes(&mut self, grid: &CellGrid) {
         for k in 0..grid.segment_count() as u32 {
-            let (Some(c), own) = (grid.segment_cell(k), grid.cell_of_segment(k) as usize) else {
-                return;
-            };
+            let Some(c) = grid.segment_cell(k) else { return };
+            let own = grid.cell_of_segment(k) as usize;
             if self.cells.get(own).is_some_and(CellTransfer::keeps_lobe_light)
                 && let Some(cell) = self.cells.get_mut(c as usize)
             {
@@ -1114,7 +1114,8 @@ pub fn bake_iirtf(
         return Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells });
     }
     // The lattice first, then the segment cells whose lattice cell keeps no lobes (the others
-    // are never shaded: `Iirtf::drop_segment_cells_under_lobes`), progress weighted by paths.
+    // are never shaded, and stay empty as `Iirtf::drop_segment_cells_under_lobes` would leave
+    // them), progress weighted by paths.
     let paths = settings.cell_paths();
     let lattice_work =
         (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
@@ -1143,9 +1144,7 @@ pub fn bake_iirtf(
         &|f| progress(share + f * (1.0 - share)),
         &needed,
     )?);
-    let mut iirtf = Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells };
-    iirtf.drop_segment_cells_under_lobes(grid);
-    Ok(iirtf)
+    Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells })
 }
 
 /// The IIRTF of cells `cells` of `grid` only, in order: each cell draws from its own stream,

@@ -598,14 +598,16 @@ mod tests {
 
     #[test]
     fn merged_parts_are_the_single_process_bake_byte_for_byte_whatever_the_split() {
-        for fiber_lobes in [false, true] {
-            merged_parts_are_the_single_process_bake(fiber_lobes);
+        // With segment transfers too: the single-process bake skips the segment cells under
+        // lobe cells, the shards trace them and the merge empties them.
+        for (fiber_lobes, segment_transfer_paths) in [(false, 0), (true, 0), (true, 8)] {
+            merged_parts_are_the_single_process_bake(fiber_lobes, segment_transfer_paths);
         }
     }
 
-    fn merged_parts_are_the_single_process_bake(fiber_lobes: bool) {
+    fn merged_parts_are_the_single_process_bake(fiber_lobes: bool, segment_transfer_paths: usize) {
         let (exemplar, materials) = tiny();
-        let settings = BakeSettings { fiber_lobes, ..settings() };
+        let settings = BakeSettings { fiber_lobes, segment_transfer_paths, ..settings() };
         let inputs = [BakeInputs { exemplar: &exemplar, materials: &materials, settings }];
         let dir = tempfile::tempdir().unwrap();
         let whole = bake_set(&inputs, PatternMap::uniform(0), None, &Cancel::new(), &|_, _| {}).unwrap();
@@ -615,6 +617,9 @@ mod tests {
         assert_eq!(lobes > 0, fiber_lobes, "{lobes} cells with fiber lobes");
         // With lobes, both kinds of cell go through the parts.
         assert!(folded > 0, "{folded} cells without lobes");
+        let grid = &whole.exemplars[0].baked.transfer.cells;
+        let own = (grid.lattice_cell_count()..grid.cell_count()).filter(|&c| !cells[c].is_empty()).count();
+        assert_eq!(own > 0, segment_transfer_paths > 0, "{own} segment cells with a transfer");
         let whole_path = dir.path().join("whole.twillbake");
         write_bake(&whole_path, &whole).unwrap();
         let whole_bytes = std::fs::read(&whole_path).unwrap();
@@ -636,7 +641,7 @@ mod tests {
             write_bake(&path, &merged).unwrap();
             assert!(
                 std::fs::read(&path).unwrap() == whole_bytes,
-                "{count} shards (fiber lobes {fiber_lobes}): the merged bake differs"
+                "{count} shards (fiber lobes {fiber_lobes}, segment paths {segment_transfer_paths}): the merged bake differs"
             );
         }
     }
