@@ -1037,12 +1037,16 @@ fn reference_set(
     Ok((out, summary))
 }
 
-fn summarize(
-    all: &[Image],
-    single: &[Image],
-    references: &[Reference],
-    settings: &SweepSettings,
-) -> ([ComponentErrors; 3], Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[DVec3; 3]>) {
+/// One method's errors on one fabric: over all configurations and per configuration (the
+/// fields of [`FabricResult`] of the same names).
+struct Summary {
+    errors: [ComponentErrors; 3],
+    configuration_errors: Vec<[f64; 3]>,
+    configuration_reference_means: Vec<[f64; 3]>,
+    configuration_channel_errors: Vec<[DVec3; 3]>,
+}
+
+fn summarize(all: &[Image], single: &[Image], references: &[Reference], settings: &SweepSettings) -> Summary {
     let multiple: Vec<Image> = all.iter().zip(single).map(|(a, s)| sub(a, s)).collect();
     let mut errors = [ComponentErrors::default(); 3];
     let mut per_config = vec![[0.0; 3]; all.len()];
@@ -1061,7 +1065,12 @@ fn summarize(
             channels[c] = channel;
         }
     }
-    (errors, per_config, reference_means, per_channel)
+    Summary {
+        errors,
+        configuration_errors: per_config,
+        configuration_reference_means: reference_means,
+        configuration_channel_errors: per_channel,
+    }
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -1098,7 +1107,7 @@ fn gpu_fabric(
         let single_frame = FrameSettings { components: Components::SingleOnly, ..*frame };
         single.push(session.render(scene, &single_frame)?.radiance_image());
     }
-    let (errors, configuration_errors, configuration_reference_means, configuration_channel_errors) =
+    let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
         summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
@@ -1135,7 +1144,7 @@ fn cpu_fabric(
         all.push(add(&s, &m));
         single.push(s);
     }
-    let (errors, configuration_errors, configuration_reference_means, configuration_channel_errors) =
+    let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
         summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
