@@ -1155,8 +1155,15 @@ pub fn bake_iirtf_cells(
         &all,
     )?;
     let reflected_fits = reflected_light_fits_matrices(&lattice_cells, settings.sh_order);
-    let holds = |c: u32| segment_cell_light(grid, &lattice_cells, reflected_fits, c);
-    let mut out = lattice_cells[cells.start.min(lattice)..].to_vec();
+    // What each segment cell holds, so that the lattice's cells move into the output instead
+    // of being copied (a copy would double the lattice's share of a bake's peak memory).
+    let segment_light: Vec<Option<MatrixLight>> = (lattice..grid.cell_count())
+        .map(|c| segment_cell_light(grid, &lattice_cells, reflected_fits, c as u32))
+        .collect();
+    let holds =
+        |c: u32| (c as usize).checked_sub(lattice).and_then(|k| segment_light.get(k)).copied().flatten();
+    let mut out = lattice_cells;
+    out.drain(..cells.start.min(lattice));
     out.extend(bake_cells_where(
         exemplar,
         yarn_materials,
