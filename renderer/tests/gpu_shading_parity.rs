@@ -572,11 +572,36 @@ fn lobe_bake() -> &'static Baked {
         };
         let inputs = BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings };
         let started = std::time::Instant::now();
-        let baked =
+        let mut baked =
             bake(&inputs, None, &Cancel::new(), &|_, _| {}).expect("draft bake with fiber lobes").baked;
         eprintln!("silk satin draft bake with fiber lobes: {:.1} s", started.elapsed().as_secs_f64());
+        let given = give_reflected_segment_cells(&mut baked);
+        eprintln!("{given} segments under lobe cells given a reflected-light transfer of their own");
+        assert!(given > 100, "{given} segments under lobe cells given a transfer");
         baked
     })
+}
+
+/// Gives every other segment whose lattice cell keeps fiber lobes (and that has a segment cell)
+/// a transfer of its own, a copy of a cell's matrix without lobes: what a bake whose reflected
+/// light fits matrices holds there (`iirtf::MatrixLight::Reflected`; the silk's does not, so
+/// its bake leaves them empty). Both twins then shade those segments with that matrix beside
+/// the lattice cells' forward lobes alone (`multiple.rs` `LobesTaken::ForwardOnly`, WGSL
+/// `fiber_lobes_at`), the others with both lobes. Returns how many it gave.
+fn give_reflected_segment_cells(baked: &mut Baked) -> usize {
+    let grid = baked.transfer.cells.clone();
+    let cells = &mut baked.transfer.iirtf.cells;
+    let donor = cells.iter().find(|c| c.paths > 0 && !c.has_lobes() && !c.matrix.is_empty()).cloned();
+    let donor = donor.expect("a cell with a matrix");
+    let mut given = 0;
+    for k in (0..grid.segment_count() as u32).step_by(2) {
+        let Some(own) = grid.segment_cell(k) else { continue };
+        if cells[grid.cell_of_segment(k) as usize].keeps_lobe_light() && cells[own as usize].paths == 0 {
+            cells[own as usize] = donor.clone();
+            given += 1;
+        }
+    }
+    given
 }
 
 /// Asserts that some of `baked`'s cells keep fiber lobes (a cell whose light is broad folds it

@@ -587,23 +587,35 @@ fn slot_keeps_lobes(slot: u32) -> bool {
     return any(lobes[base].xyz != vec3<f32>(0.0)) || any(lobes[base + LOBE_SH_COUNT].xyz != vec3<f32>(0.0));
 }
 
+// The slot (plus one) of `segment`'s own segment cell, 0 where the bake has none for it or a
+// live recolouring took its slot away (multiple.rs segment_transfer).
+fn segment_cell_slot(segment: u32) -> u32 {
+    let s = segments[segment];
+    if (s.segment_cell == NO_SEGMENT_CELL) {
+        return 0u;
+    }
+    return cell_slots[s.segment_cell];
+}
+
 // The cells whose transfer is shaded at point p of `segment` (multiple.rs
 // segment_transfer, multiple_scattering): its own segment cell alone (weight 1) where the bake
-// has one for it and its lattice cell keeps no fiber lobes; else the lattice cells interpolated
-// around p (cell_interpolation), or, where all eight are empty, the segment's lattice cell
-// alone if it has a transfer; every weight 0 if none.
+// has one for it (all of its light, or where its lattice cell keeps fiber lobes its reflected
+// light, beside the lattice's forward lobes: fiber_lobes_at); else lattice_cells_around.
 fn transfer_cells(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
-    let s = segments[segment];
-    if (s.segment_cell != NO_SEGMENT_CELL) {
-        let own_slot = cell_slots[s.segment_cell];
-        let lattice_slot = cell_slots[s.cell];
-        if (own_slot != 0u && !(lattice_slot != 0u && slot_keeps_lobes(lattice_slot - 1u))) {
-            var alone: CellWeights;
-            alone.slots[0] = own_slot - 1u;
-            alone.weights[0] = 1.0;
-            return alone;
-        }
+    let own_slot = segment_cell_slot(segment);
+    if (own_slot != 0u) {
+        var alone: CellWeights;
+        alone.slots[0] = own_slot - 1u;
+        alone.weights[0] = 1.0;
+        return alone;
     }
+    return lattice_cells_around(e, segment, p);
+}
+
+// The lattice cells interpolated around p (cell_interpolation), or, where all eight are empty,
+// `segment`'s lattice cell alone if it has a transfer; every weight 0 if none.
+fn lattice_cells_around(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
+    let s = segments[segment];
     var around = cell_interpolation(e, p);
     var found = false;
     for (var k = 0u; k < 8u; k++) {
@@ -811,6 +823,9 @@ fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>,
 // so that they need not live in every invocation's registers.
 struct FiberLobesAt {
     around: CellWeights,
+    // Whether the reflected lobe is left out: the segment's own transfer holds its reflected
+    // light (multiple.rs LobesTaken::ForwardOnly).
+    forward_only: bool,
     // Sum over channels of the interpolated strength[0]: forward (x) and reflected (y).
     total: vec2<f32>,
     // Per lobe (forward, then reflected) the shape's floats from LOBE_AZIMUTH_TOTALS on: the
@@ -837,19 +852,40 @@ fn elevation_hats(z: f32) -> vec3<f32> {
 // Fills `at` for the shaded point p (exemplar cm) of `segment` (multiple.rs lobe_scattering,
 // its first half); false when no cell around p holds lobes (the term is then zero).
 fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLobesAt>) -> bool {
-    (*at).around = transfer_cells(e, segment, p);
+    (*at).forward_only = false;
+    if (segment_cell_slot(segment) != 0u) {
+        // A segment with its own transfer: where its lattice cell keeps lobes, that transfer
+        // holds the reflected light and the forward chains come from the lattice's forward
+        // lobes, their weights renormalized over the cells that keep lobes; else no lobes.
+        let lattice_slot = cell_slots[segments[segment].cell];
+        if (!(lattice_slot != 0u && slot_keeps_lobes(lattice_slot - 1u))) {
+            return false;
+        }
+        (*at).forward_only = true;
+    }
+    (*at).around = lattice_cells_around(e, segment, p);
     (*at).total = vec2<f32>(0.0);
     for (var i = 0u; i < 2u * LOBE_GATHERED; i++) {
         (*at).shapes[i] = 0.0;
+    }
+    var lobed = 0.0;
+    for (var k = 0u; k < 8u; k++) {
+        let w = (*at).around.weights[k];
+        if (w > 0.0 && slot_keeps_lobes((*at).around.slots[k])) {
+            lobed += w;
+        } else {
+            (*at).around.weights[k] = 0.0;
+        }
+    }
+    if ((*at).forward_only && lobed > 0.0) {
+        for (var k = 0u; k < 8u; k++) {
+            (*at).around.weights[k] /= lobed;
+        }
     }
     var any = false;
     for (var k = 0u; k < 8u; k++) {
         let w = (*at).around.weights[k];
         if (!(w > 0.0)) {
-            continue;
-        }
-        if (!slot_keeps_lobes((*at).around.slots[k])) {
-            (*at).around.weights[k] = 0.0;
             continue;
         }
         let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
@@ -1006,7 +1042,8 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
         shape_sharpness = above.w;
     }
     var out = vec3<f32>(0.0);
-    for (var lobe = 0u; lobe < 2u; lobe++) {
+    let lobe_count = select(2u, 1u, (*at).forward_only);
+    for (var lobe = 0u; lobe < lobe_count; lobe++) {
         let strength = max(strengths[lobe], vec3<f32>(0.0));
         if (all(strength == vec3<f32>(0.0))) {
             continue;

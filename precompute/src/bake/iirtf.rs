@@ -414,23 +414,6 @@ pub struct IirtfNoise {
 }
 
 impl Iirtf {
-    /// Empties the segment cells (`bake::cells`) of the segments whose lattice cell keeps fiber
-    /// lobes that carry light: shading never reads them (`shading::multiple::segment_transfer`),
-    /// so a bake does not store them. [`bake_iirtf`] never traces them (it bakes the lattice
-    /// first); a merge of shards, whose shards could not know, ends with this, so the two hold
-    /// the same cells.
-    pub fn drop_segment_cells_under_lobes(&mut self, grid: &CellGrid) {
-        for k in 0..grid.segment_count() as u32 {
-            let Some(c) = grid.segment_cell(k) else { return };
-            let own = grid.cell_of_segment(k) as usize;
-            if self.cells.get(own).is_some_and(CellTransfer::keeps_lobe_light)
-                && let Some(cell) = self.cells.get_mut(c as usize)
-            {
-                *cell = CellTransfer::empty();
-            }
-        }
-    }
-
     #[must_use]
     pub fn noise(&self) -> IirtfNoise {
         let (mut v, mut e, mut count) = (0.0, 0.0, 0.0);
@@ -1106,50 +1089,24 @@ pub fn bake_iirtf(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<Iirtf, IirtfError> {
-    let lattice = grid.lattice_cell_count();
-    if !grid.has_segment_cells() {
-        let all = 0..lattice;
-        let cells =
-            bake_iirtf_cells(exemplar, yarn_materials, grid, settings, options, all, cancel, progress)?;
-        return Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells });
-    }
-    // The lattice first, then the segment cells whose lattice cell keeps no lobes (the others
-    // are never shaded, and stay empty as `Iirtf::drop_segment_cells_under_lobes` would leave
-    // them), progress weighted by paths.
-    let paths = settings.cell_paths();
-    let lattice_work =
-        (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
-    let share = lattice_work as f64 / (lattice_work + grid.segment_count() * paths.segment).max(1) as f64;
-    let mut cells = bake_cells_where(
+    bake_iirtf_cells(
         exemplar,
         yarn_materials,
         grid,
         settings,
-        *options,
-        0..lattice,
+        options,
+        0..grid.cell_count(),
         cancel,
-        &|f| progress(f * share),
-        &|_| true,
-    )?;
-    let lobed: Vec<bool> = cells.iter().map(CellTransfer::keeps_lobe_light).collect();
-    let needed = |c: u32| !lobed[grid.cell_of_segment(c - lattice as u32) as usize];
-    cells.extend(bake_cells_where(
-        exemplar,
-        yarn_materials,
-        grid,
-        settings,
-        *options,
-        lattice..grid.cell_count(),
-        cancel,
-        &|f| progress(share + f * (1.0 - share)),
-        &needed,
-    )?);
-    Ok(Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells })
+        progress,
+    )
+    .map(|cells| Iirtf { sh_order: settings.sh_order, light_domain: options.light_domain, cells })
 }
 
 /// The IIRTF of cells `cells` of `grid` only, in order: each cell draws from its own stream,
 /// so a range baked alone equals the same cells of a whole bake (what a shard of a sharded
-/// bake computes, `shard.rs`).
+/// bake computes, `shard.rs`). What a segment cell holds depends on the lattice's lobes
+/// ([`segment_cell_light`]): with fiber lobes, a range that reaches the segment cells bakes the
+/// whole lattice first (a shard's share of it again), as the whole bake does.
 #[allow(clippy::too_many_arguments)]
 pub fn bake_iirtf_cells(
     exemplar: &Exemplar,
@@ -1161,10 +1118,145 @@ pub fn bake_iirtf_cells(
     cancel: &Cancel,
     progress: Progress<'_>,
 ) -> Result<Vec<CellTransfer>, IirtfError> {
-    bake_cells_where(exemplar, yarn_materials, grid, settings, *options, cells, cancel, progress, &|_| true)
+    let lattice = grid.lattice_cell_count();
+    let cells = cells.start.min(grid.cell_count())..cells.end.min(grid.cell_count());
+    let lobes = settings.fiber_lobes && options.part == TransferPart::All;
+    let all = |_: u32| Some(MatrixLight::All);
+    if cells.end <= lattice || !lobes {
+        // No lattice cell keeps lobes (or none of these cells is a segment cell): every segment
+        // cell holds all of its light.
+        return bake_cells_where(
+            exemplar,
+            yarn_materials,
+            grid,
+            settings,
+            *options,
+            cells,
+            cancel,
+            progress,
+            &all,
+        );
+    }
+    // The lattice first, then the segment cells, progress weighted by paths.
+    let paths = settings.cell_paths();
+    let lattice_work =
+        (0..lattice as u32).filter(|&c| !grid.segments_in_cell(c).is_empty()).count() * paths.lattice;
+    let segment_work = grid.segment_count() * paths.segment;
+    let share = lattice_work as f64 / (lattice_work + segment_work).max(1) as f64;
+    let lattice_cells = bake_cells_where(
+        exemplar,
+        yarn_materials,
+        grid,
+        settings,
+        *options,
+        0..lattice,
+        cancel,
+        &|f| progress(f * share),
+        &all,
+    )?;
+    let reflected_fits = reflected_light_fits_matrices(&lattice_cells, settings.sh_order);
+    // What each segment cell holds, so that the lattice's cells move into the output instead
+    // of being copied (a copy would double the lattice's share of a bake's peak memory).
+    let segment_light: Vec<Option<MatrixLight>> = (lattice..grid.cell_count())
+        .map(|c| segment_cell_light(grid, &lattice_cells, reflected_fits, c as u32))
+        .collect();
+    let holds =
+        |c: u32| (c as usize).checked_sub(lattice).and_then(|k| segment_light.get(k)).copied().flatten();
+    let mut out = lattice_cells;
+    out.drain(..cells.start.min(lattice));
+    out.extend(bake_cells_where(
+        exemplar,
+        yarn_materials,
+        grid,
+        settings,
+        *options,
+        cells.start.max(lattice)..cells.end,
+        cancel,
+        &|f| progress(share + f * (1.0 - share)),
+        &holds,
+    )?);
+    Ok(out)
 }
 
-/// [`bake_iirtf_cells`], leaving empty the segment cells `segment_cell_needed` rejects.
+/// What a segment cell's matrix holds (`bake::cells`), or `None` where it is not baked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MatrixLight {
+    /// All of the light (a lattice cell without lobes, and a segment cell whose lattice cell
+    /// keeps none).
+    All,
+    /// The light reflected at least once: a segment cell whose lattice cell keeps fiber lobes,
+    /// shaded beside the lattice cells' forward lobes.
+    Reflected,
+}
+
+/// What segment cell `cell` of `grid` holds, given the lattice's cells (`lattice`): all of its
+/// light where its segment's lattice cell keeps no lobes; where that cell keeps lobes that
+/// carry light, its reflected light if the fabric's reflected light fits matrices of the
+/// bake's order (`reflected_fits`, [`reflected_light_fits_matrices`]), else nothing (the
+/// segment is shaded with its lattice cells' lobes alone).
+#[must_use]
+pub fn segment_cell_light(
+    grid: &CellGrid,
+    lattice: &[CellTransfer],
+    reflected_fits: bool,
+    cell: u32,
+) -> Option<MatrixLight> {
+    let segment = cell.checked_sub(lattice.len() as u32)?;
+    let own = lattice.get(grid.cell_of_segment(segment) as usize)?;
+    if own.keeps_lobe_light() {
+        reflected_fits.then_some(MatrixLight::Reflected)
+    } else {
+        Some(MatrixLight::All)
+    }
+}
+
+/// The most power of the reflected light's longitudinal offset Δθ (its arrival's angle to the
+/// fiber against the light's, [`FiberOffset`]) in the harmonics above the transfer's SH order,
+/// `Σ_{k>L} (c̄_k² + s̄_k²)` with `c̄_k = E cos kΔθ`, `s̄_k = E sin kΔθ` over the reflected
+/// light of the lattice cells that keep lobes, that still lets a segment cell hold its
+/// reflected light in a matrix ([`reflected_light_fits_matrices`]).
+///
+/// A matrix of order L holds the arrival directions' harmonics up to L. The reflected light of
+/// parallel fibers keeps the light's angle to them (`docs/MATH.md`, "Fiber lobes"): its Δθ has a
+/// core as narrow as the chains that carry it, which a matrix blurs across the fiber's scattering
+/// cone, where it reaches eyes that the exact light misses. On the silk satin (power 0.60 in
+/// harmonics 5–24 at order 4, interactive bake) reflected-light matrices made the dim raking
+/// configurations of `twill accuracy` up to 2.9 times too bright (multiple scattering,
+/// configuration 68: +191% against −9% with the lobes), and a silk with the gabardine's 7.2°
+/// reflection lobe (0.21) still 2.3 times; the gabardine (0.11) came out nearer the path tracer
+/// on almost every configuration, the cotton (0.12) too (`docs/BENCHMARKS.md`, "The reflected
+/// light of a segment"). The bound lies between the two groups.
+pub const REFLECTED_TAIL_MAX: f64 = 0.15;
+
+/// Whether segment cells under lobes hold their reflected light in matrices: the power of the
+/// lobe cells' reflected light in longitudinal harmonics above `order` is at most
+/// [`REFLECTED_TAIL_MAX`] ([`reflected_light_tail`]). False without lobe cells.
+#[must_use]
+pub fn reflected_light_fits_matrices(lattice: &[CellTransfer], order: usize) -> bool {
+    reflected_light_tail(lattice, order).is_some_and(|tail| tail <= REFLECTED_TAIL_MAX)
+}
+
+/// `Σ_{k=order+1..=K} (c̄_k² + s̄_k²)`, K = [`LOBE_FOURIER_TERMS`], of the reflected light's
+/// longitudinal offset pooled over the cells that keep lobes (each cell's sums weighted by its
+/// reflected light, as its shape holds them); `None` where no cell keeps lobes with reflected
+/// light. Pooled over the fabric, not per cell: one cell's 480 paths leave each of its
+/// coefficients about ±0.3 of noise.
+#[must_use]
+pub fn reflected_light_tail(lattice: &[CellTransfer], order: usize) -> Option<f64> {
+    let mut sums = [0.0f64; 2 * LOBE_FOURIER_TERMS];
+    let mut total = 0.0f64;
+    for cell in lattice.iter().filter(|c| c.keeps_lobe_light() && c.reflected_shape.len() == LOBE_SHAPE_LEN) {
+        let shape = &cell.reflected_shape;
+        total += shape[LOBE_AZIMUTH_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
+        for (sum, &v) in sums.iter_mut().zip(&shape[LOBE_LONGITUDINAL_AT..]) {
+            *sum += f64::from(v);
+        }
+    }
+    (total > 0.0).then(|| sums.iter().skip(2 * order).map(|v| (v / total).powi(2)).sum())
+}
+
+/// [`bake_iirtf_cells`]: a segment cell's matrix holds the light `segment_cell_holds(cell)`
+/// says, or the cell is left empty where it says `None`.
 #[allow(clippy::too_many_arguments)]
 fn bake_cells_where(
     exemplar: &Exemplar,
@@ -1175,7 +1267,7 @@ fn bake_cells_where(
     cells: std::ops::Range<usize>,
     cancel: &Cancel,
     progress: Progress<'_>,
-    segment_cell_needed: &(dyn Fn(u32) -> bool + Sync),
+    segment_cell_holds: &(dyn Fn(u32) -> Option<MatrixLight> + Sync),
 ) -> Result<Vec<CellTransfer>, IirtfError> {
     if grid.segment_count() != exemplar.segment_count() {
         return Err(IirtfError::GridMismatch {
@@ -1200,13 +1292,25 @@ fn bake_cells_where(
         progress,
         &|cell, segments, stream, tick| {
             if !grid.is_segment_cell(cell) {
-                return bake_cell(&sampler, segments, order, paths.lattice, lobes, stream, tick);
+                return bake_cell(
+                    &sampler,
+                    segments,
+                    order,
+                    paths.lattice,
+                    lobes,
+                    MatrixLight::All,
+                    stream,
+                    tick,
+                );
             }
-            if !segment_cell_needed(cell) || !sampler.eye_sees(segments[0], stream) {
+            let Some(holds) = segment_cell_holds(cell) else {
+                return tick(paths.segment).then(CellTransfer::empty);
+            };
+            if !sampler.eye_sees(segments[0], stream) {
                 return tick(paths.segment).then(CellTransfer::empty);
             }
-            // Matrices only: a segment cell serves segments whose lattice cell keeps no lobes.
-            bake_cell(&sampler, segments, order, paths.segment, false, stream, tick)
+            // Matrices only: the lobes of a segment under lobes are its lattice cells'.
+            bake_cell(&sampler, segments, order, paths.segment, false, holds, stream, tick)
         },
     )?)
 }
@@ -1328,14 +1432,17 @@ pub fn folds_lobes(order: usize, forward0: Rgb, forward_cosine: Rgb) -> bool {
 /// ([`FiberOffset`] in the start segment's frame), and the forward chains' cosine to the
 /// arrival direction ω1. A cell whose forward light turns out sharp
 /// ([`forward_lobe_min_sharpness`]) then keeps the lobes and a zero matrix; any other keeps
-/// its matrix and no lobes. `tick(paths)` is called every [`CHECK_EVERY`] paths and returns
-/// false to stop (then `None`).
+/// its matrix and no lobes. `holds` says which light the matrix sums (a segment cell under
+/// lobes: [`MatrixLight::Reflected`]; with lobes the two parts are split anyway).
+/// `tick(paths)` is called every [`CHECK_EVERY`] paths and returns false to stop (then `None`).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn bake_cell(
     sampler: &TransferSampler,
     segments: &[u32],
     order: usize,
     paths: usize,
     lobes: bool,
+    holds: MatrixLight,
     stream: u64,
     tick: &dyn Fn(usize) -> bool,
 ) -> Option<CellTransfer> {
@@ -1365,8 +1472,12 @@ pub(crate) fn bake_cell(
         let tangent = sampler.tangent(s.segment);
         for ((to_light, weight), share) in s.lights.iter().zip(&s.forward) {
             y0.eval(*to_light);
+            let held = match holds {
+                MatrixLight::All => *weight,
+                MatrixLight::Reflected => *weight - *share,
+            };
             for (l, y) in light.iter_mut().zip(y0.matrix()) {
-                *l += *weight * *y;
+                *l += held * *y;
             }
             if lobes {
                 let rest = *weight - *share;
@@ -1524,24 +1635,110 @@ mod tests {
         // The top segments are seen; most of the bottom layer lies under the yarns above it
         // (measured: 0.99 and 0.097).
         assert!(top > 0.95 && bottom < 0.3, "seen: top {top}, bottom {bottom}");
-        // The bake gives paths to exactly the segment cells an eye sees, and no lobes.
+        // The bake gives paths to exactly the segment cells an eye sees whose lattice cell keeps
+        // no lobes, or keeps them and the fabric's reflected light fits matrices; and no lobes.
         let first = grid.lattice_cell_count();
-        let cells = bake_iirtf_cells(
-            &exemplar,
-            &materials,
-            &grid,
-            &settings,
-            &IirtfOptions::default(),
-            first..first + 200,
-            &Cancel::new(),
-            &|_| {},
-        )
-        .unwrap();
+        let bake = |range: std::ops::Range<usize>| {
+            bake_iirtf_cells(
+                &exemplar,
+                &materials,
+                &grid,
+                &settings,
+                &IirtfOptions::default(),
+                range,
+                &Cancel::new(),
+                &|_| {},
+            )
+            .unwrap()
+        };
+        let lattice = bake(0..first);
+        let fits = reflected_light_fits_matrices(&lattice, settings.sh_order);
+        let cells = bake(first..first + 200);
+        let mut held = [0usize; 3];
         for (k, cell) in cells.iter().enumerate() {
-            assert_eq!(cell.paths > 0, seen(k as u32), "segment {k}");
+            let holds = segment_cell_light(&grid, &lattice, fits, (first + k) as u32);
+            assert_eq!(cell.paths > 0, seen(k as u32) && holds.is_some(), "segment {k}");
             assert!(!cell.has_lobes() && cell.matrix.iter().flatten().all(|v| v.is_finite()));
             assert!(cell.paths == 0 || cell.paths == settings.segment_transfer_paths);
+            held[match holds {
+                None => 0,
+                Some(MatrixLight::All) => 1,
+                Some(MatrixLight::Reflected) => 2,
+            }] += 1;
         }
+        eprintln!(
+            "segment cells: none {}, all light {}, reflected light {} (fits: {fits})",
+            held[0], held[1], held[2]
+        );
+        assert!(held[1] > 0, "no segment cell holds all of its light: {held:?}");
+    }
+
+    /// A segment cell under fiber lobes sums, on the same paths, exactly what the transfer's
+    /// part "light reflected at least once" sums ([`TransferPart::AfterReflection`]): the
+    /// forward chains' share taken off every connection; its band-0 response lies below the
+    /// whole light's.
+    #[test]
+    fn a_segment_cell_under_lobes_holds_the_light_reflected_at_least_once() {
+        let (exemplar, materials) = default_fabric();
+        let sampler = |part: TransferPart| {
+            TransferSampler::new(&exemplar, &materials, LightDomain::UpperHemisphere)
+                .unwrap()
+                .with_part(part)
+                .with_exposed_starts(true)
+        };
+        let (whole, after_reflection) = (sampler(TransferPart::All), sampler(TransferPart::AfterReflection));
+        let k = exemplar.segment_count() as u32 / 2;
+        let stream = cell_stream(1, k);
+        let cell =
+            |s: &TransferSampler, holds| bake_cell(s, &[k], 2, 96, false, holds, stream, &|_| true).unwrap();
+        let reflected = cell(&whole, MatrixLight::Reflected);
+        assert_eq!(reflected, cell(&after_reflection, MatrixLight::All));
+        let all = cell(&whole, MatrixLight::All);
+        let band0 = |c: &CellTransfer| c.matrix[0].iter().sum::<f32>();
+        assert!(
+            band0(&reflected) > 0.0 && band0(&reflected) < band0(&all),
+            "{} {}",
+            band0(&reflected),
+            band0(&all)
+        );
+    }
+
+    /// The fabric-wide test of [`reflected_light_fits_matrices`] on cells made to order: a
+    /// reflected light whose longitudinal offset is a narrow core (every harmonic near 1) does
+    /// not fit order 4, a broad one (a wrapped normal of 0.5 rad) does, and a lattice without
+    /// lobe cells says no.
+    #[test]
+    fn reflected_light_fits_matrices_when_its_offset_lacks_harmonics_above_the_order() {
+        let lobe_cell = |width: f64| {
+            let mut shape = vec![0.0f32; LOBE_SHAPE_LEN];
+            shape[LOBE_AZIMUTH_TOTALS] = 2.0;
+            for k in 1..=LOBE_FOURIER_TERMS {
+                shape[LOBE_LONGITUDINAL_AT + 2 * (k - 1)] =
+                    (2.0 * (-0.5 * (k as f64 * width).powi(2)).exp()) as f32;
+            }
+            let strength = vec![[0.1f32; 3]; sh_count(LOBE_SH_ORDER)];
+            CellTransfer {
+                paths: 1,
+                matrix: vec![[0.0; 3]; 25],
+                std_error: vec![[0.0; 3]; 25],
+                forward: strength.clone(),
+                forward_cosine: [0.0; 3],
+                reflected: strength,
+                forward_shape: shape.clone(),
+                reflected_shape: shape,
+            }
+        };
+        let narrow = vec![lobe_cell(0.01); 3];
+        let broad = vec![lobe_cell(0.5); 3];
+        assert!(reflected_light_tail(&narrow, 4).unwrap() > 15.0);
+        assert!(reflected_light_tail(&broad, 4).unwrap() < 0.01);
+        assert!(!reflected_light_fits_matrices(&narrow, 4));
+        assert!(reflected_light_fits_matrices(&broad, 4));
+        // A higher order leaves fewer of the narrow core's harmonics above it.
+        assert!(reflected_light_tail(&narrow, 12).unwrap() < reflected_light_tail(&narrow, 4).unwrap());
+        let without_lobes = vec![CellTransfer { paths: 1, ..CellTransfer::empty() }];
+        assert_eq!(reflected_light_tail(&without_lobes, 4), None);
+        assert!(!reflected_light_fits_matrices(&without_lobes, 4));
     }
 
     /// Small draft settings with the SH transfer alone (the tests of the lobes set them on).
@@ -1961,7 +2158,8 @@ mod tests {
             ShPrediction { mean, std_error: ((s2 / count - mean * mean) / (count - 1.0)).powf(0.5) }
         };
         // The matrix route gives the same number as the per-path sums (to f32 rounding).
-        let transfer = bake_cell(&sampler, in_cell, 4, iirtf_paths, false, stream, &|_| true).unwrap();
+        let transfer =
+            bake_cell(&sampler, in_cell, 4, iirtf_paths, false, MatrixLight::All, stream, &|_| true).unwrap();
         let p4 = predict(4);
         {
             let n = sh_count(4);

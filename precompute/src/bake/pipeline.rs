@@ -100,9 +100,10 @@ impl Stage {
 /// `CellTransfer::reflected` and the two shapes, and a kept cell's zero matrix, 6: the shapes'
 /// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
 /// walk weighed at the materials' colours, the recolouring basis's paths, 8: 24 longitudinal
-/// Fourier terms, 9: 24 azimuthal ones, 10: segment cells, `bake::cells`; volume 3: touching
+/// Fourier terms, 9: 24 azimuthal ones, 10: segment cells, `bake::cells`, 11: a segment cell
+/// under fiber lobes holds its reflected light, `iirtf::MatrixLight`; volume 3: touching
 /// occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 10, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 11, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
@@ -646,15 +647,11 @@ fn bake_stages(
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::for_bake(inputs.exemplar, mfp.mean_cm, s)?;
             let iirtf = match precomputed_cells {
-                Some(precomputed) if precomputed.len() == cells.cell_count() => {
-                    let mut iirtf = Iirtf {
-                        sh_order: s.sh_order,
-                        light_domain: IirtfOptions::default().light_domain,
-                        cells: precomputed,
-                    };
-                    iirtf.drop_segment_cells_under_lobes(&cells);
-                    iirtf
-                }
+                Some(precomputed) if precomputed.len() == cells.cell_count() => Iirtf {
+                    sh_order: s.sh_order,
+                    light_domain: IirtfOptions::default().light_domain,
+                    cells: precomputed,
+                },
                 Some(precomputed) => {
                     return Err(BakeError::Fabric(format!(
                         "{} precomputed IIRTF cells for a grid of {}",

@@ -109,11 +109,14 @@ pub struct BakeSettings {
     #[serde(default)]
     pub exposed_starts: bool,
     /// Paths of each segment's own transfer: besides the lattice's cells, every segment an eye
-    /// sees gets a cell of its own (`bake::cells` segment cells, matrices only), and a segment
-    /// whose lattice cell keeps no fiber lobes is shaded with it instead of the cells
-    /// interpolated around it: a cell's transfer averages the sides of a yarn a view does not
-    /// see (front-lit oblique views came out 10–25 points dark, backlit ones as bright;
-    /// docs/BENCHMARKS.md). 0: the cells alone (the paper).
+    /// sees gets a cell of its own (`bake::cells` segment cells, matrices only) and is shaded
+    /// with it instead of the cells interpolated around it: a cell's transfer averages the
+    /// sides of a yarn a view does not see (front-lit oblique views came out 10–25 points
+    /// dark, backlit ones as bright; docs/BENCHMARKS.md). Under a lattice cell that keeps
+    /// fiber lobes the segment's cell holds its light reflected at least once, shaded beside
+    /// the cells' forward lobes, where the fabric's reflected light fits matrices of the
+    /// transfer's order (`bake::iirtf::reflected_light_fits_matrices`); otherwise such
+    /// segments keep the cells' lobes alone. 0: the cells alone (the paper).
     #[serde(default)]
     pub segment_transfer_paths: usize,
 }

@@ -16,9 +16,11 @@
 //! merged bake equals the single-process bake whatever `N`.
 //!
 //! Segment cells (`bake::cells`, `BakeSettings::segment_transfer_paths`) are cells like the
-//! others here. A single-process bake skips those whose lattice cell keeps fiber lobes (it bakes
-//! the lattice first); a shard cannot know that and bakes them, and the merge empties them
-//! (`Iirtf::drop_segment_cells_under_lobes`), so the two still agree byte for byte.
+//! others here, but what one holds depends on its lattice cell's fiber lobes and on the whole
+//! lattice's reflected light (`iirtf::segment_cell_light`): with fiber lobes, a shard whose
+//! slice reaches the segment cells bakes the whole lattice first, as a single-process bake does
+//! (the lattice's cells are about a quarter of the interactive preset's paths on the default
+//! fabric), so the two still agree byte for byte.
 //!
 //! The IIRTF entries are kept as the bake stores them (f32; rounding them again when merging
 //! changes nothing), and empty cells (no segments, no paths) without entries, as in a bake file.
@@ -57,8 +59,9 @@ pub const MAX_SHARDS: usize = 4096;
 /// shape opens with its azimuthal Fourier terms; 5: the same layout, its IIRTF cells from the
 /// colour-free walk, so that parts of two walks never merge into one bake; 6: 24 longitudinal
 /// terms per shape; 7: 24 azimuthal terms per elevation node; 8: the cells include the segment
-/// cells, `bake::cells`).
-pub const PART_LAYOUT_VERSION: u32 = 8;
+/// cells, `bake::cells`; 9: the same layout, a segment cell under fiber lobes holding its
+/// reflected light or nothing, where it held all of its light and the merge emptied it).
+pub const PART_LAYOUT_VERSION: u32 = 9;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -42,8 +42,9 @@
 //!    3i. (a bake with segment transfers) the lattice's cells interpolated at the hit point:
 //!    the method without the segments' own transfers;
 //! 4. the method: the IIRTF interpolated between cells at the hit point, or the segment's own
-//!    transfer where the bake has one and its cell keeps no lobes
-//!    (`BakeSettings::segment_transfer_paths`, `multiple::segment_transfer`);
+//!    transfer where the bake has one (`BakeSettings::segment_transfer_paths`,
+//!    `multiple::segment_transfer`; under a cell that keeps fiber lobes, its reflected light
+//!    beside the cells' forward lobes);
 //! 5. the method on the GPU's primary hits (as single-scattering rung 6);
 //!
 //! and beside them 4′, the method without its clamp at zero (on this ladder the radiance shaded
@@ -80,8 +81,8 @@ use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::Cancel;
 use crate::bake::iirtf::{
-    CellTransfer, IirtfOptions, TransferPart, TransferSampler, bake_cell, bake_iirtf, cell_stream,
-    uniform_sphere,
+    CellTransfer, IirtfOptions, MatrixLight, TransferPart, TransferSampler, bake_cell, bake_iirtf,
+    cell_stream, uniform_sphere,
 };
 use crate::bake::pipeline::{BakeInputs, Baked, yarn_materials};
 use crate::bake::svf::{VisibilityImages, render_exemplar, visibility_origin, visibility_point_fraction};
@@ -402,15 +403,15 @@ pub fn error_budget(
         baked.settings.iirtf_paths_per_cell
     );
     // Rungs 3 and 3i are the lattice's cells alone; the method (4) shades a segment with its own
-    // transfer where the bake has one and its lattice cell keeps no lobes
-    // (`BakeSettings::segment_transfer_paths`, multiple::segment_transfer).
+    // transfer where the bake has one (`BakeSettings::segment_transfer_paths`,
+    // multiple::segment_transfer).
     let segment_cells = baked.transfer.cells.has_segment_cells();
     let lattice =
         segment_cells.then(|| Baked { transfer: baked.transfer.without_segment_cells(), ..baked.clone() });
     let lattice = lattice.as_ref().unwrap_or(baked);
     let method = if segment_cells {
         format!(
-            "4 the method: each segment's own transfer ({} paths) where its cell keeps no lobes, else IIRTF interpolated between cells",
+            "4 the method: each segment's own transfer ({} paths; under lobe cells its reflected light, beside their forward lobes) where it has one, else IIRTF interpolated between cells",
             baked.settings.segment_transfer_paths
         )
     } else {
@@ -515,8 +516,17 @@ fn per_segment_transfer(
     let transfers: HashMap<u32, CellTransfer> = segments
         .par_iter()
         .filter_map(|&k| {
-            bake_cell(&sampler, &[k], order, paths, false, cell_stream(settings.seed, k), &|_| true)
-                .map(|transfer| (k, transfer))
+            bake_cell(
+                &sampler,
+                &[k],
+                order,
+                paths,
+                false,
+                MatrixLight::All,
+                cell_stream(settings.seed, k),
+                &|_| true,
+            )
+            .map(|transfer| (k, transfer))
         })
         .collect();
     let c_light = transfer_light_sh(baked, scene.path_scene.lights.iter().map(|light| (light, 1.0)));

@@ -256,20 +256,40 @@ pub fn multiple_scattering(
 }
 
 /// The transfer `segment` is shaded with instead of the cells around it: its segment cell's
-/// (`bake::cells`), where the bake has one for it (`BakeSettings::segment_transfer_paths`, a segment
-/// an eye sees) and its own lattice cell keeps no fiber lobes that carry light
-/// ([`CellTransfer::keeps_lobe_light`]). A segment cell holds all of its
-/// segment's light in its matrix, so such a segment takes no lobes either
-/// ([`lobe_scattering`]). Where the lattice cell keeps lobes, their model (sharp forward
-/// light, in the fiber frame) is what matters there, and the cells are used as before.
+/// (`bake::cells`), where the bake has one for it (`BakeSettings::segment_transfer_paths`, a
+/// segment an eye sees). Where the segment's lattice cell keeps no fiber lobes that carry light
+/// ([`CellTransfer::keeps_lobe_light`]) the segment cell holds all of the segment's light and
+/// the segment takes no lobes; where it keeps them, the segment cell holds the light reflected
+/// at least once (`iirtf::MatrixLight::Reflected`, baked only where the fabric's reflected
+/// light fits matrices, `iirtf::reflected_light_fits_matrices`) and the forward chains come
+/// from the lattice cells' forward lobes ([`lobe_scattering`]).
 #[must_use]
 pub fn segment_transfer(baked: &Baked, segment: u32) -> Option<&CellTransfer> {
     let grid = &baked.transfer.cells;
-    let cells = &baked.transfer.iirtf.cells;
-    let cell = grid.segment_cell(segment)?;
-    let own = cells.get(grid.cell_of_segment(segment) as usize)?;
-    let transfer = cells.get(cell as usize)?;
-    (!own.keeps_lobe_light() && transfer.paths > 0).then_some(transfer)
+    let transfer = baked.transfer.iirtf.cells.get(grid.segment_cell(segment)? as usize)?;
+    (transfer.paths > 0).then_some(transfer)
+}
+
+/// Which of the lattice cells' fiber lobes shade `segment` ([`lobe_scattering`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LobesTaken {
+    /// Both, from the cells around the point (a segment without a transfer of its own).
+    Both,
+    /// The forward lobes alone (a segment whose own transfer holds its reflected light), from
+    /// the cells around the point that keep lobes, their weights renormalized: the cells
+    /// without lobes hold their forward chains in matrices the segment does not read.
+    ForwardOnly,
+}
+
+impl LobesTaken {
+    fn of(baked: &Baked, segment: u32) -> Option<Self> {
+        if segment_transfer(baked, segment).is_none() {
+            return Some(Self::Both);
+        }
+        let grid = &baked.transfer.cells;
+        let own = baked.transfer.iirtf.cells.get(grid.cell_of_segment(segment) as usize)?;
+        own.keeps_lobe_light().then_some(Self::ForwardOnly)
+    }
 }
 
 /// The largest mean cosine a forward lobe is given (λ about 500): beyond it the paths' estimate
@@ -482,21 +502,24 @@ pub fn lobe_scattering(
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
-    if segment_transfer(baked, segment).is_some() {
+    let Some(taken) = LobesTaken::of(baked, segment) else {
         return Ok(Rgb::ZERO);
-    }
+    };
     let grid = &baked.transfer.cells;
     let own = (grid.cell_of_segment(segment), 1.0);
     let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
-    let around = around.map_or_else(|| vec![own], |a| a.to_vec());
-    if !around.iter().any(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes()) {
+    let mut around = around.map_or_else(|| vec![own], |a| a.to_vec());
+    around.retain(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes());
+    let lobed: f64 = around.iter().map(|e| e.1).sum();
+    if lobed <= 0.0 {
         return Ok(Rgb::ZERO);
     }
+    let scale = if taken == LobesTaken::ForwardOnly { 1.0 / lobed } else { 1.0 };
     let (mut forward, mut reflected) = (FiberLobe::default(), FiberLobe::default());
     for (cell, weight) in around {
         let cell = &cells[cell as usize];
-        if weight > 0.0 && cell.has_lobes() {
-            forward.add(&cell.forward, &cell.forward_shape, weight);
+        forward.add(&cell.forward, &cell.forward_shape, weight * scale);
+        if taken == LobesTaken::Both {
             reflected.add(&cell.reflected, &cell.reflected_shape, weight);
         }
     }

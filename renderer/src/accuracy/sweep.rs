@@ -579,6 +579,9 @@ pub struct FabricResult {
     pub errors: [ComponentErrors; 3],
     /// Relative error of each configuration's image mean, per component.
     pub configuration_errors: Vec<[f64; 3]>,
+    /// The same per channel (red, green, blue), per component: where a figure over channels
+    /// (Fig. 13's) and one over their sum part, the colour is wrong.
+    pub configuration_channel_errors: Vec<[DVec3; 3]>,
     /// Each configuration's reference image mean (the mean over pixels and channels), per
     /// component: the weight a configuration has in the Fig. 13 figure.
     pub configuration_reference_means: Vec<[f64; 3]>,
@@ -753,7 +756,7 @@ fn component_errors(
     images: &[Image],
     references: &[(Image, Image)],
     spp_of_reference: u32,
-) -> (ComponentErrors, Vec<(f64, f64)>) {
+) -> (ComponentErrors, Vec<(f64, f64, DVec3)>) {
     let n = images.len().max(1) as f64;
     let (mut avg_sq, mut ref_sq, mut avg_noise, mut pixel_sq, mut pixel_noise, mut ssim_sum) =
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
@@ -768,7 +771,10 @@ fn component_errors(
         pixel_noise += noise;
         ssim_sum += s;
         let (m, r) = (mean.element_sum(), ref_mean.element_sum());
-        relative.push((if r > 0.0 { m / r - 1.0 } else { 0.0 }, r / 3.0));
+        let channel = |a: f64, b: f64| if b > 0.0 { a / b - 1.0 } else { 0.0 };
+        let per_channel =
+            DVec3::new(channel(mean.x, ref_mean.x), channel(mean.y, ref_mean.y), channel(mean.z, ref_mean.z));
+        relative.push((if r > 0.0 { m / r - 1.0 } else { 0.0 }, r / 3.0, per_channel));
     }
     let rms = (ref_sq / n).sqrt().max(1e-300);
     let pixel_excess = ((pixel_sq - pixel_noise) / n).max(0.0);
@@ -776,7 +782,7 @@ fn component_errors(
         .iter()
         .enumerate()
         .max_by(|a, b| a.1.0.abs().total_cmp(&b.1.0.abs()))
-        .map_or((0, 0.0), |(i, &(e, _))| (i, e));
+        .map_or((0, 0.0), |(i, &(e, _, _))| (i, e));
     let errors = ComponentErrors {
         mean_relative_rmse: ((avg_sq - avg_noise) / n).max(0.0).sqrt() / rms,
         worst_relative: worst.1,
@@ -1031,27 +1037,40 @@ fn reference_set(
     Ok((out, summary))
 }
 
-fn summarize(
-    all: &[Image],
-    single: &[Image],
-    references: &[Reference],
-    settings: &SweepSettings,
-) -> ([ComponentErrors; 3], Vec<[f64; 3]>, Vec<[f64; 3]>) {
+/// One method's errors on one fabric: over all configurations and per configuration (the
+/// fields of [`FabricResult`] of the same names).
+struct Summary {
+    errors: [ComponentErrors; 3],
+    configuration_errors: Vec<[f64; 3]>,
+    configuration_reference_means: Vec<[f64; 3]>,
+    configuration_channel_errors: Vec<[DVec3; 3]>,
+}
+
+fn summarize(all: &[Image], single: &[Image], references: &[Reference], settings: &SweepSettings) -> Summary {
     let multiple: Vec<Image> = all.iter().zip(single).map(|(a, s)| sub(a, s)).collect();
     let mut errors = [ComponentErrors::default(); 3];
     let mut per_config = vec![[0.0; 3]; all.len()];
     let mut reference_means = vec![[0.0; 3]; all.len()];
+    let mut per_channel = vec![[DVec3::ZERO; 3]; all.len()];
     for (c, (component, images)) in ReportComponent::ALL.into_iter().zip([single, &multiple, all]).enumerate()
     {
         let refs: Vec<(Image, Image)> = references.iter().map(|r| r.component(component)).collect();
         let (e, relative) = component_errors(images, &refs, settings.reference_spp);
         errors[c] = e;
-        for ((row, means), (r, mean)) in per_config.iter_mut().zip(&mut reference_means).zip(relative) {
+        for (((row, means), channels), (r, mean, channel)) in
+            per_config.iter_mut().zip(&mut reference_means).zip(&mut per_channel).zip(relative)
+        {
             row[c] = r;
             means[c] = mean;
+            channels[c] = channel;
         }
     }
-    (errors, per_config, reference_means)
+    Summary {
+        errors,
+        configuration_errors: per_config,
+        configuration_reference_means: reference_means,
+        configuration_channel_errors: per_channel,
+    }
 }
 
 fn median(values: &mut [f64]) -> f64 {
@@ -1088,7 +1107,7 @@ fn gpu_fabric(
         let single_frame = FrameSettings { components: Components::SingleOnly, ..*frame };
         single.push(session.render(scene, &single_frame)?.radiance_image());
     }
-    let (errors, configuration_errors, configuration_reference_means) =
+    let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
         summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
@@ -1097,6 +1116,7 @@ fn gpu_fabric(
         resident_bytes: session.renderer.resident_bytes(),
         errors,
         configuration_errors,
+        configuration_channel_errors,
         configuration_reference_means,
         images: all.into_iter().take(settings.example_images).collect(),
     })
@@ -1124,7 +1144,7 @@ fn cpu_fabric(
         all.push(add(&s, &m));
         single.push(s);
     }
-    let (errors, configuration_errors, configuration_reference_means) =
+    let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
         summarize(&all, &single, references, settings);
     Ok(FabricResult {
         stage_seconds,
@@ -1133,6 +1153,7 @@ fn cpu_fabric(
         resident_bytes: 0,
         errors,
         configuration_errors,
+        configuration_channel_errors,
         configuration_reference_means,
         images: all.into_iter().take(settings.example_images).collect(),
     })
@@ -1266,13 +1287,18 @@ impl Sweep {
     #[must_use]
     pub fn configurations_csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel,single_reference,multiple_reference,all_reference\n",
+            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel,single_reference,multiple_reference,all_reference,single_rel_rgb,multiple_rel_rgb,all_rel_rgb\n",
         );
+        let channels = |e: DVec3| format!("{:.5}/{:.5}/{:.5}", e.x, e.y, e.z);
         for point in &self.points {
             let method = if point.method == Method::Gpu { "gpu" } else { "cpu" };
             for (fabric, result) in self.fabrics.iter().zip(&point.fabrics) {
-                let errors = result.configuration_errors.iter().zip(&result.configuration_reference_means);
-                for (i, (c, (e, m))) in self.configurations.iter().zip(errors).enumerate() {
+                let errors = result
+                    .configuration_errors
+                    .iter()
+                    .zip(&result.configuration_reference_means)
+                    .zip(&result.configuration_channel_errors);
+                for (i, (c, ((e, m), rgb))) in self.configurations.iter().zip(errors).enumerate() {
                     let (kind, sharpness) = match c.light {
                         Light::Directional { .. } => ("directional", String::new()),
                         Light::Sg { sharpness, .. } => ("sg", format!("{sharpness:.2}")),
@@ -1280,7 +1306,7 @@ impl Sweep {
                     let l = c.light_direction();
                     let _ = writeln!(
                         out,
-                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5},{:.6e},{:.6e},{:.6e}",
+                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5},{:.6e},{:.6e},{:.6e},{},{},{}",
                         fabric.name,
                         point.label.replace(',', ";"),
                         c.class.replace(',', ";"),
@@ -1292,7 +1318,10 @@ impl Sweep {
                         e[2],
                         m[0],
                         m[1],
-                        m[2]
+                        m[2],
+                        channels(rgb[0]),
+                        channels(rgb[1]),
+                        channels(rgb[2])
                     );
                 }
             }
