@@ -882,6 +882,8 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
             (*at).around.weights[k] /= lobed;
         }
     }
+    // The reflected lobe's shape is not gathered where fiber_lobes_light leaves it out.
+    let lobe_count = select(2u, 1u, (*at).forward_only);
     var any = false;
     for (var k = 0u; k < 8u; k++) {
         let w = (*at).around.weights[k];
@@ -893,7 +895,7 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
         any = true;
         (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
-        for (var lobe = 0u; lobe < 2u; lobe++) {
+        for (var lobe = 0u; lobe < lobe_count; lobe++) {
             for (var i = 0u; i < LOBE_GATHERED; i++) {
                 (*at).shapes[lobe * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.slots[k], lobe * LOBE_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
             }

@@ -1303,12 +1303,10 @@ fn bake_cells_where(
                     tick,
                 );
             }
-            let Some(holds) = segment_cell_holds(cell) else {
+            let Some(holds) = segment_cell_holds(cell).filter(|_| sampler.eye_sees(segments[0], stream))
+            else {
                 return tick(paths.segment).then(CellTransfer::empty);
             };
-            if !sampler.eye_sees(segments[0], stream) {
-                return tick(paths.segment).then(CellTransfer::empty);
-            }
             // Matrices only: the lobes of a segment under lobes are its lattice cells'.
             bake_cell(&sampler, segments, order, paths.segment, false, holds, stream, tick)
         },

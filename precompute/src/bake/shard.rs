@@ -19,7 +19,7 @@
 //! others here, but what one holds depends on its lattice cell's fiber lobes and on the whole
 //! lattice's reflected light (`iirtf::segment_cell_light`): with fiber lobes, a shard whose
 //! slice reaches the segment cells bakes the whole lattice first, as a single-process bake does
-//! (the lattice's cells are about a quarter of the interactive preset's paths on the default
+//! (the lattice's cells are about a fifth of the interactive preset's paths on the default
 //! fabric), so the two still agree byte for byte.
 //!
 //! The IIRTF entries are kept as the bake stores them (f32; rounding them again when merging

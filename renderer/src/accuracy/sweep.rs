@@ -771,10 +771,13 @@ fn component_errors(
         pixel_noise += noise;
         ssim_sum += s;
         let (m, r) = (mean.element_sum(), ref_mean.element_sum());
-        let channel = |a: f64, b: f64| if b > 0.0 { a / b - 1.0 } else { 0.0 };
-        let per_channel =
-            DVec3::new(channel(mean.x, ref_mean.x), channel(mean.y, ref_mean.y), channel(mean.z, ref_mean.z));
-        relative.push((if r > 0.0 { m / r - 1.0 } else { 0.0 }, r / 3.0, per_channel));
+        let relative_to = |a: f64, b: f64| if b > 0.0 { a / b - 1.0 } else { 0.0 };
+        let per_channel = DVec3::new(
+            relative_to(mean.x, ref_mean.x),
+            relative_to(mean.y, ref_mean.y),
+            relative_to(mean.z, ref_mean.z),
+        );
+        relative.push((relative_to(m, r), r / 3.0, per_channel));
     }
     let rms = (ref_sq / n).sqrt().max(1e-300);
     let pixel_excess = ((pixel_sq - pixel_noise) / n).max(0.0);
