@@ -110,7 +110,8 @@ pub fn prelude() -> String {
     {
         use twill_precompute::bake::iirtf::{
             LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS,
-            LOBE_LONGITUDINAL_AT, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, TOWARD_UP_WIDTH,
+            LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_BINS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
+            TOWARD_UP_WIDTH,
         };
         use twill_precompute::shading::gamma::{LOBE_MAX_PANELS, LOBE_NODES, LOBE_PANEL_WIDTH, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
@@ -124,6 +125,7 @@ pub fn prelude() -> String {
             ("LOBE_AZIMUTH_BINS", LOBE_AZIMUTH_BINS),
             ("LOBE_AZIMUTH_TOTALS", LOBE_AZIMUTH_TOTALS),
             ("LOBE_LONGITUDINAL_AT", LOBE_LONGITUDINAL_AT),
+            ("LOBE_LONGITUDINAL_BINS", LOBE_LONGITUDINAL_BINS),
         ] {
             let _ = writeln!(out, "const {name}: u32 = {value}u;");
         }

@@ -642,8 +642,8 @@ fn wrapped_normal(mean_deg: f64, sigma_deg: f64) -> Vec<f32> {
 
 /// The offset distributions the quadrature is compared over, named: none (uniform), a sharp
 /// one (σ 1.5°, so sharp that the cut series rings below zero and the clamp acts), a broad one (σ 15°),
-/// a two-sided one, and the silk bake's own brightest cell's forward and reflected shapes (its
-/// sums over the lobe's total, as `FiberLobe::angles` takes them).
+/// a two-sided one, and the silk bake's own brightest cell's forward and reflected shapes (the
+/// means of its nodes around one light, as `FiberLobe::angles` takes them).
 fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     let two_sided: Vec<f32> =
         wrapped_normal(8.0, 3.0).iter().zip(wrapped_normal(-8.0, 3.0)).map(|(a, b)| 0.5 * (a + b)).collect();
@@ -666,16 +666,17 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
         ("the silk's forward shape", &brightest.forward, &brightest.forward_shape),
         ("the silk's reflected shape", &brightest.reflected, &brightest.reflected_shape),
     ] {
-        let total = lobe[0].iter().sum::<f32>() * (4.0 * std::f32::consts::PI).sqrt();
-        assert!(total > 0.0, "{name}: no light");
-        // The azimuthal means at a light 30° above the horizon, as FiberLobe::angles takes them.
+        assert!(lobe[0].iter().sum::<f32>() > 0.0, "{name}: no light");
+        // The azimuthal means at a light 30° above the horizon and the longitudinal ones at a
+        // light 12° off the fiber's normal plane, as FiberLobe::angles takes them.
         let cell_lobe = FiberLobe {
             strength: lobe.iter().map(|c| Vec3::from(*c).as_dvec3()).collect(),
             shape: shape.iter().map(|v| f64::from(*v)).collect(),
         };
         #[allow(clippy::cast_possible_truncation)]
         let azimuth = cell_lobe.azimuth_means(0.5).into_iter().map(|v| v as f32);
-        let longitudinal = shape[LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total);
+        #[allow(clippy::cast_possible_truncation)]
+        let longitudinal = cell_lobe.longitudinal_means(0.2).into_iter().map(|v| v as f32);
         out.push((name.to_owned(), azimuth.chain(longitudinal).collect()));
     }
     out

@@ -816,11 +816,11 @@ fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>,
 
 // The fiber lobes around a shaded point: the cells and weights the transfer is interpolated
 // with (transfer_cells, multiple.rs lobe_scattering's cells), the cells without lobes given
-// weight 0, and both lobes' interpolated total strength and the shapes' elevation-node totals
-// and longitudinal sums (multiple.rs FiberLobe: weighted sums of strength[0] over channels and
-// of the shapes). The strengths over light directions and the azimuthal sums per elevation
-// node stay in the buffer and are read per light (fiber_lobe_strengths, lobe_azimuth_means),
-// so that they need not live in every invocation's registers.
+// weight 0, and both lobes' interpolated total strength and the shapes' node totals (elevation
+// nodes, then longitudinal ones; multiple.rs FiberLobe: weighted sums of strength[0] over
+// channels and of the shapes). The strengths over light directions and the sums per node stay
+// in the buffer and are read per light (fiber_lobe_strengths, lobe_node_mean), so that they
+// need not live in every invocation's registers.
 struct FiberLobesAt {
     around: CellWeights,
     // Whether the reflected lobe is left out: the segment's own transfer holds its reflected
@@ -828,12 +828,12 @@ struct FiberLobesAt {
     forward_only: bool,
     // Sum over channels of the interpolated strength[0]: forward (x) and reflected (y).
     total: vec2<f32>,
-    // Per lobe (forward, then reflected) the shape's floats from LOBE_AZIMUTH_TOTALS on: the
-    // nodes' totals, then the longitudinal sums.
+    // Per lobe (forward, then reflected) the shape's node totals: LOBE_AZIMUTH_BINS elevation
+    // nodes', then LOBE_LONGITUDINAL_BINS longitudinal nodes'.
     shapes: array<f32, 2u * LOBE_GATHERED>,
 }
 
-const LOBE_GATHERED: u32 = LOBE_SHAPE_LEN - LOBE_AZIMUTH_TOTALS;
+const LOBE_GATHERED: u32 = LOBE_LONGITUDINAL_AT - LOBE_AZIMUTH_TOTALS;
 
 // Float i of the shapes of the lobes of the cell in `slot` (the forward shape's floats, then
 // the reflected shape's, as CellTransfer::pack_lobes lays them out after the strengths).
@@ -841,11 +841,13 @@ fn lobe_shape_float(slot: u32, i: u32) -> f32 {
     return lobes[slot * LOBE_PACKED_VEC4S + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
 }
 
-// The two elevation nodes around z and their weights (iirtf.rs elevation_hats).
-fn elevation_hats(z: f32) -> vec3<f32> {
-    let x = clamp(z, 0.0, 1.0) * f32(LOBE_AZIMUTH_BINS - 1u);
-    let lower = min(u32(floor(x)), LOBE_AZIMUTH_BINS - 2u);
-    let upper_weight = x - f32(lower);
+// The two of `bins` evenly spaced nodes on [0, 1] around x, as (lower node, its weight, the
+// upper one's weight) (iirtf.rs node_hats): elevation_hats(z) with LOBE_AZIMUTH_BINS,
+// longitudinal_hats(dir . t) over (1 + dir . t) / 2 with LOBE_LONGITUDINAL_BINS.
+fn node_hats(x: f32, bins: u32) -> vec3<f32> {
+    let at = clamp(x, 0.0, 1.0) * f32(bins - 1u);
+    let lower = min(u32(floor(at)), bins - 2u);
+    let upper_weight = at - f32(lower);
     return vec3<f32>(f32(lower), 1.0 - upper_weight, upper_weight);
 }
 
@@ -937,18 +939,18 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
 // Where lobe `lobe` (0 forward, 1 reflected) of `at` brings the light from direction `dir`
 // (sharpness < 0: directional, else an SG of that sharpness) at a fiber of unit tangent t
 // (multiple.rs FiberLobe::angles): writes the axis (dir) and the angles' series and returns
-// true, or false for a lobe without light. The shape's means are its sums over sqrt(4 pi)
-// times the total strength, both series smoothed by Jackson's factors; the azimuth's odd terms
+// true, or false for a lobe without light. The shape's means are taken per elevation node
+// (azimuth) and per node of dir . t (longitudinal), lobe_node_mean, both series smoothed by
+// Jackson's factors; the azimuth's odd terms
 // turn with toward_up(t, dir), and all of its terms fade out within AZIMUTH_FADE_ACROSS of a
 // light along t (1 - (dir.t)^2 taken as |dir x t|^2, without its f32 cancellation near t). An
 // SG light widens both: the longitudinal terms are damped by exp(-k^2 / 2 lambda), the
 // azimuthal ones by I_k(kappa_l) / I_0(kappa_l) with kappa_l = lambda |dir x t|^2.
 fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>, sharpness: f32, t: vec3<f32>, axis: ptr<function, vec3<f32>>, angles: ptr<function, LobeAngles>) -> bool {
-    let total = select((*at).total.x, (*at).total.y, lobe == 1u) * sqrt(4.0 * PI);
+    let total = select((*at).total.x, (*at).total.y, lobe == 1u);
     if (!(total > 0.0)) {
         return false;
     }
-    let base = lobe * LOBE_GATHERED;
     let across_vec = cross(dir, t);
     let across = dot(across_vec, across_vec);
     let fade = min(across / AZIMUTH_FADE_ACROSS, 1.0);
@@ -960,17 +962,17 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     if (sharpness >= 0.0) {
         light_ratios = bessel_i_ratios(sharpness * across);
     }
-    lobe_azimuth_means(at, lobe, dir.z, angles);
+    let elevation = node_hats(fiber_elevation(t, dir), LOBE_AZIMUTH_BINS);
     for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
         let scale = LOBE_AZIMUTH_JACKSON[k] * fade * light_ratios[k];
-        (*angles).azimuth[2u * k] *= scale;
-        (*angles).azimuth[2u * k + 1u] *= scale * odd;
+        (*angles).azimuth[2u * k] = scale * lobe_node_mean(at, lobe, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k);
+        (*angles).azimuth[2u * k + 1u] = scale * odd * lobe_node_mean(at, lobe, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k + 1u);
     }
     // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
     // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
-    let longitudinal = base + LOBE_AZIMUTH_BINS;
+    let longitudinal = node_hats(0.5 * (dot(dir, t) + 1.0), LOBE_LONGITUDINAL_BINS);
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
-        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * (*at).shapes[longitudinal + i] / total;
+        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * lobe_node_mean(at, lobe, longitudinal, LOBE_AZIMUTH_BINS, LOBE_LONGITUDINAL_AT, 2u * LOBE_FOURIER_TERMS, i);
     }
     if (sharpness >= 0.0) {
         for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
@@ -984,34 +986,41 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     return true;
 }
 
-// The azimuthal means of lobe `lobe` of `at` for a light at elevation z into angles.azimuth
-// (multiple.rs FiberLobe::azimuth_means): each of the two elevation nodes around z its sums
-// over the cells (read from the buffer) over its total, weighted by its hat; a node without
-// weight counts as uniform.
-fn lobe_azimuth_means(at: ptr<function, FiberLobesAt>, lobe: u32, z: f32, angles: ptr<function, LobeAngles>) {
-    for (var i = 0u; i < 2u * LOBE_AZIMUTH_TERMS; i++) {
-        (*angles).azimuth[i] = 0.0;
-    }
-    let hats = elevation_hats(z);
+// Mean i of lobe `lobe` of `at` over the two nodes `hats` (node_hats) of one kind
+// (multiple.rs FiberLobe::node_means): each node's sum over the cells (read from the buffer,
+// `terms` per node from float `sums_at` of the shape) over its total (gathered, from
+// `totals_at`), weighted by its hat; a node without weight counts as uniform (mean 0).
+fn lobe_node_mean(at: ptr<function, FiberLobesAt>, lobe: u32, hats: vec3<f32>, totals_at: u32, sums_at: u32, terms: u32, i: u32) -> f32 {
+    var mean = 0.0;
     for (var side = 0u; side < 2u; side++) {
         let node = u32(hats.x) + side;
         let hat = select(hats.y, hats.z, side == 1u);
-        let total = (*at).shapes[lobe * LOBE_GATHERED + node];
+        let total = (*at).shapes[lobe * LOBE_GATHERED + totals_at + node];
         if (!(total > 0.0) || !(hat > 0.0)) {
             continue;
         }
+        let float_at = lobe * LOBE_SHAPE_LEN + sums_at + node * terms + i;
+        var sum = 0.0;
         for (var k = 0u; k < 8u; k++) {
             let w = (*at).around.weights[k];
-            if (!(w > 0.0)) {
-                continue;
-            }
-            let slot = (*at).around.slots[k];
-            let first = lobe * LOBE_SHAPE_LEN + node * 2u * LOBE_AZIMUTH_TERMS;
-            for (var i = 0u; i < 2u * LOBE_AZIMUTH_TERMS; i++) {
-                (*angles).azimuth[i] += hat * w * lobe_shape_float(slot, first + i) / total;
+            if (w > 0.0) {
+                sum += w * lobe_shape_float((*at).around.slots[k], float_at);
             }
         }
+        mean += hat * sum / total;
     }
+    return mean;
+}
+
+// The light's elevation about the fiber (iirtf.rs fiber_elevation): the cosine, in the plane
+// normal to t, between dir and the fabric's up, (dir.z - (dir.t) t.z) / (|dir x t| |t.xy|)
+// clamped to [0, 1]; dir's own z where either projection vanishes.
+fn fiber_elevation(t: vec3<f32>, dir: vec3<f32>) -> f32 {
+    let scale = length(cross(dir, t)) * length(t.xy);
+    if (scale < 1e-6) {
+        return clamp(dir.z, 0.0, 1.0);
+    }
+    return clamp((dir.z - dot(dir, t) * t.z) / scale, 0.0, 1.0);
 }
 
 // Which way about t the fabric's up lies from dir (iirtf.rs toward_up): t . (dir x z) over

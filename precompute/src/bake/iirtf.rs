@@ -127,10 +127,11 @@ pub struct CellTransfer {
     /// of the segment they arrive at ([`FiberOffset`]): [`LOBE_SHAPE_LEN`] sums over the
     /// cell's paths, each weighted by the connection's forward share (summed over channels)
     /// and divided by the paths: per light-elevation node ([`LOBE_AZIMUTH_BINS`]) `cos kΔφ`
-    /// and `toward_up · sin kΔφ` for k = 1..=[`LOBE_AZIMUTH_TERMS`], then the nodes' totals,
-    /// then `cos kΔθ`, `sin kΔθ` for k = 1..=[`LOBE_FOURIER_TERMS`]
-    /// ([`FiberOffset::accumulate`]). The azimuthal sums over their node's total, and the
-    /// longitudinal ones over `√(4π) Σ forward[0]`, the means the lobe is shaded with
+    /// and `toward_up · sin kΔφ` for k = 1..=[`LOBE_AZIMUTH_TERMS`], then those nodes' totals,
+    /// then the totals of the nodes of the light's angle to the fiber
+    /// ([`LOBE_LONGITUDINAL_BINS`]), then per such node `cos kΔθ`, `sin kΔθ` for
+    /// k = 1..=[`LOBE_FOURIER_TERMS`] ([`FiberOffset::accumulate`]). Each node's sums over its
+    /// total are the means the lobe is shaded with
     /// ([`crate::shading::multiple::FiberLobe::angles`]). Empty without lobes.
     pub forward_shape: Vec<f32>,
     /// As `forward_shape`, for the reflected light.
@@ -160,35 +161,78 @@ pub const LOBE_FOURIER_TERMS: usize = 24;
 /// density, whose coefficients fall as `e^{−k²/2κ}`) smooths it again.
 pub const LOBE_AZIMUTH_TERMS: usize = 24;
 
-/// Light elevations (`z` of the light's direction, 0 at the horizon to 1 overhead) at which a
-/// lobe keeps its azimuthal shape: evenly spaced nodes, between which the shape is
-/// interpolated linearly ([`elevation_hats`]). Where reflected light arrives from about the
-/// fiber depends on where the light stands: a raking light's comes back from the far side far
-/// more than an overhead light's (on the silk satin at 78°, a shape averaged over all light
-/// directions doubled its multiple scattering).
+/// Light elevations about the fiber ([`fiber_elevation`], 0 at the fiber's horizon to 1
+/// overhead) at which a lobe keeps its azimuthal shape: evenly spaced nodes, between which the
+/// shape is interpolated linearly ([`elevation_hats`]). Where reflected light arrives from about
+/// the fiber depends on where the light stands about it: a raking light's comes back from the
+/// far side far more than an overhead light's (on the silk satin at 78°, a shape averaged over
+/// all light directions doubled its multiple scattering). Taken about the fiber, not above the
+/// fabric: a low light along the fiber stands overhead in the fiber's normal plane, and nodes
+/// of the fabric's elevation mixed its shape into a raking light's across the fiber.
 pub const LOBE_AZIMUTH_BINS: usize = 5;
 
-/// The two [`LOBE_AZIMUTH_BINS`] nodes around elevation `z` (clamped to [0, 1]) and their
-/// linear interpolation weights, which sum to 1.
+/// The light's elevation about a fiber of unit tangent t: the cosine of the angle, in the
+/// plane normal to t, between the light's direction ω and the fabric's up (+z) projected into
+/// that plane, `(ω·z − (ω·t) t_z) / (|ω × t| |t_xy|)`, clamped to [0, 1] (1 overhead, 0 at the
+/// fiber's horizon). Where either projection vanishes (ω or t vertical to within 1e-6), ω's
+/// own `z`.
+#[must_use]
+pub fn fiber_elevation(tangent: DVec3, dir: DVec3) -> f64 {
+    let scale = dir.cross(tangent).length() * tangent.truncate().length();
+    if scale < 1e-6 {
+        return dir.z.clamp(0.0, 1.0);
+    }
+    ((dir.z - dir.dot(tangent) * tangent.z) / scale).clamp(0.0, 1.0)
+}
+
+/// Values of the sine of the light's angle to the fiber, `ω0·t` (−1 to 1), at which a lobe
+/// keeps its longitudinal shape: evenly spaced nodes, between which the shape is interpolated
+/// linearly ([`longitudinal_hats`]). Where light arrives from along the fiber depends on the
+/// light's own angle to it: light across the fiber comes back spread about its own angle, light
+/// along it only from below that angle (|θ| ≤ 90°). A longitudinal shape pooled over all light
+/// directions held the silk satin's raking backlit multiple scattering about 20% bright
+/// (configuration 49 of the accuracy run: shapes taken from the light's own direction alone
+/// brought the per-cell transfer from +19% to +0.4%, `docs/BENCHMARKS.md`).
+pub const LOBE_LONGITUDINAL_BINS: usize = 7;
+
+/// The two [`LOBE_AZIMUTH_BINS`] nodes around elevation `z` ([`fiber_elevation`], clamped to
+/// [0, 1]) and their linear interpolation weights, which sum to 1.
 #[must_use]
 pub fn elevation_hats(z: f64) -> [(usize, f64); 2] {
-    let x = z.clamp(0.0, 1.0) * (LOBE_AZIMUTH_BINS - 1) as f64;
-    let lower = (x.floor() as usize).min(LOBE_AZIMUTH_BINS - 2);
+    node_hats(z, LOBE_AZIMUTH_BINS)
+}
+
+/// The two [`LOBE_LONGITUDINAL_BINS`] nodes around `along = ω0·t` (clamped to [−1, 1]) and
+/// their linear interpolation weights, which sum to 1.
+#[must_use]
+pub fn longitudinal_hats(along: f64) -> [(usize, f64); 2] {
+    node_hats(0.5 * (along + 1.0), LOBE_LONGITUDINAL_BINS)
+}
+
+/// The two of `bins` evenly spaced nodes on [0, 1] around `x` (clamped to [0, 1]) and their
+/// linear interpolation weights.
+fn node_hats(x: f64, bins: usize) -> [(usize, f64); 2] {
+    let x = x.clamp(0.0, 1.0) * (bins - 1) as f64;
+    let lower = (x.floor() as usize).min(bins - 2);
     let upper_weight = x - lower as f64;
     [(lower, 1.0 - upper_weight), (lower + 1, upper_weight)]
 }
 
-/// Offset, in a lobe shape, of its per-node totals ([`CellTransfer::forward_shape`]).
+/// Offset, in a lobe shape, of its elevation nodes' totals ([`CellTransfer::forward_shape`]).
 pub const LOBE_AZIMUTH_TOTALS: usize = LOBE_AZIMUTH_BINS * 2 * LOBE_AZIMUTH_TERMS;
 
+/// Offset, in a lobe shape, of its longitudinal nodes' totals.
+pub const LOBE_LONGITUDINAL_TOTALS: usize = LOBE_AZIMUTH_TOTALS + LOBE_AZIMUTH_BINS;
+
 /// Offset, in a lobe shape, of its longitudinal terms.
-pub const LOBE_LONGITUDINAL_AT: usize = LOBE_AZIMUTH_TOTALS + LOBE_AZIMUTH_BINS;
+pub const LOBE_LONGITUDINAL_AT: usize = LOBE_LONGITUDINAL_TOTALS + LOBE_LONGITUDINAL_BINS;
 
 /// Floats of one lobe shape ([`CellTransfer::forward_shape`]): per elevation node
 /// ([`LOBE_AZIMUTH_BINS`]) the azimuthal terms `[cos Δφ, sin Δφ, cos 2Δφ, …]`
-/// ([`LOBE_AZIMUTH_TERMS`] pairs), then the nodes' totals, then the longitudinal
+/// ([`LOBE_AZIMUTH_TERMS`] pairs), then those nodes' totals, then the longitudinal nodes'
+/// totals ([`LOBE_LONGITUDINAL_BINS`]), then per longitudinal node the terms
 /// `[cos Δθ, sin Δθ, cos 2Δθ, …]` ([`LOBE_FOURIER_TERMS`] pairs).
-pub const LOBE_SHAPE_LEN: usize = LOBE_LONGITUDINAL_AT + 2 * LOBE_FOURIER_TERMS;
+pub const LOBE_SHAPE_LEN: usize = LOBE_LONGITUDINAL_AT + LOBE_LONGITUDINAL_BINS * 2 * LOBE_FOURIER_TERMS;
 
 /// Floats of one cell's fiber lobes as the GPU reads them (`lobes` in
 /// `shaders/shared/fabric_data.wgsl`, written by [`CellTransfer::pack_lobes`]): the forward
@@ -224,8 +268,12 @@ pub struct FiberOffset {
     pub delta_phi: f64,
     /// [`toward_up`] of the light's direction: the sense in which Δφ's odd part is kept.
     pub toward_up: f64,
-    /// The light's elevation `z` (which [`LOBE_AZIMUTH_BINS`] nodes its azimuth goes to).
+    /// The light's elevation about the fiber ([`fiber_elevation`]: which
+    /// [`LOBE_AZIMUTH_BINS`] nodes its azimuth goes to).
     pub elevation: f64,
+    /// The light's `ω0·t`, the sine of its angle to the fiber (which
+    /// [`LOBE_LONGITUDINAL_BINS`] nodes its Δθ goes to).
+    pub along: f64,
 }
 
 impl FiberOffset {
@@ -246,17 +294,20 @@ impl FiberOffset {
             delta_theta: theta1 - theta0,
             delta_phi,
             toward_up: toward_up(tangent, to_light),
-            elevation: to_light.z,
+            elevation: fiber_elevation(tangent, to_light),
+            along: to_light.dot(tangent).clamp(-1.0, 1.0),
         }
     }
 
     /// Adds `weight ×` this offset's shape terms (`CellTransfer::forward_shape`'s layout) to
     /// `shape`: `cos kΔφ` and `toward_up · sin kΔφ` to the two elevation nodes around the
     /// light's ([`elevation_hats`], each with its weight, and that weight to the node's total),
-    /// then `cos kΔθ` and `sin kΔθ`.
+    /// and `cos kΔθ` and `sin kΔθ` likewise to the two longitudinal nodes around its `ω0·t`
+    /// ([`longitudinal_hats`]).
     pub fn accumulate(&self, weight: f64, shape: &mut [f64]) {
         let (azimuth, rest) = shape.split_at_mut(LOBE_AZIMUTH_TOTALS);
-        let (totals, longitudinal) = rest.split_at_mut(LOBE_AZIMUTH_BINS);
+        let (totals, rest) = rest.split_at_mut(LOBE_AZIMUTH_BINS);
+        let (longitudinal_totals, longitudinal) = rest.split_at_mut(LOBE_LONGITUDINAL_BINS);
         for (node, hat) in elevation_hats(self.elevation) {
             let w = weight * hat;
             if w == 0.0 {
@@ -272,11 +323,19 @@ impl FiberOffset {
             }
         }
         let (s1, c1) = self.delta_theta.sin_cos();
-        let (mut sk, mut ck) = (s1, c1);
-        for pair in longitudinal.chunks_exact_mut(2) {
-            pair[0] += weight * ck;
-            pair[1] += weight * sk;
-            (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+        for (node, hat) in longitudinal_hats(self.along) {
+            let w = weight * hat;
+            if w == 0.0 {
+                continue;
+            }
+            longitudinal_totals[node] += w;
+            let terms = &mut longitudinal[node * 2 * LOBE_FOURIER_TERMS..(node + 1) * 2 * LOBE_FOURIER_TERMS];
+            let (mut sk, mut ck) = (s1, c1);
+            for pair in terms.chunks_exact_mut(2) {
+                pair[0] += w * ck;
+                pair[1] += w * sk;
+                (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+            }
         }
     }
 }
@@ -1237,8 +1296,9 @@ pub fn reflected_light_fits_matrices(lattice: &[CellTransfer], order: usize) -> 
 }
 
 /// `Σ_{k=order+1..=K} (c̄_k² + s̄_k²)`, K = [`LOBE_FOURIER_TERMS`], of the reflected light's
-/// longitudinal offset pooled over the cells that keep lobes (each cell's sums weighted by its
-/// reflected light, as its shape holds them); `None` where no cell keeps lobes with reflected
+/// longitudinal offset pooled over the cells that keep lobes and over the light's angle to the
+/// fiber (every [`LOBE_LONGITUDINAL_BINS`] node; each cell's sums weighted by its reflected
+/// light, as its shape holds them); `None` where no cell keeps lobes with reflected
 /// light. Pooled over the fabric, not per cell: one cell's 480 paths leave each of its
 /// coefficients about ±0.3 of noise.
 #[must_use]
@@ -1247,9 +1307,11 @@ pub fn reflected_light_tail(lattice: &[CellTransfer], order: usize) -> Option<f6
     let mut total = 0.0f64;
     for cell in lattice.iter().filter(|c| c.keeps_lobe_light() && c.reflected_shape.len() == LOBE_SHAPE_LEN) {
         let shape = &cell.reflected_shape;
-        total += shape[LOBE_AZIMUTH_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
-        for (sum, &v) in sums.iter_mut().zip(&shape[LOBE_LONGITUDINAL_AT..]) {
-            *sum += f64::from(v);
+        total += shape[LOBE_LONGITUDINAL_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
+        for node in shape[LOBE_LONGITUDINAL_AT..].chunks_exact(2 * LOBE_FOURIER_TERMS) {
+            for (sum, &v) in sums.iter_mut().zip(node) {
+                *sum += f64::from(v);
+            }
         }
     }
     (total > 0.0).then(|| sums.iter().skip(2 * order).map(|v| (v / total).powi(2)).sum())
@@ -1708,11 +1770,15 @@ mod tests {
     #[test]
     fn reflected_light_fits_matrices_when_its_offset_lacks_harmonics_above_the_order() {
         let lobe_cell = |width: f64| {
+            // The same offset in two longitudinal nodes, which the tail pools.
             let mut shape = vec![0.0f32; LOBE_SHAPE_LEN];
             shape[LOBE_AZIMUTH_TOTALS] = 2.0;
-            for k in 1..=LOBE_FOURIER_TERMS {
-                shape[LOBE_LONGITUDINAL_AT + 2 * (k - 1)] =
-                    (2.0 * (-0.5 * (k as f64 * width).powi(2)).exp()) as f32;
+            for node in [1, LOBE_LONGITUDINAL_BINS - 2] {
+                shape[LOBE_LONGITUDINAL_TOTALS + node] = 1.0;
+                for k in 1..=LOBE_FOURIER_TERMS {
+                    shape[LOBE_LONGITUDINAL_AT + node * 2 * LOBE_FOURIER_TERMS + 2 * (k - 1)] =
+                        (-0.5 * (k as f64 * width).powi(2)).exp() as f32;
+                }
             }
             let strength = vec![[0.1f32; 3]; sh_count(LOBE_SH_ORDER)];
             CellTransfer {

@@ -63,7 +63,7 @@
 //! ([`ColourFreeSample::forward`]) are forward, the others reflected, and the expectations are
 //! the bake's split. A basis with lobes holds `E = n² + 2 n_l + 1 + 2 S` entries per cell
 //! ([`RecolourBasis::entries`], [`EntryLayout`]; `n_l` = `sh_count(LOBE_SH_ORDER)` = 49,
-//! S = [`LOBE_SHAPE_LEN`] = 25): the whole matrix of every connection (entries `0..n²`, as
+//! S = [`LOBE_SHAPE_LEN`] = 588): the whole matrix of every connection (entries `0..n²`, as
 //! without lobes), the forward strength (n_l), the reflected strength (n_l), the forward
 //! cosine, the forward shape (S) and the reflected shape (S), every one through the same
 //! classes, curves and compression (each weighted there by its size against the matrix's
@@ -2058,11 +2058,15 @@ mod tests {
         "reflected strength",
         "forward shape cos Δφ (middle elevation node)",
         "reflected shape cos Δφ (middle elevation node)",
-        "reflected shape cos Δθ",
+        "reflected shape cos Δθ (middle longitudinal node)",
     ];
 
     /// The shape entry of `cos Δφ` at the middle light-elevation node.
     const MIDDLE_COS_PHI: usize = LOBE_AZIMUTH_BINS / 2 * 2 * super::super::iirtf::LOBE_AZIMUTH_TERMS;
+
+    /// The shape entry of `cos Δθ` at the middle longitudinal node (light across the fiber).
+    const MIDDLE_COS_THETA: usize = LOBE_LONGITUDINAL_AT
+        + super::super::iirtf::LOBE_LONGITUDINAL_BINS / 2 * 2 * super::super::iirtf::LOBE_FOURIER_TERMS;
 
     /// A kept cell's [`LOBE_TOTALS`] terms.
     fn lobe_terms(c: &super::super::iirtf::CellTransfer) -> [f64; 6] {
@@ -2072,7 +2076,7 @@ mod tests {
             c.reflected[0][0],
             c.forward_shape[MIDDLE_COS_PHI],
             c.reflected_shape[MIDDLE_COS_PHI],
-            c.reflected_shape[LOBE_LONGITUDINAL_AT],
+            c.reflected_shape[MIDDLE_COS_THETA],
         ]
         .map(f64::from)
     }
@@ -2095,7 +2099,7 @@ mod tests {
             (layout.reflected().start, 1.0),
             (layout.forward_shape().start + MIDDLE_COS_PHI, 3.0),
             (layout.reflected_shape().start + MIDDLE_COS_PHI, 3.0),
-            (layout.reflected_shape().start + LOBE_LONGITUDINAL_AT, 3.0),
+            (layout.reflected_shape().start + MIDDLE_COS_THETA, 3.0),
         ];
         let mut variance = [0.0; 6];
         for (c, cell) in basis.cells.iter().enumerate() {
@@ -2163,7 +2167,7 @@ mod tests {
                     x[2] += rest.x * Y00;
                     x[3] += share.element_sum() * terms[MIDDLE_COS_PHI];
                     x[4] += rest.element_sum() * terms[MIDDLE_COS_PHI];
-                    x[5] += rest.element_sum() * terms[LOBE_LONGITUDINAL_AT];
+                    x[5] += rest.element_sum() * terms[MIDDLE_COS_THETA];
                 }
                 for i in 0..6 {
                     sum[i] += x[i];

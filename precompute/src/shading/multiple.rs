@@ -54,7 +54,7 @@ use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
 use crate::bake::iirtf::{
     CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT,
-    LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, toward_up,
+    LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation, longitudinal_hats, toward_up,
 };
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
@@ -352,17 +352,31 @@ impl FiberLobe {
         self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO)
     }
 
-    /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` for a light at elevation `z`:
+    /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` for a light at elevation `z`
+    /// about the fiber ([`fiber_elevation`]):
     /// each elevation node's sums over its total, interpolated between the two nodes around
     /// `z` ([`elevation_hats`]); a node without weight counts as uniform (means 0).
     #[must_use]
     pub fn azimuth_means(&self, z: f64) -> Vec<f64> {
-        let node_terms = 2 * LOBE_AZIMUTH_TERMS;
-        let mut out = vec![0.0; node_terms];
-        for (node, hat) in elevation_hats(z) {
-            let total = self.shape[LOBE_AZIMUTH_TOTALS + node];
+        self.node_means(elevation_hats(z), LOBE_AZIMUTH_TOTALS, 0, 2 * LOBE_AZIMUTH_TERMS)
+    }
+
+    /// The longitudinal means `[E cos Δθ, E sin Δθ, …]` for a light of `ω0·t = along` at the
+    /// fiber: as [`Self::azimuth_means`], over the nodes of the light's angle to the fiber
+    /// ([`longitudinal_hats`]).
+    #[must_use]
+    pub fn longitudinal_means(&self, along: f64) -> Vec<f64> {
+        self.node_means(longitudinal_hats(along), LOBE_LONGITUDINAL_TOTALS, LOBE_LONGITUDINAL_AT, 2 * LOBE_FOURIER_TERMS)
+    }
+
+    /// Each of the two nodes `hats` its `terms` sums (from `sums_at`, node after node) over its
+    /// total (at `totals_at`), weighted by its hat; a node without weight counts as uniform.
+    fn node_means(&self, hats: [(usize, f64); 2], totals_at: usize, sums_at: usize, terms: usize) -> Vec<f64> {
+        let mut out = vec![0.0; terms];
+        for (node, hat) in hats {
+            let total = self.shape[totals_at + node];
             if total > 0.0 && hat > 0.0 {
-                let sums = &self.shape[node * node_terms..(node + 1) * node_terms];
+                let sums = &self.shape[sums_at + node * terms..sums_at + (node + 1) * terms];
                 for (o, v) in out.iter_mut().zip(sums) {
                     *o += hat * v / total;
                 }
@@ -374,9 +388,9 @@ impl FiberLobe {
     /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
     /// ξ its angles are measured from (the light's direction) and their densities
     /// ([`LobeAngles`], both series smoothed by [`LobeAngles::from_means`]), or `None` for a
-    /// lobe without light. The longitudinal means are the shape's sums over `√(4π) Σ
-    /// strength[0]` (the total weight), the azimuthal ones are taken per light elevation
-    /// ([`Self::azimuth_means`]). The azimuth's odd terms were kept in the sense toward the
+    /// lobe without light. The longitudinal means are taken per light angle to the fiber
+    /// ([`Self::longitudinal_means`]), the azimuthal ones per light elevation about the fiber
+    /// ([`Self::azimuth_means`] of [`fiber_elevation`]). The azimuth's odd terms were kept in the sense toward the
     /// fabric's top ([`toward_up`]), so they turn with `toward_up(t, ξ)` here; all of its terms
     /// fade out within [`AZIMUTH_FADE_ACROSS`] of a light along the fiber. An SG light of sharpness λ widens
     /// both densities by its own spread, exactly for a von Mises–like lobe: its longitudinal
@@ -397,8 +411,8 @@ impl FiberLobe {
             }
         };
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
-        let longitudinal: Vec<f64> = self.shape[LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total).collect();
-        let means = self.azimuth_means(axis.z);
+        let longitudinal = self.longitudinal_means(axis.dot(t));
+        let means = self.azimuth_means(fiber_elevation(t, axis));
         let fade = (across / AZIMUTH_FADE_ACROSS).min(1.0);
         let odd = toward_up(t, axis);
         let azimuth: Vec<f64> =

@@ -520,6 +520,82 @@ fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nod
     assert!((lobe.azimuth_means(0.5 * quarter)[0] + 0.5).abs() < 1e-12);
 }
 
+/// The longitudinal shape is kept per node of the light's angle to the fiber (`ω0·t`, −1 to 1):
+/// light across the fiber and light nearly along it each see their own Δθ, and between the
+/// nodes the means blend linearly.
+#[test]
+fn shading_lobe_longitudinal_shape_is_kept_per_light_angle_to_the_fiber() {
+    use crate::bake::iirtf::{FiberOffset, LOBE_LONGITUDINAL_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, longitudinal_hats};
+    use crate::shading::multiple::FiberLobe;
+    for along in [-1.3, -1.0, -0.4, 0.0, 0.1, 0.5, 0.999, 1.0, 2.0] {
+        let [(a, wa), (b, wb)] = longitudinal_hats(along);
+        assert!(
+            b == a + 1
+                && b < LOBE_LONGITUDINAL_BINS
+                && (wa + wb - 1.0).abs() < 1e-15
+                && wa >= 0.0
+                && wb >= 0.0,
+            "{along}"
+        );
+        let at = (a as f64 * wa + b as f64 * wb) / (LOBE_LONGITUDINAL_BINS - 1) as f64 * 2.0 - 1.0;
+        assert!((at - f64::clamp(along, -1.0, 1.0)).abs() < 1e-12, "{along}: {at}");
+    }
+    // A light across the fiber (ω0·t = 0, the middle node) whose light arrives 0.1 rad above
+    // its own angle, and one 60° along it (between the two nodes from 2/3 up) whose arrives
+    // 0.4 rad below: each light's nodes hold its own offset alone.
+    let t = DVec3::X;
+    let across = DVec3::new(0.0, 0.6, 0.8);
+    let tilt = |w: DVec3, by: f64| {
+        let theta = w.dot(t).asin() + by;
+        let normal = (w - w.dot(t) * t).normalize();
+        theta.sin() * t + theta.cos() * normal
+    };
+    let along = DVec3::new(60f64.to_radians().sin(), 0.0, 60f64.to_radians().cos());
+    let mut shape = vec![0.0; LOBE_SHAPE_LEN];
+    FiberOffset::new(t, across, tilt(across, 0.1)).accumulate(2.0, &mut shape);
+    FiberOffset::new(t, along, tilt(along, -0.4)).accumulate(1.0, &mut shape);
+    let lobe = FiberLobe { strength: vec![Rgb::splat(1.0); crate::sh::sh_count(LOBE_SH_ORDER)], shape };
+    let first = lobe.longitudinal_means(0.0);
+    assert!((first[0] - 0.1f64.cos()).abs() < 1e-12 && (first[1] - 0.1f64.sin()).abs() < 1e-12, "{first:?}");
+    // Nearly along −t no light was seen: uniform, every mean 0.
+    assert!(lobe.longitudinal_means(-1.0).iter().all(|&m| m == 0.0));
+    let second = lobe.longitudinal_means(along.dot(t));
+    assert!((second[0] - 0.4f64.cos()).abs() < 1e-12 && (second[1] + 0.4f64.sin()).abs() < 1e-12, "{second:?}");
+    // Half way from the middle node to the next, half the first light's means.
+    let half = lobe.longitudinal_means(1.0 / (LOBE_LONGITUDINAL_BINS - 1) as f64);
+    assert!((half[0] - 0.5 * 0.1f64.cos()).abs() < 1e-12, "{half:?}");
+}
+
+/// The light's elevation about a fiber: 1 overhead in the fiber's normal plane (a low light
+/// along a level fiber too), 0 at its horizon, the same for either sense of t, and for a
+/// fiber tilted in its own plane the angle from the tilted normal plane's up.
+#[test]
+fn shading_fiber_elevation_is_taken_about_the_fiber() {
+    use crate::bake::iirtf::fiber_elevation;
+    let t = DVec3::X;
+    let low_along = DVec3::new(0.98, 0.0, 0.2).normalize();
+    let low_across = DVec3::new(0.0, 0.98, 0.2).normalize();
+    assert!((fiber_elevation(t, low_along) - 1.0).abs() < 1e-12);
+    assert!((fiber_elevation(t, low_across) - low_across.z).abs() < 1e-12);
+    for w in [low_along, low_across, DVec3::new(0.3, -0.5, 0.6).normalize()] {
+        assert!((fiber_elevation(t, w) - fiber_elevation(-t, w)).abs() < 1e-12, "{w}");
+    }
+    // A fiber tilted 20° up in the xz plane: a light 30° from its normal plane's up, rotated
+    // about t, stands at cos 30°.
+    let tilt = 20f64.to_radians();
+    let t = DVec3::new(tilt.cos(), 0.0, tilt.sin());
+    let up = DVec3::new(-tilt.sin(), 0.0, tilt.cos());
+    let side = t.cross(up);
+    for along in [0.0, 0.4, -0.7] {
+        let normal_part = (1.0f64 - along * along).sqrt();
+        let w = along * t + normal_part * (30f64.to_radians().cos() * up + 30f64.to_radians().sin() * side);
+        assert!((fiber_elevation(t, w) - 30f64.to_radians().cos()).abs() < 1e-12, "{along}");
+    }
+    // Below the fiber's horizon: 0; along a vertical fiber: the light's own z.
+    assert_eq!(fiber_elevation(DVec3::X, DVec3::new(0.0, 0.6, -0.8)), 0.0);
+    assert!((fiber_elevation(DVec3::Z, DVec3::new(0.6, 0.0, 0.8)) - 0.8).abs() < 1e-12);
+}
+
 /// The von Mises–Fisher sharpness inverts the mean resultant length (three Newton steps below
 /// λ = 100, Banerjee's guess above), and an SG light's part above the horizon keeps a light
 /// wholly above it, and stands higher and narrower for a broad light low in the sky.
@@ -599,10 +675,9 @@ fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() 
         ],
         shape: shape.clone(),
     };
-    let azimuth = lobe.azimuth_means(frame.direction(0.2, 0.1).z);
+    let azimuth = lobe.azimuth_means(crate::bake::iirtf::fiber_elevation(t, frame.direction(0.2, 0.1)));
     assert!((azimuth[0] - 1.0_f64.cos()).abs() < 1e-12, "{azimuth:?}");
-    let means: Vec<f64> =
-        shape[crate::bake::iirtf::LOBE_LONGITUDINAL_AT..].iter().map(|v| v / total).collect();
+    let means = lobe.longitudinal_means(frame.direction(0.2, 0.1).dot(t));
     let uniform = vec![0.0; 2 * LOBE_AZIMUTH_TERMS];
     // Cut at the bake's terms the raw series of this 4.6° wide offset rings below zero; smoothed, it is
     // a density (no clamp acts, so it integrates to one).
