@@ -101,16 +101,19 @@ impl Stage {
 /// azimuth as a Fourier series with its odd part toward the fabric's top, 7: the colour-free
 /// walk weighed at the materials' colours, the recolouring basis's paths, 8: 24 longitudinal
 /// Fourier terms, 9: 24 azimuthal ones, 10: segment cells, `bake::cells`, 11: a segment cell
-/// under fiber lobes holds its reflected light, `iirtf::MatrixLight`; volume 3: touching
+/// under fiber lobes holds its reflected light, `iirtf::MatrixLight`, 12: the lobe shapes'
+/// azimuth per light elevation about the fiber (`iirtf::fiber_elevation`), their longitudinal
+/// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`); volume 3: touching
 /// occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 11, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 12, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
 /// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms; 8: 24 longitudinal
 /// terms per lobe shape; 9: 24 azimuthal terms per elevation node; 10: the sum of SGs' packed
-/// axes; 11: `CellGrid`'s segment cells, `BakeSettings::segment_transfer_paths`).
-pub const BAKE_LAYOUT_VERSION: u32 = 11;
+/// axes; 11: `CellGrid`'s segment cells, `BakeSettings::segment_transfer_paths`; 12: the lobe
+/// shapes' longitudinal terms per node of ω0·t, `iirtf::LOBE_SHAPE_LEN`).
+pub const BAKE_LAYOUT_VERSION: u32 = 12;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]
@@ -505,8 +508,9 @@ pub fn recolour_basis(
 /// 10: the fiber lobes, `RecolourBasis::fiber_lobes`: the whole matrix, both lobes' strengths at
 /// `LOBE_SH_ORDER`, the forward cosine and both shapes per cell; 11: the shapes' azimuthal
 /// Fourier terms; 12: 24 longitudinal terms per shape; 13: 24 azimuthal
-/// terms per elevation node; 14: `RecolourBasis::segment_cells`).
-const RECOLOUR_VERSION: u32 = 14;
+/// terms per elevation node; 14: `RecolourBasis::segment_cells`; 15: the shapes' azimuth per
+/// elevation about the fiber, their longitudinal terms per node of ω0·t).
+const RECOLOUR_VERSION: u32 = 15;
 
 /// Measures the mean free path of `inputs`' fabric (the mean free path stage).
 fn measure_mfp(inputs: &BakeInputs<'_>, cancel: &Cancel) -> Result<MeanFreePathData, BakeError> {

@@ -63,7 +63,7 @@
 //! ([`ColourFreeSample::forward`]) are forward, the others reflected, and the expectations are
 //! the bake's split. A basis with lobes holds `E = n² + 2 n_l + 1 + 2 S` entries per cell
 //! ([`RecolourBasis::entries`], [`EntryLayout`]; `n_l` = `sh_count(LOBE_SH_ORDER)` = 49,
-//! S = [`LOBE_SHAPE_LEN`] = 588): the whole matrix of every connection (entries `0..n²`, as
+//! S = [`LOBE_SHAPE_LEN`] = 784): the whole matrix of every connection (entries `0..n²`, as
 //! without lobes), the forward strength (n_l), the reflected strength (n_l), the forward
 //! cosine, the forward shape (S) and the reflected shape (S), every one through the same
 //! classes, curves and compression (each weighted there by its size against the matrix's
