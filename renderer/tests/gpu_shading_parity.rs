@@ -28,7 +28,7 @@ use std::collections::HashMap;
 use glam::{DVec3, Vec3};
 use twill_precompute::bake::Cancel;
 use twill_precompute::bake::iirtf::{
-    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT, LOBE_PACKED_FLOATS,
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_FOURIER_TERMS, LOBE_PACKED_FLOATS,
 };
 use twill_precompute::bake::pattern::PatternMap;
 use twill_precompute::bake::pipeline::{BakeInputs, Baked, bake};
