@@ -1310,7 +1310,8 @@ pub fn reflected_light_tail(lattice: &[CellTransfer], order: usize) -> Option<f6
     let mut total = 0.0f64;
     for cell in lattice.iter().filter(|c| c.keeps_lobe_light() && c.reflected_shape.len() == LOBE_SHAPE_LEN) {
         let shape = &cell.reflected_shape;
-        total += shape[LOBE_LONGITUDINAL_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
+        total +=
+            shape[LOBE_LONGITUDINAL_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
         for node in shape[LOBE_LONGITUDINAL_AT..].chunks_exact(2 * LOBE_FOURIER_TERMS) {
             for (sum, &v) in sums.iter_mut().zip(node) {
                 *sum += f64::from(v);

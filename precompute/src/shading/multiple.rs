@@ -54,7 +54,8 @@ use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
 use crate::bake::iirtf::{
     CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT,
-    LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation, longitudinal_hats, toward_up,
+    LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation,
+    longitudinal_hats, toward_up,
 };
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
@@ -366,12 +367,23 @@ impl FiberLobe {
     /// ([`longitudinal_hats`]).
     #[must_use]
     pub fn longitudinal_means(&self, along: f64) -> Vec<f64> {
-        self.node_means(longitudinal_hats(along), LOBE_LONGITUDINAL_TOTALS, LOBE_LONGITUDINAL_AT, 2 * LOBE_FOURIER_TERMS)
+        self.node_means(
+            longitudinal_hats(along),
+            LOBE_LONGITUDINAL_TOTALS,
+            LOBE_LONGITUDINAL_AT,
+            2 * LOBE_FOURIER_TERMS,
+        )
     }
 
     /// Each of the two nodes `hats` its `terms` sums (from `sums_at`, node after node) over its
     /// total (at `totals_at`), weighted by its hat; a node without weight counts as uniform.
-    fn node_means(&self, hats: [(usize, f64); 2], totals_at: usize, sums_at: usize, terms: usize) -> Vec<f64> {
+    fn node_means(
+        &self,
+        hats: [(usize, f64); 2],
+        totals_at: usize,
+        sums_at: usize,
+        terms: usize,
+    ) -> Vec<f64> {
         let mut out = vec![0.0; terms];
         for (node, hat) in hats {
             let total = self.shape[totals_at + node];

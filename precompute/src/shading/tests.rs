@@ -525,7 +525,9 @@ fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nod
 /// nodes the means blend linearly.
 #[test]
 fn shading_lobe_longitudinal_shape_is_kept_per_light_angle_to_the_fiber() {
-    use crate::bake::iirtf::{FiberOffset, LOBE_LONGITUDINAL_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, longitudinal_hats};
+    use crate::bake::iirtf::{
+        FiberOffset, LOBE_LONGITUDINAL_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, longitudinal_hats,
+    };
     use crate::shading::multiple::FiberLobe;
     for along in [-1.3, -1.0, -0.4, 0.0, 0.1, 0.5, 0.999, 1.0, 2.0] {
         let [(a, wa), (b, wb)] = longitudinal_hats(along);
@@ -560,7 +562,10 @@ fn shading_lobe_longitudinal_shape_is_kept_per_light_angle_to_the_fiber() {
     // Nearly along −t no light was seen: uniform, every mean 0.
     assert!(lobe.longitudinal_means(-1.0).iter().all(|&m| m == 0.0));
     let second = lobe.longitudinal_means(along.dot(t));
-    assert!((second[0] - 0.4f64.cos()).abs() < 1e-12 && (second[1] + 0.4f64.sin()).abs() < 1e-12, "{second:?}");
+    assert!(
+        (second[0] - 0.4f64.cos()).abs() < 1e-12 && (second[1] + 0.4f64.sin()).abs() < 1e-12,
+        "{second:?}"
+    );
     // Half way from the middle node to the next, half the first light's means.
     let half = lobe.longitudinal_means(1.0 / (LOBE_LONGITUDINAL_BINS - 1) as f64);
     assert!((half[0] - 0.5 * 0.1f64.cos()).abs() < 1e-12, "{half:?}");
