@@ -319,8 +319,8 @@ pub const AZIMUTH_FADE_ACROSS: f64 = 0.05;
 
 /// One fiber lobe (`CellTransfer::forward` and `forward_shape`, or `reflected` and
 /// `reflected_shape`) summed over the cells around a point with their interpolation weights.
-/// Both parts are sums over the same connections, so the weighted sum of the shapes over the
-/// weighted total strength is the interpolated lobe's mean shape.
+/// A shape's node sums and node totals are sums over the same connections, so each node's
+/// weighted sums over its weighted total are the interpolated lobe's means at that node.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FiberLobe {
     /// SH over light directions at [`LOBE_SH_ORDER`], RGB.
@@ -411,7 +411,7 @@ impl FiberLobe {
     /// `I_k(κ_l)/I_0(κ_l)`.
     #[must_use]
     pub fn angles(&self, light: &Light, t: DVec3) -> Option<(DVec3, LobeAngles)> {
-        let total = self.strength[0].element_sum() * (4.0 * PI).sqrt();
+        let total = self.strength[0].element_sum();
         if total.is_nan() || total <= 0.0 {
             return None;
         }
