@@ -123,6 +123,9 @@ pub struct Rung {
     pub relative_error_of_mean: f64,
     /// Standard error of that figure from both images' noise.
     pub relative_error_std: f64,
+    /// (mean − reference mean) / reference mean per colour channel: a yarn dark in one channel
+    /// shows its error there, hidden in the sum by the bright channels.
+    pub relative_error_rgb: Rgb,
     /// Per-pixel RMSE over the reference's mean.
     pub relative_pixel_rmse: f64,
     /// What the two images' noise alone would give for that figure.
@@ -180,8 +183,8 @@ impl Budget {
     pub fn markdown(&self) -> String {
         let mut out = format!(
             "{}x{} px, rungs {} spp, references {} spp (path traced in {:.1} s), seed {}\n\n\
-             | component | rung | mean error | ± noise | per-pixel RMSE | noise alone | time |\n\
-             |---|---|---|---|---|---|---|\n",
+             | component | rung | mean error | ± noise | R / G / B | per-pixel RMSE | noise alone | time |\n\
+             |---|---|---|---|---|---|---|---|\n",
             self.width,
             self.height,
             self.settings.spp,
@@ -192,11 +195,14 @@ impl Budget {
         for r in &self.rungs {
             let _ = writeln!(
                 out,
-                "| {:?} | {} | {:+.1}% | {:.1}% | {:.1}% | {:.1}% | {:.2} s |",
+                "| {:?} | {} | {:+.1}% | {:.1}% | {:+.0}/{:+.0}/{:+.0}% | {:.1}% | {:.1}% | {:.2} s |",
                 r.component,
                 r.name,
                 100.0 * r.relative_error_of_mean,
                 100.0 * r.relative_error_std,
+                100.0 * r.relative_error_rgb.x,
+                100.0 * r.relative_error_rgb.y,
+                100.0 * r.relative_error_rgb.z,
                 100.0 * r.relative_pixel_rmse,
                 100.0 * r.relative_noise_rmse,
                 r.seconds
@@ -570,11 +576,16 @@ fn measure(component: Component, name: String, test: Estimate<'_>, reference: &F
     let (r_mean, r_variance) = (reference.mean(), reference.variance_of_mean());
     let c = compare(test, Estimate { mean: &r_mean, variance: Some(&r_variance) });
     let level = (r_mean.mean().element_sum() / 3.0).max(f64::MIN_POSITIVE);
+    let (test_rgb, reference_rgb) = (test.mean.mean(), r_mean.mean());
+    let relative_error_rgb = Rgb::from_array(std::array::from_fn(|c| {
+        if reference_rgb[c] > 0.0 { test_rgb[c] / reference_rgb[c] - 1.0 } else { test_rgb[c].abs() }
+    }));
     Rung {
         component,
         name,
         relative_error_of_mean: c.relative_error_of_mean,
         relative_error_std: c.relative_error_of_mean_std,
+        relative_error_rgb,
         relative_pixel_rmse: c.rmse / level,
         relative_noise_rmse: c.expected_noise_rmse / level,
         seconds,
