@@ -84,7 +84,9 @@ pub struct FabricHeaderGpu {
     /// visibility_bits`), 0 when the bake kept none (local visibility is then the PCA SSDF's
     /// sign).
     pub visibility_words: u32,
-    pub pad: u32,
+    /// vec4s of the lobe table at the start of `lobes` ([`FabricArrays::lobes`]): one `u32` per
+    /// lattice slot, four per vec4; 0 for a fabric without lobes.
+    pub lobe_table_vec4s: u32,
 }
 const _: () = assert!(size_of::<FabricHeaderGpu>() == 80);
 
@@ -204,10 +206,17 @@ pub struct FabricArrays {
     pub slot_count: usize,
     /// The lattice cells' slots, the first ones: the only ones with fiber lobes.
     pub lattice_slot_count: usize,
+    /// Per lattice slot, 1 + its *lobe slot*, or 0 for a cell that keeps no lobes at the
+    /// bake's colours (it holds all of its light in its matrix). Lobe slots number the cells
+    /// that keep lobes in slot order, so each exemplar's are contiguous.
+    pub lobe_slots: Vec<u32>,
     /// The fiber lobes (`CellTransfer::forward`, `reflected` and their shapes), twin of `lobes`
-    /// in `shaders/shared/fabric_data.wgsl`: per lattice slot [`LOBE_PACKED_FLOATS`] floats in
-    /// `CellTransfer::pack_lobes`' layout, zeros for a cell without lobes (one that folded its
-    /// light into its matrix). Empty for a set baked without fiber lobes in which no cell has
+    /// in `shaders/shared/fabric_data.wgsl`: first the lobe table, `lobe_slots` as `u32` bits
+    /// (`header.lobe_table_vec4s` vec4s, zero-padded), then per lobe slot
+    /// [`LOBE_PACKED_FLOATS`] floats in `CellTransfer::pack_lobes`' layout. Only the cells that
+    /// keep lobes have them: on the default cotton about 300 of its 13,985 lattice cells with
+    /// segments, so that the buffer holds 2 MB instead of 285 MB of mostly zeros (lavapipe
+    /// binds at most 128 MiB). Empty for a set baked without fiber lobes in which no cell has
     /// them (the buffer is then one zeroed vec4, never read).
     pub lobes: Vec<f32>,
     /// Cells whose lobes are not all zeros: the plan compiles `ENABLE_FIBER_LOBES` only when
@@ -309,6 +318,7 @@ impl FabricArrays {
             cell_slots: Vec::new(),
             slot_count: 0,
             lattice_slot_count: 0,
+            lobe_slots: Vec::new(),
             lobes: Vec::new(),
             lobe_cells: 0,
             cs_table: Vec::new(),
@@ -324,6 +334,8 @@ impl FabricArrays {
             )));
         }
         let mut iirtf_values: Vec<f32> = Vec::new();
+        // The lobe slots' packed lobes, after the table that `lobes` starts with.
+        let mut lobe_data: Vec<f32> = Vec::new();
         let mut slots = 0_usize;
         let mut any_lobes = false;
         let mut z_range = [f32::INFINITY, f32::NEG_INFINITY];
@@ -398,9 +410,14 @@ impl FabricArrays {
                          {LOBE_SHAPE_LEN} and {LOBE_SHAPE_LEN}"
                     )));
                 }
-                let start = out.lobes.len();
-                out.lobes.resize(start + LOBE_PACKED_FLOATS, 0.0);
-                cell.pack_lobes(&mut out.lobes[start..]);
+                if cell.has_lobes() {
+                    let start = lobe_data.len();
+                    lobe_data.resize(start + LOBE_PACKED_FLOATS, 0.0);
+                    cell.pack_lobes(&mut lobe_data[start..]);
+                    out.lobe_slots.push(to_u32(start / LOBE_PACKED_FLOATS + 1, "lobe slot")?);
+                } else {
+                    out.lobe_slots.push(0);
+                }
                 push_matrix(cell, sh_count, &mut iirtf_values, &mut out.iirtf_f16_max_rel_error);
             }
             // A bake made with fiber lobes keeps its buffer even when every cell folded its light
@@ -482,8 +499,11 @@ impl FabricArrays {
         }
         out.iirtf = pack_f16_pairs(&iirtf_values);
         out.slot_count = slots;
-        if !any_lobes {
-            out.lobes = Vec::new();
+        let lobe_table_vec4s = if any_lobes { out.lobe_slots.len().div_ceil(4).max(1) } else { 0 };
+        if any_lobes {
+            out.lobes = out.lobe_slots.iter().map(|&s| f32::from_bits(s)).collect();
+            out.lobes.resize(4 * lobe_table_vec4s, 0.0);
+            out.lobes.extend_from_slice(&lobe_data);
         }
         // The C_G table gives every light's SH: at the transfer's order, and at the lobes'.
         let cg_order = first.cg.order();
@@ -511,7 +531,7 @@ impl FabricArrays {
             cg_order: to_u32(cg_order, "C_G order")?,
             visibility_points: to_u32(visibility_points, "visibility points")?,
             visibility_words: to_u32(bit_words.unwrap_or(0), "visibility words")?,
-            pad: 0,
+            lobe_table_vec4s: to_u32(lobe_table_vec4s, "lobe table")?,
         };
         if out.visibility_bits.is_empty() {
             out.visibility_bits.push(0);
@@ -527,8 +547,8 @@ impl FabricArrays {
         self.lobe_cells > 0
     }
 
-    /// Whether the buffer holds lobes for every slot (the set was baked with fiber lobes, or
-    /// some cell has them), so that a recolouring can write lobes.
+    /// Whether the buffer holds lobes (the set was baked with fiber lobes, or some cell has
+    /// them), so that a recolouring can write the lobe slots' lobes.
     #[must_use]
     pub fn holds_lobes(&self) -> bool {
         !self.lobes.is_empty()
@@ -536,7 +556,13 @@ impl FabricArrays {
 
     /// Cells whose lobes are not all zeros.
     fn count_lobe_cells(&self) -> usize {
-        self.lobes.chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
+        self.lobe_values().chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
+    }
+
+    /// The lobe slots' packed lobes: `lobes` after its table.
+    #[must_use]
+    pub fn lobe_values(&self) -> &[f32] {
+        self.lobes.get(4 * self.header.lobe_table_vec4s as usize..).unwrap_or(&[])
     }
 
     /// Every buffer with its label and contents, in binding order (1 ..= 15).
@@ -787,9 +813,9 @@ fn push_matrix(cell: &CellTransfer, sh_count: usize, values: &mut Vec<f32>, max_
     }
 }
 
-/// Writes one cell of a recolouring: its IIRTF (f16 bits) and its fiber lobes
-/// ([`Recolouring::write_cell`]).
-pub type WriteRecolouredCell<'a> = dyn Fn(usize, &mut [u16], &mut [f32]) + Sync + 'a;
+/// Writes one cell of a recolouring: its IIRTF (f16 bits) and its fiber lobes, where it has a
+/// lobe slot ([`Recolouring::write_cell`]).
+pub type WriteRecolouredCell<'a> = dyn Fn(usize, &mut [u16], Option<&mut [f32]>) + Sync + 'a;
 
 /// A recolouring of one exemplar, ready to write ([`FabricData::write_recolouring`]).
 pub struct Recolouring<'a> {
@@ -802,9 +828,11 @@ pub struct Recolouring<'a> {
     /// Writes cell `c`'s IIRTF as f16 bits, channel-planar (`3 n²` values: what
     /// `RecolourBasis::write_planar` writes, converted), into the first slice it is given, and
     /// its fiber lobes ([`LOBE_PACKED_FLOATS`] floats, `CellTransfer::pack_lobes`' layout, zeros
-    /// for a cell that folds them into its matrix) into the second, which is empty when the
-    /// fabric holds no lobes; both from one evaluation of the cell (`RecolourBasis::write_cell`:
-    /// one decision whether the cell keeps lobes at the new colours). Called for every cell of
+    /// for a cell that folds them into its matrix) into the second where the cell has a lobe
+    /// slot; both from one evaluation of the cell (`RecolourBasis::write_cell`: one decision
+    /// whether the cell keeps lobes at the new colours). A cell without a lobe slot (it kept
+    /// no lobes at the bake's colours, or the fabric holds none) gets `None` and writes its
+    /// whole matrix, lobes folded in, until a rebake gives it a slot. Called for every cell of
     /// the exemplar that holds segments (the cells with a slot), in parallel.
     pub write_cell: &'a WriteRecolouredCell<'a>,
 }
@@ -911,28 +939,32 @@ impl FabricData {
                 "the exemplar's IIRTF cells lie outside the buffer".into(),
             ));
         };
-        let lobe_range = first_slot * LOBE_PACKED_FLOATS..(first_slot + filled) * LOBE_PACKED_FLOATS;
+        // The exemplar's lobe slots, contiguous: each of its slots that has one writes its
+        // lobes there; the others write their whole matrix (`Recolouring::write_cell`).
+        let table = 4 * a.header.lobe_table_vec4s as usize;
         let with_lobes = !a.lobes.is_empty(); // holds_lobes(), while a.iirtf is borrowed
-        let lobe_values: &mut [f32] = if with_lobes {
-            let Some(lobes) = a.lobes.get_mut(lobe_range.clone()) else {
-                return Err(FabricDataError::Inconsistent(
-                    "the exemplar's fiber lobes lie outside the buffer".into(),
-                ));
-            };
-            lobes
+        let own_lobe_slots: Vec<u32> = if with_lobes {
+            a.lobe_slots.get(first_slot..first_slot + filled).map(<[u32]>::to_vec).ok_or_else(|| {
+                FabricDataError::Inconsistent("the exemplar's lobe table lies outside the buffer".into())
+            })?
         } else {
-            &mut []
+            vec![0; filled]
         };
-        if with_lobes {
-            (exemplar_halves.par_chunks_mut(cell_values).zip(lobe_values.par_chunks_mut(LOBE_PACKED_FLOATS)))
-                .enumerate()
-                .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
-        } else {
-            exemplar_halves
-                .par_chunks_mut(cell_values)
-                .enumerate()
-                .for_each(|(i, out)| (r.write_cell)(occupied[i], out, &mut []));
-        }
+        let first_lobe = own_lobe_slots.iter().copied().find(|&l| l != 0).map_or(0, |l| l as usize - 1);
+        let lobe_count = own_lobe_slots.iter().filter(|&&l| l != 0).count();
+        let lobe_range =
+            table + first_lobe * LOBE_PACKED_FLOATS..table + (first_lobe + lobe_count) * LOBE_PACKED_FLOATS;
+        let Some(lobe_values) = a.lobes.get_mut(lobe_range.clone()) else {
+            return Err(FabricDataError::Inconsistent("the exemplar's fiber lobes lie outside the buffer".into()));
+        };
+        let mut lobe_chunks = lobe_values.chunks_exact_mut(LOBE_PACKED_FLOATS);
+        let per_cell: Vec<Option<&mut [f32]>> =
+            own_lobe_slots.iter().map(|&l| if l == 0 { None } else { lobe_chunks.next() }).collect();
+        exemplar_halves
+            .par_chunks_mut(cell_values)
+            .zip(per_cell)
+            .enumerate()
+            .for_each(|(i, (out, lobe))| (r.write_cell)(occupied[i], out, lobe));
         let (word_start, word_end) = (start / 2, (start + filled * cell_values).div_ceil(2));
         queue.write_buffer(
             &iirtf_buffer,
@@ -940,7 +972,7 @@ impl FabricData {
             bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
         );
         written.push("iirtf");
-        if with_lobes {
+        if lobe_count > 0 {
             let lobes = &a.lobes[lobe_range.clone()];
             queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
             written.push("lobes");

@@ -470,14 +470,19 @@ impl Renderer {
                 basis.cells.len()
             )));
         }
-        let write_cell = |c: usize, out: &mut [u16], lobe: &mut [f32]| {
+        let write_cell = |c: usize, out: &mut [u16], lobe: Option<&mut [f32]>| {
             if basis.cells[c].paths == 0 {
                 out.fill(0);
-                lobe.fill(0.0);
+                if let Some(lobe) = lobe {
+                    lobe.fill(0.0);
+                }
                 return;
             }
             let mut values = vec![0.0_f32; out.len()];
-            basis.write_cell(c, &colours, &mut values, lobe);
+            match lobe {
+                Some(lobe) => basis.write_cell(c, &colours, &mut values, lobe),
+                None => basis.write_cell_folding(c, &colours, &mut values),
+            }
             for (h, v) in out.iter_mut().zip(&values) {
                 *h = crate::fabric_data::f32_to_f16_bits(*v);
             }

@@ -110,8 +110,8 @@ pub fn prelude() -> String {
     {
         use twill_precompute::bake::iirtf::{
             LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS,
-            LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_BINS, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
-            TOWARD_UP_WIDTH,
+            LOBE_CHANNEL_SHAPE_LEN, LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_BINS, LOBE_PACKED_FLOATS,
+            LOBE_SH_ORDER, LOBE_SHAPE_LEN, TOWARD_UP_WIDTH,
         };
         use twill_precompute::shading::gamma::{LOBE_MAX_PANELS, LOBE_NODES, LOBE_PANEL_WIDTH, LOBE_WINDOW};
         let _ = writeln!(out, "const LOBE_SH_ORDER: u32 = {LOBE_SH_ORDER}u;");
@@ -119,6 +119,7 @@ pub fn prelude() -> String {
             writeln!(out, "const LOBE_SH_COUNT: u32 = {}u;", twill_precompute::sh::sh_count(LOBE_SH_ORDER));
         let _ = writeln!(out, "const LOBE_FOURIER_TERMS: u32 = {LOBE_FOURIER_TERMS}u;");
         let _ = writeln!(out, "const LOBE_SHAPE_LEN: u32 = {LOBE_SHAPE_LEN}u;");
+        let _ = writeln!(out, "const LOBE_CHANNEL_SHAPE_LEN: u32 = {LOBE_CHANNEL_SHAPE_LEN}u;");
         let _ = writeln!(out, "const LOBE_PACKED_VEC4S: u32 = {}u;", LOBE_PACKED_FLOATS / 4);
         for (name, value) in [
             ("LOBE_AZIMUTH_TERMS", LOBE_AZIMUTH_TERMS),

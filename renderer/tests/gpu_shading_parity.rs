@@ -643,7 +643,8 @@ fn wrapped_normal(mean_deg: f64, sigma_deg: f64) -> Vec<f32> {
 /// The offset distributions the quadrature is compared over, named: none (uniform), a sharp
 /// one (σ 1.5°, so sharp that the cut series rings below zero and the clamp acts), a broad one (σ 15°),
 /// a two-sided one, and the silk bake's own brightest cell's forward and reflected shapes (the
-/// means of its nodes around one light, as `FiberLobe::angles` takes them).
+/// means of its nodes around one light, as `FiberLobe::angles` takes them; red, and the
+/// reflected light's green, which one reflection fills more).
 fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
     let two_sided: Vec<f32> =
         wrapped_normal(8.0, 3.0).iter().zip(wrapped_normal(-8.0, 3.0)).map(|(a, b)| 0.5 * (a + b)).collect();
@@ -662,9 +663,10 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
         .filter(|c| c.has_lobes())
         .max_by(|a, b| strength(a).total_cmp(&strength(b)))
         .expect("a cell with lobes");
-    for (name, lobe, shape) in [
-        ("the silk's forward shape", &brightest.forward, &brightest.forward_shape),
-        ("the silk's reflected shape", &brightest.reflected, &brightest.reflected_shape),
+    for (name, lobe, shape, channel) in [
+        ("the silk's forward shape (red)", &brightest.forward, &brightest.forward_shape, 0),
+        ("the silk's reflected shape (red)", &brightest.reflected, &brightest.reflected_shape, 0),
+        ("the silk's reflected shape (green)", &brightest.reflected, &brightest.reflected_shape, 1),
     ] {
         assert!(lobe[0].iter().sum::<f32>() > 0.0, "{name}: no light");
         // The azimuthal means at a light 30° above the horizon and the longitudinal ones at a
@@ -674,9 +676,9 @@ fn lobe_offsets(baked: &Baked) -> Vec<(String, Vec<f32>)> {
             shape: shape.iter().map(|v| f64::from(*v)).collect(),
         };
         #[allow(clippy::cast_possible_truncation)]
-        let azimuth = cell_lobe.azimuth_means(0.5).into_iter().map(|v| v as f32);
+        let azimuth = cell_lobe.azimuth_means(channel, 0.5).into_iter().map(|v| v as f32);
         #[allow(clippy::cast_possible_truncation)]
-        let longitudinal = cell_lobe.longitudinal_means(0.2).into_iter().map(|v| v as f32);
+        let longitudinal = cell_lobe.longitudinal_means(channel, 0.2).into_iter().map(|v| v as f32);
         out.push((name.to_owned(), azimuth.chain(longitudinal).collect()));
     }
     out
@@ -1263,8 +1265,8 @@ fn fiber_lobe_frames_match_the_cpu_method() {
 /// The frame plan compiles the fiber lobes into the shading pass only for a bake that has them:
 /// a draft bake with `fiber_lobes: false` packs no lobes and plans `ENABLE_FIBER_LOBES` off, on
 /// a flat swatch (cells' transfer) and a curved shell (per pixel) alike; the silk's lobe bake
-/// packs `LOBE_PACKED_FLOATS` per slot (cell with segments) and plans it on. Both pack a slot,
-/// a matrix and lobes for the cells with segments only. CPU only (packing and planning need no
+/// packs `LOBE_PACKED_FLOATS` per cell that keeps lobes and plans it on. Both pack a slot,
+/// a matrix for the cells with segments only, and lobes for the cells that keep them. CPU only (packing and planning need no
 /// device).
 #[test]
 fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
@@ -1289,16 +1291,32 @@ fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
         assert!(slots.len() < held.len(), "{label}: some cells are empty");
         let n = arrays.header.sh_count as usize;
         assert_eq!(arrays.iirtf.len(), (arrays.slot_count * 3 * n * n).div_ceil(2), "{label}");
-        // Without lobes the buffer is empty (bound as one zeroed vec4); with them
-        // LOBE_PACKED_FLOATS per lattice slot (the segment cells' slots come after them and
-        // have none), and as many non-zero ones as cells with lobes.
+        // Without lobes the buffer is empty (bound as one zeroed vec4); with them the lobe
+        // table (a u32 per lattice slot: the segment cells' slots come after them and have no
+        // lobes) and LOBE_PACKED_FLOATS per lobe slot, one for each cell that keeps lobes,
+        // numbered in slot order, each holding that cell's packed lobes.
         let lattice = baked.transfer.cells.lattice_cell_count();
         assert_eq!(arrays.lattice_slot_count, held[..lattice].iter().filter(|&&h| h).count(), "{label}");
         assert!(arrays.slot_count > arrays.lattice_slot_count, "{label}: segment cells have slots");
-        let expected_len = if expected { arrays.lattice_slot_count * LOBE_PACKED_FLOATS } else { 0 };
+        let lobed: Vec<&CellTransfer> = baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).collect();
+        let table = 4 * arrays.header.lobe_table_vec4s as usize;
+        assert_eq!(table, if expected { arrays.lattice_slot_count.div_ceil(4) * 4 } else { 0 }, "{label}");
+        let expected_len = if expected { table + lobed.len() * LOBE_PACKED_FLOATS } else { 0 };
         assert_eq!(arrays.holds_lobes(), expected, "{label}");
         assert_eq!(arrays.lobes.len(), expected_len, "{label}");
-        assert_eq!(arrays.lobe_cells, baked.transfer.iirtf.cells.iter().filter(|c| c.has_lobes()).count());
+        assert_eq!(arrays.lobe_cells, lobed.len(), "{label}");
+        if expected {
+            assert!(!lobed.is_empty() && lobed.len() < arrays.lattice_slot_count, "{label}: {}", lobed.len());
+            let table_slots: Vec<u32> = arrays.lobes[..arrays.lattice_slot_count].iter().map(|v| v.to_bits()).collect();
+            assert_eq!(table_slots, arrays.lobe_slots, "{label}");
+            let numbered: Vec<u32> = arrays.lobe_slots.iter().copied().filter(|&l| l != 0).collect();
+            assert_eq!(numbered, (1..=lobed.len() as u32).collect::<Vec<_>>(), "{label}: lobe slots in slot order");
+            let mut packed = vec![0.0; LOBE_PACKED_FLOATS];
+            for (cell, values) in lobed.iter().zip(arrays.lobe_values().chunks_exact(LOBE_PACKED_FLOATS)) {
+                cell.pack_lobes(&mut packed);
+                assert_eq!(values, &packed[..], "{label}");
+            }
+        }
         // The C_G table at the lights' order: the lobes' with them.
         let cg_order = arrays.header.cg_order as usize;
         assert_eq!(cg_order, baked.settings.light_sh_order(), "{label}");

@@ -25,12 +25,16 @@
 //   pattern         [block_y * pattern_width + block_x] = exemplar index
 //   cell_slots      [global cell] = 1 + its slot if the cell holds segments (has a transfer matrix),
 //                   else 0; slots number the cells that hold segments in global cell order
-//   lobes           per slot LOBE_PACKED_VEC4S vec4s (CellTransfer::pack_lobes, the layout's
-//                   owner): [slot * LOBE_PACKED_VEC4S + j] = forward strength j (rgb, w = 0) and
-//                   [... + LOBE_SH_COUNT + j] = reflected strength j, j < LOBE_SH_COUNT; then,
-//                   as floats from vec4 2 * LOBE_SH_COUNT on, the forward shape's LOBE_SHAPE_LEN
-//                   sums and the reflected shape's, back to back, zero-padded; zeros for a cell
-//                   without lobes (FabricArrays::lobes). A bake without fiber lobes binds one
+//   lobes           first the lobe table: per lattice slot a u32 (the f32's bits, four per
+//                   vec4, lobe_table_vec4s vec4s), 1 + the slot's lobe slot or 0 for a cell that
+//                   keeps no lobes; then per lobe slot LOBE_PACKED_VEC4S vec4s
+//                   (CellTransfer::pack_lobes, the layout's owner): from its base b (lobe_base),
+//                   [b + j] = forward strength j (rgb, w = 0) and [b + LOBE_SH_COUNT + j] =
+//                   reflected strength j, j < LOBE_SH_COUNT; then, as floats from vec4
+//                   2 * LOBE_SH_COUNT on, the forward shape's LOBE_SHAPE_LEN sums (a
+//                   LOBE_CHANNEL_SHAPE_LEN shape per colour channel) and the reflected shape's,
+//                   back to back, zero-padded; zeros for a cell whose lobes a recolouring
+//                   folded into its matrix (FabricArrays::lobes). A bake without fiber lobes binds one
 //                   zeroed vec4, read only when ENABLE_FIBER_LOBES is set (shade.wgsl), which
 //                   the plan sets only while some cell holds lobes.
 
@@ -61,7 +65,8 @@ struct FabricHeader {
     // u32 words per binary visibility image in visibility_bits; 0 when the bake kept none
     // (local visibility is then the PCA SSDF's sign).
     visibility_words: u32,
-    _pad1: u32,
+    // vec4s of the lobe table at the start of `lobes`; 0 without lobes.
+    lobe_table_vec4s: u32,
 }
 
 struct ExemplarGpu {

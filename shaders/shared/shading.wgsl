@@ -575,16 +575,38 @@ fn transferred_at(e: u32, segment: u32, p: vec3<f32>, c_in: ptr<function, array<
     }
 }
 
-// Whether the cell in `slot` keeps fiber lobes: a nonzero strength (each strength[0] sums
-// non-negative shares; a cell without lobes is all zeros, one whose lobes carry no light has
-// no strength either). The buffer stops at the last lattice slot (a segment cell has no lobes,
-// fabric_data.rs), and a bake without lobes binds one zeroed vec4.
-fn slot_keeps_lobes(slot: u32) -> bool {
-    let base = slot * LOBE_PACKED_VEC4S;
-    if (base + LOBE_PACKED_VEC4S > arrayLength(&lobes)) {
+// No lobes (lobe_base): the cell keeps none.
+const NO_LOBES: u32 = 0xffffffffu;
+
+// The first vec4 of the lobes of the cell in `slot` (fabric_data.wgsl: after the lobe table,
+// its lobe slot's), or NO_LOBES for a cell without a lobe slot: a segment cell (its slot lies
+// past the table's lattice slots) or one that kept no lobes at the bake's colours, and every
+// cell of a bake without lobes (lobe_table_vec4s 0).
+fn lobe_base(slot: u32) -> u32 {
+    if (slot >= 4u * fabric.lobe_table_vec4s) {
+        return NO_LOBES;
+    }
+    let lobe_slot = bitcast<u32>(lobes[slot / 4u][slot % 4u]);
+    let base = fabric.lobe_table_vec4s + (lobe_slot - 1u) * LOBE_PACKED_VEC4S;
+    if (lobe_slot == 0u || base + LOBE_PACKED_VEC4S > arrayLength(&lobes)) {
+        return NO_LOBES;
+    }
+    return base;
+}
+
+// Whether the lobes from vec4 `base` (lobe_base) carry light: a nonzero strength (each
+// strength[0] sums non-negative shares; the lobes a recolouring folded into the cell's matrix
+// are all zeros, lobes that carry no light have no strength either).
+fn lobes_carry_light(base: u32) -> bool {
+    if (base == NO_LOBES) {
         return false;
     }
     return any(lobes[base].xyz != vec3<f32>(0.0)) || any(lobes[base + LOBE_SH_COUNT].xyz != vec3<f32>(0.0));
+}
+
+// Whether the cell in `slot` keeps fiber lobes that carry light.
+fn slot_keeps_lobes(slot: u32) -> bool {
+    return lobes_carry_light(lobe_base(slot));
 }
 
 // The slot (plus one) of `segment`'s own segment cell, 0 where the bake has none for it or a
@@ -816,29 +838,38 @@ fn lobe_quadrature(f: FiberConstants, tt_ratios: array<f32, LOBE_AZIMUTH_TERMS>,
 
 // The fiber lobes around a shaded point: the cells and weights the transfer is interpolated
 // with (transfer_cells, multiple.rs lobe_scattering's cells), the cells without lobes given
-// weight 0, and both lobes' interpolated total strength and the shapes' node totals (elevation
-// nodes, then longitudinal ones; multiple.rs FiberLobe: weighted sums of strength[0] over
-// channels and of the shapes). The strengths over light directions and the sums per node stay
+// weight 0, and both lobes' interpolated strength[0] per channel and the shapes' node totals
+// per channel (elevation nodes, then longitudinal ones; multiple.rs FiberLobe: weighted sums of
+// strength[0] and of the shapes). The strengths over light directions and the sums per node stay
 // in the buffer and are read per light (fiber_lobe_strengths, lobe_node_mean), so that they
 // need not live in every invocation's registers.
 struct FiberLobesAt {
+    // The cells around the point; fiber_lobes_at turns their slots into their lobes' lobe_base.
     around: CellWeights,
     // Whether the reflected lobe is left out: the segment's own transfer holds its reflected
     // light (multiple.rs LobesTaken::ForwardOnly).
     forward_only: bool,
-    // Sum over channels of the interpolated strength[0]: forward (x) and reflected (y).
-    total: vec2<f32>,
-    // Per lobe (forward, then reflected) the shape's node totals: LOBE_AZIMUTH_BINS elevation
-    // nodes', then LOBE_LONGITUDINAL_BINS longitudinal nodes'.
-    shapes: array<f32, 2u * LOBE_GATHERED>,
+    // The interpolated strength[0] per channel: forward [0] and reflected [1].
+    total: array<vec3<f32>, 2>,
+    // Per lobe (forward, then reflected) and colour channel (its shape, lobe_shape_index) the
+    // shape's node totals: LOBE_AZIMUTH_BINS elevation nodes', then LOBE_LONGITUDINAL_BINS
+    // longitudinal nodes'.
+    shapes: array<f32, 6u * LOBE_GATHERED>,
 }
 
 const LOBE_GATHERED: u32 = LOBE_LONGITUDINAL_AT - LOBE_AZIMUTH_TOTALS;
 
-// Float i of the shapes of the lobes of the cell in `slot` (the forward shape's floats, then
-// the reflected shape's, as CellTransfer::pack_lobes lays them out after the strengths).
-fn lobe_shape_float(slot: u32, i: u32) -> f32 {
-    return lobes[slot * LOBE_PACKED_VEC4S + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
+// Float i of the shapes of the lobes from vec4 `base` (lobe_base: the forward shape's floats,
+// then the reflected shape's, each a LOBE_CHANNEL_SHAPE_LEN shape per colour channel, as
+// CellTransfer::pack_lobes lays them out after the strengths).
+fn lobe_shape_float(base: u32, i: u32) -> f32 {
+    return lobes[base + 2u * LOBE_SH_COUNT + i / 4u][i % 4u];
+}
+
+// Which of the six shapes of a cell's lobes is colour channel `channel` of lobe `lobe` (0
+// forward, 1 reflected): red, green, blue of the forward lobe, then of the reflected one.
+fn lobe_shape_index(lobe: u32, channel: u32) -> u32 {
+    return lobe * 3u + channel;
 }
 
 // The two of `bins` evenly spaced nodes on [0, 1] around x, as (lower node, its weight, the
@@ -866,14 +897,17 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         (*at).forward_only = true;
     }
     (*at).around = lattice_cells_around(e, segment, p);
-    (*at).total = vec2<f32>(0.0);
-    for (var i = 0u; i < 2u * LOBE_GATHERED; i++) {
+    (*at).total = array<vec3<f32>, 2>(vec3<f32>(0.0), vec3<f32>(0.0));
+    for (var i = 0u; i < 6u * LOBE_GATHERED; i++) {
         (*at).shapes[i] = 0.0;
     }
+    // From here on `around.slots` holds each cell's lobe_base, read by every later step.
     var lobed = 0.0;
     for (var k = 0u; k < 8u; k++) {
         let w = (*at).around.weights[k];
-        if (w > 0.0 && slot_keeps_lobes((*at).around.slots[k])) {
+        let base = lobe_base((*at).around.slots[k]);
+        (*at).around.slots[k] = base;
+        if (w > 0.0 && lobes_carry_light(base)) {
             lobed += w;
         } else {
             (*at).around.weights[k] = 0.0;
@@ -892,14 +926,13 @@ fn fiber_lobes_at(e: u32, segment: u32, p: vec3<f32>, at: ptr<function, FiberLob
         if (!(w > 0.0)) {
             continue;
         }
-        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
-        let forward0 = lobes[base].xyz;
-        let reflected0 = lobes[base + LOBE_SH_COUNT].xyz;
+        let base = (*at).around.slots[k];
         any = true;
-        (*at).total += w * vec2<f32>(forward0.x + forward0.y + forward0.z, reflected0.x + reflected0.y + reflected0.z);
-        for (var lobe = 0u; lobe < lobe_count; lobe++) {
+        (*at).total[0] += w * lobes[base].xyz;
+        (*at).total[1] += w * lobes[base + LOBE_SH_COUNT].xyz;
+        for (var shape = 0u; shape < 3u * lobe_count; shape++) {
             for (var i = 0u; i < LOBE_GATHERED; i++) {
-                (*at).shapes[lobe * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.slots[k], lobe * LOBE_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
+                (*at).shapes[shape * LOBE_GATHERED + i] += w * lobe_shape_float((*at).around.slots[k], shape * LOBE_CHANNEL_SHAPE_LEN + LOBE_AZIMUTH_TOTALS + i);
             }
         }
     }
@@ -923,7 +956,7 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
         if (!(w > 0.0)) {
             continue;
         }
-        let base = (*at).around.slots[k] * LOBE_PACKED_VEC4S;
+        let base = (*at).around.slots[k];
         var forward = vec3<f32>(0.0);
         var reflected = vec3<f32>(0.0);
         for (var j = 0u; j < LOBE_SH_COUNT; j++) {
@@ -936,21 +969,23 @@ fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<
     return out;
 }
 
-// Where lobe `lobe` (0 forward, 1 reflected) of `at` brings the light from direction `dir`
+// Where colour channel `channel` of lobe `lobe` (0 forward, 1 reflected) of `at` brings the
+// light from direction `dir`
 // (sharpness < 0: directional, else an SG of that sharpness) at a fiber of unit tangent t
 // (multiple.rs FiberLobe::angles): writes the axis (dir) and the angles' series and returns
-// true, or false for a lobe without light. The shape's means are taken per elevation node
+// true, or false for a lobe without light in that channel. The shape's means are taken per elevation node
 // (azimuth) and per node of dir . t (longitudinal), lobe_node_mean, both series smoothed by
 // Jackson's factors; the azimuth's odd terms
 // turn with toward_up(t, dir), and all of its terms fade out within AZIMUTH_FADE_ACROSS of a
 // light along t (1 - (dir.t)^2 taken as |dir x t|^2, without its f32 cancellation near t). An
 // SG light widens both: the longitudinal terms are damped by exp(-k^2 / 2 lambda), the
 // azimuthal ones by I_k(kappa_l) / I_0(kappa_l) with kappa_l = lambda |dir x t|^2.
-fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>, sharpness: f32, t: vec3<f32>, axis: ptr<function, vec3<f32>>, angles: ptr<function, LobeAngles>) -> bool {
-    let total = select((*at).total.x, (*at).total.y, lobe == 1u);
+fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, channel: u32, dir: vec3<f32>, sharpness: f32, t: vec3<f32>, axis: ptr<function, vec3<f32>>, angles: ptr<function, LobeAngles>) -> bool {
+    let total = (*at).total[lobe][channel];
     if (!(total > 0.0)) {
         return false;
     }
+    let shape = lobe_shape_index(lobe, channel);
     let across_vec = cross(dir, t);
     let across = dot(across_vec, across_vec);
     let fade = min(across / AZIMUTH_FADE_ACROSS, 1.0);
@@ -965,14 +1000,14 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     let elevation = node_hats(fiber_elevation(t, dir), LOBE_AZIMUTH_BINS);
     for (var k = 0u; k < LOBE_AZIMUTH_TERMS; k++) {
         let scale = LOBE_AZIMUTH_JACKSON[k] * fade * light_ratios[k];
-        (*angles).azimuth[2u * k] = scale * lobe_node_mean(at, lobe, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k);
-        (*angles).azimuth[2u * k + 1u] = scale * odd * lobe_node_mean(at, lobe, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k + 1u);
+        (*angles).azimuth[2u * k] = scale * lobe_node_mean(at, shape, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k);
+        (*angles).azimuth[2u * k + 1u] = scale * odd * lobe_node_mean(at, shape, elevation, 0u, 0u, 2u * LOBE_AZIMUTH_TERMS, 2u * k + 1u);
     }
     // The means E cos k dtheta, E sin k dtheta, smoothed by Jackson's factors (LobeAngles::from_means):
     // the cut series of a sharp offset would ring below zero; the smoothed one is a density.
     let longitudinal = node_hats(0.5 * (dot(dir, t) + 1.0), LOBE_LONGITUDINAL_BINS);
     for (var i = 0u; i < 2u * LOBE_FOURIER_TERMS; i++) {
-        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * lobe_node_mean(at, lobe, longitudinal, LOBE_AZIMUTH_BINS, LOBE_LONGITUDINAL_AT, 2u * LOBE_FOURIER_TERMS, i);
+        (*angles).fourier[i] = LOBE_JACKSON[i / 2u] * lobe_node_mean(at, shape, longitudinal, LOBE_AZIMUTH_BINS, LOBE_LONGITUDINAL_AT, 2u * LOBE_FOURIER_TERMS, i);
     }
     if (sharpness >= 0.0) {
         for (var k = 0u; k < LOBE_FOURIER_TERMS; k++) {
@@ -986,20 +1021,20 @@ fn fiber_lobe_angles(at: ptr<function, FiberLobesAt>, lobe: u32, dir: vec3<f32>,
     return true;
 }
 
-// Mean i of lobe `lobe` of `at` over the two nodes `hats` (node_hats) of one kind
-// (multiple.rs FiberLobe::node_means): each node's sum over the cells (read from the buffer,
-// `terms` per node from float `sums_at` of the shape) over its total (gathered, from
+// Mean i of shape `shape` (lobe_shape_index) of `at` over the two nodes `hats` (node_hats) of
+// one kind (multiple.rs FiberLobe::node_means): each node's sum over the cells (read from the
+// buffer, `terms` per node from float `sums_at` of the shape) over its total (gathered, from
 // `totals_at`), weighted by its hat; a node without weight counts as uniform (mean 0).
-fn lobe_node_mean(at: ptr<function, FiberLobesAt>, lobe: u32, hats: vec3<f32>, totals_at: u32, sums_at: u32, terms: u32, i: u32) -> f32 {
+fn lobe_node_mean(at: ptr<function, FiberLobesAt>, shape: u32, hats: vec3<f32>, totals_at: u32, sums_at: u32, terms: u32, i: u32) -> f32 {
     var mean = 0.0;
     for (var side = 0u; side < 2u; side++) {
         let node = u32(hats.x) + side;
         let hat = select(hats.y, hats.z, side == 1u);
-        let total = (*at).shapes[lobe * LOBE_GATHERED + totals_at + node];
+        let total = (*at).shapes[shape * LOBE_GATHERED + totals_at + node];
         if (!(total > 0.0) || !(hat > 0.0)) {
             continue;
         }
-        let float_at = lobe * LOBE_SHAPE_LEN + sums_at + node * terms + i;
+        let float_at = shape * LOBE_CHANNEL_SHAPE_LEN + sums_at + node * terms + i;
         var sum = 0.0;
         for (var k = 0u; k < 8u; k++) {
             let w = (*at).around.weights[k];
@@ -1032,8 +1067,8 @@ fn toward_up(t: vec3<f32>, dir: vec3<f32>) -> f32 {
 // The fiber lobes' radiance toward wo for one light of unit colour from `dir` (flat-fabric
 // frame; sharpness < 0: directional, else an SG of that sharpness), without V_glo and the
 // light's colour, which the caller multiplies in (multiple.rs lobe_scattering, its per-light
-// sum): per lobe, s lobe_quadrature(...) with s the lobe's strength for the light clamped at
-// zero per channel. `at` from fiber_lobes_at.
+// sum): per lobe and colour channel, s lobe_quadrature(...) with s the lobe's strength for the
+// light clamped at zero and the channel's own shape. `at` from fiber_lobes_at.
 fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, at: ptr<function, FiberLobesAt>) -> vec3<f32> {
     var c: array<f32, 49>;
     lobe_light_sh(dir, sharpness, &c);
@@ -1059,10 +1094,15 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
         if (all(strength == vec3<f32>(0.0))) {
             continue;
         }
-        var axis: vec3<f32>;
-        var angles: LobeAngles;
-        if (fiber_lobe_angles(at, lobe, shape_dir, shape_sharpness, t, &axis, &angles)) {
-            out += strength * lobe_quadrature(f, tt_ratios, space, axis, &angles);
+        for (var channel = 0u; channel < 3u; channel++) {
+            if (!(strength[channel] > 0.0)) {
+                continue;
+            }
+            var axis: vec3<f32>;
+            var angles: LobeAngles;
+            if (fiber_lobe_angles(at, lobe, channel, shape_dir, shape_sharpness, t, &axis, &angles)) {
+                out[channel] += strength[channel] * lobe_quadrature(f, tt_ratios, space, axis, &angles)[channel];
+            }
         }
     }
     return out;

@@ -230,12 +230,22 @@ pub const LOBE_LONGITUDINAL_TOTALS: usize = LOBE_AZIMUTH_TOTALS + LOBE_AZIMUTH_B
 /// Offset, in a lobe shape, of its longitudinal terms.
 pub const LOBE_LONGITUDINAL_AT: usize = LOBE_LONGITUDINAL_TOTALS + LOBE_LONGITUDINAL_BINS;
 
-/// Floats of one lobe shape ([`CellTransfer::forward_shape`]): per elevation node
-/// ([`LOBE_AZIMUTH_BINS`]) the azimuthal terms `[cos Δφ, sin Δφ, cos 2Δφ, …]`
-/// ([`LOBE_AZIMUTH_TERMS`] pairs), then those nodes' totals, then the longitudinal nodes'
-/// totals ([`LOBE_LONGITUDINAL_BINS`]), then per longitudinal node the terms
-/// `[cos Δθ, sin Δθ, cos 2Δθ, …]` ([`LOBE_FOURIER_TERMS`] pairs).
-pub const LOBE_SHAPE_LEN: usize = LOBE_LONGITUDINAL_AT + LOBE_LONGITUDINAL_BINS * 2 * LOBE_FOURIER_TERMS;
+/// Floats of one colour channel's lobe shape: per elevation node ([`LOBE_AZIMUTH_BINS`]) the
+/// azimuthal terms `[cos Δφ, sin Δφ, cos 2Δφ, …]` ([`LOBE_AZIMUTH_TERMS`] pairs), then those
+/// nodes' totals, then the longitudinal nodes' totals ([`LOBE_LONGITUDINAL_BINS`]), then per
+/// longitudinal node the terms `[cos Δθ, sin Δθ, cos 2Δθ, …]` ([`LOBE_FOURIER_TERMS`] pairs).
+pub const LOBE_CHANNEL_SHAPE_LEN: usize =
+    LOBE_LONGITUDINAL_AT + LOBE_LONGITUDINAL_BINS * 2 * LOBE_FOURIER_TERMS;
+
+/// Floats of one lobe shape ([`CellTransfer::forward_shape`]): a [`LOBE_CHANNEL_SHAPE_LEN`]
+/// shape per colour channel, red, green, then blue. Each channel's connections are weighed at
+/// that channel's colours: where a yarn is dark in a channel, that channel's light has met
+/// fewer fibers and arrives from other directions (on the deep red silk satin, green and blue
+/// light comes mostly off one reflection, red through chains of transmissions), and a shape
+/// pooled over the channels, which the red light fills, held the silk's green and blue multiple
+/// scattering about 50% bright (the median over the 100 hard configurations,
+/// `docs/BENCHMARKS.md`).
+pub const LOBE_SHAPE_LEN: usize = 3 * LOBE_CHANNEL_SHAPE_LEN;
 
 /// Floats of one cell's fiber lobes as the GPU reads them (`lobes` in
 /// `shaders/shared/fabric_data.wgsl`, written by [`CellTransfer::pack_lobes`]): the forward
@@ -302,12 +312,13 @@ impl FiberOffset {
         }
     }
 
-    /// Adds `weight ×` this offset's shape terms (`CellTransfer::forward_shape`'s layout) to
-    /// `shape`: `cos kΔφ` and `toward_up · sin kΔφ` to the two elevation nodes around the
+    /// Adds `weight ×` this offset's shape terms (one channel of `CellTransfer::forward_shape`:
+    /// [`LOBE_CHANNEL_SHAPE_LEN`] floats) to `shape`: `cos kΔφ` and `toward_up · sin kΔφ` to the two elevation nodes around the
     /// light's ([`elevation_hats`], each with its weight, and that weight to the node's total),
     /// and `cos kΔθ` and `sin kΔθ` likewise to the two longitudinal nodes around its `ω0·t`
     /// ([`longitudinal_hats`]).
     pub fn accumulate(&self, weight: f64, shape: &mut [f64]) {
+        debug_assert_eq!(shape.len(), LOBE_CHANNEL_SHAPE_LEN);
         let (azimuth, rest) = shape.split_at_mut(LOBE_AZIMUTH_TOTALS);
         let (totals, rest) = rest.split_at_mut(LOBE_AZIMUTH_BINS);
         let (longitudinal_totals, longitudinal) = rest.split_at_mut(LOBE_LONGITUDINAL_BINS);
@@ -338,6 +349,21 @@ impl FiberOffset {
                 pair[0] += w * ck;
                 pair[1] += w * sk;
                 (ck, sk) = (ck * c1 - sk * s1, sk * c1 + ck * s1);
+            }
+        }
+    }
+}
+
+impl FiberOffset {
+    /// [`Self::accumulate`] into both lobes' shapes (forward, then reflected: each
+    /// [`LOBE_SHAPE_LEN`] floats), each colour channel of `weights[lobe]` into that channel's
+    /// shape.
+    pub fn accumulate_rgb(&self, weights: [Rgb; 2], shapes: &mut [Vec<f64>; 2]) {
+        for (weight, shape) in weights.iter().zip(shapes.iter_mut()) {
+            for (channel, part) in shape.chunks_exact_mut(LOBE_CHANNEL_SHAPE_LEN).enumerate() {
+                if weight[channel] != 0.0 {
+                    self.accumulate(weight[channel], part);
+                }
             }
         }
     }
@@ -1300,8 +1326,8 @@ pub fn reflected_light_fits_matrices(lattice: &[CellTransfer], order: usize) -> 
 
 /// `Σ_{k=order+1..=K} (c̄_k² + s̄_k²)`, K = [`LOBE_FOURIER_TERMS`], of the reflected light's
 /// longitudinal offset pooled over the cells that keep lobes and over the light's angle to the
-/// fiber (every [`LOBE_LONGITUDINAL_BINS`] node; each cell's sums weighted by its reflected
-/// light, as its shape holds them); `None` where no cell keeps lobes with reflected
+/// fiber (every [`LOBE_LONGITUDINAL_BINS`] node and colour channel; each cell's sums weighted
+/// by its reflected light, as its shape holds them); `None` where no cell keeps lobes with reflected
 /// light. Pooled over the fabric, not per cell: one cell's 480 paths leave each of its
 /// coefficients about ±0.3 of noise.
 #[must_use]
@@ -1309,12 +1335,15 @@ pub fn reflected_light_tail(lattice: &[CellTransfer], order: usize) -> Option<f6
     let mut sums = [0.0f64; 2 * LOBE_FOURIER_TERMS];
     let mut total = 0.0f64;
     for cell in lattice.iter().filter(|c| c.keeps_lobe_light() && c.reflected_shape.len() == LOBE_SHAPE_LEN) {
-        let shape = &cell.reflected_shape;
-        total +=
-            shape[LOBE_LONGITUDINAL_TOTALS..LOBE_LONGITUDINAL_AT].iter().map(|&v| f64::from(v)).sum::<f64>();
-        for node in shape[LOBE_LONGITUDINAL_AT..].chunks_exact(2 * LOBE_FOURIER_TERMS) {
-            for (sum, &v) in sums.iter_mut().zip(node) {
-                *sum += f64::from(v);
+        for shape in cell.reflected_shape.chunks_exact(LOBE_CHANNEL_SHAPE_LEN) {
+            total += shape[LOBE_LONGITUDINAL_TOTALS..LOBE_LONGITUDINAL_AT]
+                .iter()
+                .map(|&v| f64::from(v))
+                .sum::<f64>();
+            for node in shape[LOBE_LONGITUDINAL_AT..].chunks_exact(2 * LOBE_FOURIER_TERMS) {
+                for (sum, &v) in sums.iter_mut().zip(node) {
+                    *sum += f64::from(v);
+                }
             }
         }
     }
@@ -1550,9 +1579,7 @@ pub(crate) fn bake_cell(
                     *r += rest * *y;
                 }
                 forward_cosine += *share * to_light.dot(s.view);
-                let offset = FiberOffset::new(tangent, *to_light, s.view);
-                offset.accumulate(share.element_sum(), &mut shapes[0]);
-                offset.accumulate(rest.element_sum(), &mut shapes[1]);
+                FiberOffset::new(tangent, *to_light, s.view).accumulate_rgb([*share, rest], &mut shapes);
             }
         }
         sh_eval(order, s.view, &mut y1);
@@ -2012,13 +2039,19 @@ mod tests {
                         close(f64::from(a.matrix[j0][ch]), lobes * y0, "row 0");
                     }
                 }
-                // Shapes are sums of weight × cosines: no mean beyond ±1.
+                // Shapes are sums of weight × cosines: no mean beyond ±1, in each channel's
+                // shape against that channel's strength.
                 for (strength, shape) in [(&b.forward, &b.forward_shape), (&b.reflected, &b.reflected_shape)]
                 {
-                    let total = f64::from(strength[0].iter().sum::<f32>()) / y0;
-                    assert!(total > 0.0, "cell {c}: both parts carry light");
-                    for v in shape {
-                        assert!(f64::from(v.abs()) <= total * (1.0 + 1e-5), "cell {c}: {v} beyond {total}");
+                    assert!(strength[0].iter().sum::<f32>() > 0.0, "cell {c}: both parts carry light");
+                    for (ch, part) in shape.chunks_exact(LOBE_CHANNEL_SHAPE_LEN).enumerate() {
+                        let total = f64::from(strength[0][ch]) / y0;
+                        for v in part {
+                            assert!(
+                                f64::from(v.abs()) <= total * (1.0 + 1e-5) + 1e-12,
+                                "cell {c}, channel {ch}: {v} beyond {total}"
+                            );
+                        }
                     }
                 }
             } else {

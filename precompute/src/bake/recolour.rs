@@ -57,18 +57,18 @@
 //! and the rest: their strengths over ω0, `CellTransfer::forward` and `reflected`
 //! (`Σ share · Y_j(ω0)` and `Σ rest · Y_j(ω0)` at [`LOBE_SH_ORDER`]), their shapes
 //! `forward_shape` and `reflected_shape` ([`FiberOffset`] of ω0 and ω1 in the start segment's
-//! frame, weighted by the connection's weight summed over channels) and the forward chains'
+//! frame, each colour channel weighted by that channel of the connection's weight) and the forward chains'
 //! `forward_cosine` (`Σ share · (ω0·ω1)`). The colour-free walk chooses one lobe per event, so
 //! it splits whole connections instead: those whose every event was a fiber's TT lobe
 //! ([`ColourFreeSample::forward`]) are forward, the others reflected, and the expectations are
 //! the bake's split. A basis with lobes holds `E = n² + 2 n_l + 1 + 2 S` entries per cell
 //! ([`RecolourBasis::entries`], [`EntryLayout`]; `n_l` = `sh_count(LOBE_SH_ORDER)` = 49,
-//! S = [`LOBE_SHAPE_LEN`] = 784): the whole matrix of every connection (entries `0..n²`, as
+//! S = [`LOBE_CHANNEL_SHAPE_LEN`] = 784): the whole matrix of every connection (entries `0..n²`, as
 //! without lobes), the forward strength (n_l), the reflected strength (n_l), the forward
 //! cosine, the forward shape (S) and the reflected shape (S), every one through the same
 //! classes, curves and compression (each weighted there by its size against the matrix's
-//! (0, 0) entry, [`finish_cell`]). The shapes' entries are per channel like the rest and are
-//! summed over the channels where they are read, as the bake sums the weights. What describes
+//! (0, 0) entry, [`finish_cell`]). The shapes' entries are per channel like the rest, and each
+//! channel's values are that channel's shape, as the bake weighs each channel's. What describes
 //! a class as a whole (the mixed classes' W and β, each class's pole) is taken from the whole
 //! matrix, so it is that of a basis without lobes.
 //!
@@ -85,7 +85,7 @@ use super::cells::CellGrid;
 use super::cs_table::{CsTable, CsTableError};
 use super::iirtf::{
     CHECK_EVERY, ColourFreeSample, ConnectionSh, FiberOffset, IirtfError, IirtfOptions, LOBE_PACKED_FLOATS,
-    LOBE_SH_ORDER, LOBE_SHAPE_LEN, LightDomain, TransferSampler, for_each_cell,
+    LOBE_CHANNEL_SHAPE_LEN, LOBE_SH_ORDER, LOBE_SHAPE_LEN, LightDomain, TransferSampler, for_each_cell,
 };
 use super::settings::BakeSettings;
 use super::{Cancel, Progress};
@@ -262,7 +262,8 @@ pub struct CellColours {
 /// Where a nonempty cell's entries lie ([`CellBasis::data`]; module docs): the matrix's n²
 /// (`j1 * n + j0`), and with fiber lobes after them the forward strength and the reflected
 /// strength ([`LOBE_SH_ORDER`]: `n_l` each), the forward cosine, the forward shape and the
-/// reflected shape ([`LOBE_SHAPE_LEN`] each).
+/// reflected shape ([`LOBE_CHANNEL_SHAPE_LEN`] each: an entry is RGB, so one channel's layout
+/// holds all three channels' shapes, which `CellTransfer` lays out one channel after the other).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct EntryLayout {
     /// SH coefficients of the transfer, (L+1)².
@@ -296,23 +297,36 @@ impl EntryLayout {
     pub fn cosine(self) -> usize {
         self.n * self.n + 2 * LOBE_N
     }
-    /// The forward shape's [`LOBE_SHAPE_LEN`] entries.
+    /// The forward shape's [`LOBE_CHANNEL_SHAPE_LEN`] entries.
     #[must_use]
     pub fn forward_shape(self) -> std::ops::Range<usize> {
         let at = self.cosine() + 1;
-        at..at + LOBE_SHAPE_LEN
+        at..at + LOBE_CHANNEL_SHAPE_LEN
     }
-    /// The reflected shape's [`LOBE_SHAPE_LEN`] entries.
+    /// The reflected shape's [`LOBE_CHANNEL_SHAPE_LEN`] entries.
     #[must_use]
     pub fn reflected_shape(self) -> std::ops::Range<usize> {
-        let at = self.cosine() + 1 + LOBE_SHAPE_LEN;
-        at..at + LOBE_SHAPE_LEN
+        let at = self.cosine() + 1 + LOBE_CHANNEL_SHAPE_LEN;
+        at..at + LOBE_CHANNEL_SHAPE_LEN
     }
     /// Entries per nonempty cell: n², and with lobes `n² + 2 n_l + 1 + 2 S`.
     #[must_use]
     pub fn entries(self) -> usize {
         if self.lobes { self.reflected_shape().end } else { self.n * self.n }
     }
+}
+
+/// A lobe shape in `CellTransfer`'s layout ([`LOBE_SHAPE_LEN`]: red's
+/// [`LOBE_CHANNEL_SHAPE_LEN`] floats, then green's, then blue's) from the basis's RGB entries of
+/// one shape.
+fn rgb_shape(entries: impl Iterator<Item = [f32; 3]>) -> Vec<f32> {
+    let mut out = vec![0.0; LOBE_SHAPE_LEN];
+    for (i, rgb) in entries.enumerate() {
+        for (ch, v) in rgb.into_iter().enumerate() {
+            out[ch * LOBE_CHANNEL_SHAPE_LEN + i] = v;
+        }
+    }
+    out
 }
 
 /// Whether a cell at SH order `order` folds its lobes into its matrix, from its forward (0)
@@ -511,7 +525,7 @@ impl RecolourBasis {
         let n2 = layout.matrix().len();
         if self.keeps_lobes(basis, &prepared) {
             let strength = |r: std::ops::Range<usize>| r.map(|e| entry(e).0).collect();
-            let shape = |r: std::ops::Range<usize>| r.map(|e| entry(e).0.iter().sum()).collect();
+            let shape = |r: std::ops::Range<usize>| rgb_shape(r.map(|e| entry(e).0));
             return Ok(super::iirtf::CellTransfer {
                 paths: basis.paths,
                 matrix: vec![[0.0; 3]; n2],
@@ -597,6 +611,24 @@ impl RecolourBasis {
     /// kept cell, the matrix's of a folded one), and allocates only the cell's prepared curve
     /// values.
     pub fn write_cell(&self, cell: usize, colours: &[SlotColour], planar: &mut [f32], lobes: &mut [f32]) {
+        self.write_cell_as(cell, colours, planar, lobes, false);
+    }
+
+    /// [`Self::write_planar`] for a cell with nowhere to keep lobes (the GPU gave it no lobe
+    /// slot: it kept none at the bake's colours): its whole matrix, every connection's light
+    /// (the forward chains too), whether or not it would keep lobes at these colours.
+    pub fn write_cell_folding(&self, cell: usize, colours: &[SlotColour], planar: &mut [f32]) {
+        self.write_cell_as(cell, colours, planar, &mut [], true);
+    }
+
+    fn write_cell_as(
+        &self,
+        cell: usize,
+        colours: &[SlotColour],
+        planar: &mut [f32],
+        lobes: &mut [f32],
+        fold: bool,
+    ) {
         let layout = self.layout();
         let n2 = layout.matrix().len();
         let planar = if planar.is_empty() { planar } else { &mut planar[..3 * n2] };
@@ -609,7 +641,7 @@ impl RecolourBasis {
         }
         let prepared = basis.prepare(colours);
         let entry = |e: usize| basis.entry(e, &prepared).0;
-        if !self.keeps_lobes(basis, &prepared) {
+        if fold || !self.keeps_lobes(basis, &prepared) {
             if !planar.is_empty() {
                 for e in layout.matrix() {
                     for (ch, value) in entry(e).into_iter().enumerate() {
@@ -626,8 +658,9 @@ impl RecolourBasis {
         for (vec4, e) in strengths.chunks_exact_mut(4).zip(layout.forward().chain(layout.reflected())) {
             vec4[..3].copy_from_slice(&entry(e));
         }
-        for (v, e) in shapes.iter_mut().zip(layout.forward_shape().chain(layout.reflected_shape())) {
-            *v = entry(e).iter().sum();
+        let (forward_shape, reflected_shape) = shapes.split_at_mut(LOBE_SHAPE_LEN);
+        for (out, range) in [(forward_shape, layout.forward_shape()), (reflected_shape, layout.reflected_shape())] {
+            out[..LOBE_SHAPE_LEN].copy_from_slice(&rgb_shape(range.map(|e| entry(e))));
         }
     }
 
@@ -834,7 +867,7 @@ fn same_paths_cell(
     // Per matrix entry, over paths: the sum and the sum of squares.
     let (mut sum, mut sum2) = (vec![[0.0_f64; 3]; n * n], vec![[0.0_f64; 3]; n * n]);
     // Over all paths: the forward and reflected strengths (Σ factor · Y_j(ω0)), the forward
-    // cosine (Σ factor · (ω0·ω1)) and the two shapes (Σ factor summed over channels · terms).
+    // cosine (Σ factor · (ω0·ω1)) and the two shapes (Σ factor · terms, each channel's own).
     let lobe_n = if lobes { LOBE_N } else { 0 };
     let mut strengths = [vec![[0.0_f64; 3]; lobe_n], vec![[0.0_f64; 3]; lobe_n]];
     let mut cosine = [0.0_f64; 3];
@@ -880,7 +913,9 @@ fn same_paths_cell(
                     }
                 }
                 let offset = FiberOffset::new(sampler.tangent(sample.segment), to_light, sample.view);
-                offset.accumulate(factor.iter().sum(), &mut shapes[lobe]);
+                let mut weights = [Rgb::ZERO; 2];
+                weights[lobe] = Rgb::from_array(factor);
+                offset.accumulate_rgb(weights, &mut shapes);
             }
         }
         sh_eval(order, sample.view, &mut y1);
@@ -1003,7 +1038,7 @@ fn bake_cell_basis(
     let mut light_a0 = vec![0.0_f64; n];
     let mut lobes_a0 = vec![0.0_f64; entries - n2];
     let (mut y0, mut y1) = (ConnectionSh::new(order, lobes), vec![0.0; n]);
-    let mut terms = [0.0_f64; LOBE_SHAPE_LEN];
+    let mut terms = [0.0_f64; LOBE_CHANNEL_SHAPE_LEN];
     let mut sample = ColourFreeSample::default();
     let a0 = EXPANSION_ALBEDO;
     for p in 0..paths {
@@ -2050,8 +2085,8 @@ mod tests {
         BakeSettings { cell_size_mfp: 2.0, cell_depth_mfp: 2.0, ..lobe_settings(paths, order) }
     }
 
-    /// What the lobe tests compare, summed over the cells that keep their lobes (red channel
-    /// for the strengths and the cosine; the shapes are summed over channels).
+    /// What the lobe tests compare, summed over the cells that keep their lobes (the red
+    /// channel of each: the red shape is the first of a `CellTransfer`'s three).
     const LOBE_TOTALS: [&str; 6] = [
         "forward strength",
         "forward cosine",
@@ -2090,16 +2125,16 @@ mod tests {
     }
 
     /// The basis's standard errors at a0 of [`LOBE_TOTALS`] over the cells that keep their
-    /// lobes at `colours` (a shape's is three channels' at a0).
+    /// lobes at `colours` (each entry's red channel, as [`lobe_terms`] reads them).
     fn basis_lobe_errors(basis: &RecolourBasis, colours: &[SlotColour]) -> [f64; 6] {
         let layout = basis.layout();
         let entries = [
             (layout.forward().start, 1.0),
             (layout.cosine(), 1.0),
             (layout.reflected().start, 1.0),
-            (layout.forward_shape().start + MIDDLE_COS_PHI, 3.0),
-            (layout.reflected_shape().start + MIDDLE_COS_PHI, 3.0),
-            (layout.reflected_shape().start + MIDDLE_COS_THETA, 3.0),
+            (layout.forward_shape().start + MIDDLE_COS_PHI, 1.0),
+            (layout.reflected_shape().start + MIDDLE_COS_PHI, 1.0),
+            (layout.reflected_shape().start + MIDDLE_COS_THETA, 1.0),
         ];
         let mut variance = [0.0; 6];
         for (c, cell) in basis.cells.iter().enumerate() {
@@ -2160,14 +2195,14 @@ mod tests {
                 for ((to_light, weight), share) in sample.lights.iter().zip(&sample.forward) {
                     let rest = *weight - *share;
                     let offset = super::super::iirtf::FiberOffset::new(tangent, *to_light, sample.view);
-                    let mut terms = [0.0; LOBE_SHAPE_LEN];
+                    let mut terms = [0.0; LOBE_CHANNEL_SHAPE_LEN];
                     offset.accumulate(1.0, &mut terms);
                     x[0] += share.x * Y00;
                     x[1] += share.x * to_light.dot(sample.view);
                     x[2] += rest.x * Y00;
-                    x[3] += share.element_sum() * terms[MIDDLE_COS_PHI];
-                    x[4] += rest.element_sum() * terms[MIDDLE_COS_PHI];
-                    x[5] += rest.element_sum() * terms[MIDDLE_COS_THETA];
+                    x[3] += share.x * terms[MIDDLE_COS_PHI];
+                    x[4] += rest.x * terms[MIDDLE_COS_PHI];
+                    x[5] += rest.x * terms[MIDDLE_COS_THETA];
                 }
                 for i in 0..6 {
                     sum[i] += x[i];
@@ -2310,8 +2345,8 @@ mod tests {
                 folded += 1;
             }
             // Every entry against the cell's whole constant term at its size (the matrix's
-            // (0, 0); the strengths and cosine over Y_0; the shapes, three channels of `Σ w`
-            // times terms of at most 1, over Y_0² / 3).
+            // (0, 0); the strengths and cosine over Y_0; the shapes, each channel's `Σ w` times
+            // terms of at most 1, over Y_0²).
             let scale = dc(a).max(1e-12);
             let red = |v: &[f32; 3]| v[0];
             let strengths = (a.forward.iter().zip(&b.forward))
@@ -2320,7 +2355,7 @@ mod tests {
                 .map(|(x, y)| (red(x), red(y), 1, scale / Y00));
             let shapes = (a.forward_shape.iter().zip(&b.forward_shape))
                 .chain(a.reflected_shape.iter().zip(&b.reflected_shape))
-                .map(|(x, y)| (*x, *y, 2, 3.0 * scale / (Y00 * Y00)));
+                .map(|(x, y)| (*x, *y, 2, scale / (Y00 * Y00)));
             let matrix = a.matrix.iter().zip(&b.matrix).map(|(x, y)| (red(x), red(y), 0, scale));
             for (x, y, kind, scale) in matrix.chain(strengths).chain(shapes) {
                 let gap = (f64::from(x) - f64::from(y)).abs() / scale;
@@ -2515,8 +2550,7 @@ mod tests {
                     assert!(t.forward_cosine.iter().all(|&v| v == 0.0), "{label}, cell {c}");
                 } else {
                     let values = |r: std::ops::Range<usize>| r.map(|e| entry(e).0).collect::<Vec<_>>();
-                    let shape =
-                        |r: std::ops::Range<usize>| r.map(|e| entry(e).0.iter().sum()).collect::<Vec<f32>>();
+                    let shape = |r: std::ops::Range<usize>| rgb_shape(r.map(|e| entry(e).0));
                     assert_eq!(t.forward, values(layout.forward()), "{label}, cell {c}");
                     assert_eq!(t.reflected, values(layout.reflected()), "{label}, cell {c}");
                     assert_eq!(t.forward_cosine[..], entry(layout.cosine()).0, "{label}, cell {c}");
@@ -2549,7 +2583,7 @@ mod tests {
         let basis =
             bake_recolour_basis(&exemplar, &materials, &grid, &s, &Cancel::new(), &no_progress).unwrap();
         let n = sh_count(1);
-        assert_eq!(basis.entries(), n * n + 2 * 49 + 1 + 2 * LOBE_SHAPE_LEN);
+        assert_eq!(basis.entries(), n * n + 2 * 49 + 1 + 2 * LOBE_CHANNEL_SHAPE_LEN);
         assert_eq!(basis.check_sizes(), Ok(()));
         let c = basis.cells.iter().position(|c| c.paths > 0).unwrap();
         // A cell holding the matrix alone (as a basis without lobes does), and one in the

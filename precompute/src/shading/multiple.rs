@@ -54,7 +54,7 @@ use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
 use crate::bake::iirtf::{
     CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT,
-    LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation,
+    LOBE_CHANNEL_SHAPE_LEN, LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation,
     longitudinal_hats, toward_up,
 };
 use crate::bake::pipeline::Baked;
@@ -320,12 +320,14 @@ pub const AZIMUTH_FADE_ACROSS: f64 = 0.05;
 /// One fiber lobe (`CellTransfer::forward` and `forward_shape`, or `reflected` and
 /// `reflected_shape`) summed over the cells around a point with their interpolation weights.
 /// A shape's node sums and node totals are sums over the same connections, so each node's
-/// weighted sums over its weighted total are the interpolated lobe's means at that node.
+/// weighted sums over its weighted total are the interpolated lobe's means at that node. Each
+/// colour channel has its own shape, and is shaded with it ([`lobe_scattering`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FiberLobe {
     /// SH over light directions at [`LOBE_SH_ORDER`], RGB.
     pub strength: Vec<Rgb>,
-    /// [`LOBE_SHAPE_LEN`] sums (`CellTransfer::forward_shape`'s layout).
+    /// [`LOBE_SHAPE_LEN`] sums (`CellTransfer::forward_shape`'s layout: a
+    /// [`LOBE_CHANNEL_SHAPE_LEN`] shape per colour channel).
     pub shape: Vec<f64>,
 }
 
@@ -353,21 +355,22 @@ impl FiberLobe {
         self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO)
     }
 
-    /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` for a light at elevation `z`
-    /// about the fiber ([`fiber_elevation`]):
+    /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` of colour channel `channel`
+    /// for a light at elevation `z` about the fiber ([`fiber_elevation`]):
     /// each elevation node's sums over its total, interpolated between the two nodes around
     /// `z` ([`elevation_hats`]); a node without weight counts as uniform (means 0).
     #[must_use]
-    pub fn azimuth_means(&self, z: f64) -> Vec<f64> {
-        self.node_means(elevation_hats(z), LOBE_AZIMUTH_TOTALS, 0, 2 * LOBE_AZIMUTH_TERMS)
+    pub fn azimuth_means(&self, channel: usize, z: f64) -> Vec<f64> {
+        self.node_means(channel, elevation_hats(z), LOBE_AZIMUTH_TOTALS, 0, 2 * LOBE_AZIMUTH_TERMS)
     }
 
-    /// The longitudinal means `[E cos Δθ, E sin Δθ, …]` for a light of `ω0·t = along` at the
-    /// fiber: as [`Self::azimuth_means`], over the nodes of the light's angle to the fiber
+    /// The longitudinal means `[E cos Δθ, E sin Δθ, …]` of colour channel `channel` for a light
+    /// of `ω0·t = along` at the fiber: as [`Self::azimuth_means`], over the nodes of the light's angle to the fiber
     /// ([`longitudinal_hats`]).
     #[must_use]
-    pub fn longitudinal_means(&self, along: f64) -> Vec<f64> {
+    pub fn longitudinal_means(&self, channel: usize, along: f64) -> Vec<f64> {
         self.node_means(
+            channel,
             longitudinal_hats(along),
             LOBE_LONGITUDINAL_TOTALS,
             LOBE_LONGITUDINAL_AT,
@@ -375,20 +378,23 @@ impl FiberLobe {
         )
     }
 
-    /// Each of the two nodes `hats` its `terms` sums (from `sums_at`, node after node) over its
-    /// total (at `totals_at`), weighted by its hat; a node without weight counts as uniform.
+    /// Each of the two nodes `hats` its `terms` sums (from `sums_at`, node after node, in
+    /// `channel`'s shape) over its total (at `totals_at`), weighted by its hat; a node without
+    /// weight counts as uniform.
     fn node_means(
         &self,
+        channel: usize,
         hats: [(usize, f64); 2],
         totals_at: usize,
         sums_at: usize,
         terms: usize,
     ) -> Vec<f64> {
         let mut out = vec![0.0; terms];
+        let shape = &self.shape[channel * LOBE_CHANNEL_SHAPE_LEN..(channel + 1) * LOBE_CHANNEL_SHAPE_LEN];
         for (node, hat) in hats {
-            let total = self.shape[totals_at + node];
+            let total = shape[totals_at + node];
             if total > 0.0 && hat > 0.0 {
-                let sums = &self.shape[sums_at + node * terms..sums_at + (node + 1) * terms];
+                let sums = &shape[sums_at + node * terms..sums_at + (node + 1) * terms];
                 for (o, v) in out.iter_mut().zip(sums) {
                     *o += hat * v / total;
                 }
@@ -397,10 +403,11 @@ impl FiberLobe {
         out
     }
 
-    /// Where the lobe's light arrives from for `light` at a fiber of unit tangent `t`: the axis
+    /// Where colour channel `channel` of the lobe's light arrives from for `light` at a fiber of
+    /// unit tangent `t`: the axis
     /// ξ its angles are measured from (the light's direction) and their densities
     /// ([`LobeAngles`], both series smoothed by [`LobeAngles::from_means`]), or `None` for a
-    /// lobe without light. The longitudinal means are taken per light angle to the fiber
+    /// lobe without light in that channel. The longitudinal means are taken per light angle to the fiber
     /// ([`Self::longitudinal_means`]), the azimuthal ones per light elevation about the fiber
     /// ([`Self::azimuth_means`] of [`fiber_elevation`]). The azimuth's odd terms were kept in the sense toward the
     /// fabric's top ([`toward_up`]), so they turn with `toward_up(t, ξ)` here; all of its terms
@@ -410,8 +417,8 @@ impl FiberLobe {
     /// concentration about t, `κ_l = λ (1 − (ξ·t)²)`, multiplies the azimuthal ones by
     /// `I_k(κ_l)/I_0(κ_l)`.
     #[must_use]
-    pub fn angles(&self, light: &Light, t: DVec3) -> Option<(DVec3, LobeAngles)> {
-        let total = self.strength[0].element_sum();
+    pub fn angles(&self, light: &Light, t: DVec3, channel: usize) -> Option<(DVec3, LobeAngles)> {
+        let total = self.strength[0][channel];
         if total.is_nan() || total <= 0.0 {
             return None;
         }
@@ -423,8 +430,8 @@ impl FiberLobe {
             }
         };
         let across = (1.0 - axis.dot(t).powi(2)).max(0.0);
-        let longitudinal = self.longitudinal_means(axis.dot(t));
-        let means = self.azimuth_means(fiber_elevation(t, axis));
+        let longitudinal = self.longitudinal_means(channel, axis.dot(t));
+        let means = self.azimuth_means(channel, fiber_elevation(t, axis));
         let fade = (across / AZIMUTH_FADE_ACROSS).min(1.0);
         let odd = toward_up(t, axis);
         let azimuth: Vec<f64> =
@@ -516,7 +523,7 @@ fn sg_mean_resultant_slope(lambda: f64) -> f64 {
 /// seen from unit `wo`, under `lights` given as `(light, V̄_glo)`: per light and lobe
 /// ([`FiberLobe`]: forward chains, then reflected light), `s · V̄_glo · ∫ L S cos θi dωi` with s
 /// the lobe's strength for the light and L its unit shape ([`FiberLobe::angles`],
-/// [`lobe_quadrature`]). Zero where no cell around the point holds lobes.
+/// [`lobe_quadrature`]), per colour channel with that channel's shape. Zero where no cell around the point holds lobes.
 pub fn lobe_scattering(
     baked: &Baked,
     segment: u32,
@@ -560,10 +567,14 @@ pub fn lobe_scattering(
             if strength == Rgb::ZERO {
                 continue;
             }
-            if let Some((axis, angles)) = lobe.angles(light, seg.tangent) {
-                out += strength
-                    * lobe_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, &angles, wo)
-                    * *v_blurred;
+            for channel in 0..3 {
+                if strength[channel] == 0.0 {
+                    continue;
+                }
+                if let Some((axis, angles)) = lobe.angles(light, seg.tangent, channel) {
+                    let scattered = lobe_quadrature(&seg.fiber, &baked.gn, seg.tangent, axis, &angles, wo);
+                    out[channel] += strength[channel] * scattered[channel] * *v_blurred;
+                }
             }
         }
     }

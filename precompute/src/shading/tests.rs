@@ -503,21 +503,30 @@ fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nod
     }
     // A low light whose light arrives from the far side (Δφ = π) and a high one whose arrives
     // from its own azimuth (Δφ = 0): each node holds its own, and between them the means blend
-    // linearly, so neither light sees the other's shape.
+    // linearly, so neither light sees the other's shape. Each colour channel keeps its own
+    // shape: the blue light arrives from the far side at every elevation.
     let t = DVec3::X;
-    let mut shape = vec![0.0; LOBE_SHAPE_LEN];
+    let mut shapes = [vec![0.0; LOBE_SHAPE_LEN], vec![0.0; LOBE_SHAPE_LEN]];
     let low = DVec3::new(0.0, 1.0, 0.0).normalize(); // z = 0: node 0
     let high = DVec3::new(0.0, 0.0, 1.0); // z = 1: the last node
     let mirrored = |w: DVec3| 2.0 * w.dot(t) * t - w;
-    FiberOffset::new(t, low, mirrored(low)).accumulate(2.0, &mut shape);
-    FiberOffset::new(t, high, high).accumulate(1.0, &mut shape);
+    let rgb = |r: f64, g: f64, b: f64| [Rgb::new(r, g, b), Rgb::ZERO];
+    FiberOffset::new(t, low, mirrored(low)).accumulate_rgb(rgb(2.0, 2.0, 1.0), &mut shapes);
+    FiberOffset::new(t, high, high).accumulate_rgb(rgb(1.0, 1.0, 0.0), &mut shapes);
+    FiberOffset::new(t, high, mirrored(high)).accumulate_rgb(rgb(0.0, 0.0, 3.0), &mut shapes);
+    let [shape, reflected] = shapes;
+    assert!(reflected.iter().all(|&v| v == 0.0));
     let lobe = FiberLobe { strength: vec![Rgb::splat(1.0); crate::sh::sh_count(LOBE_SH_ORDER)], shape };
-    assert!((lobe.azimuth_means(0.0)[0] + 1.0).abs() < 1e-12);
-    assert!((lobe.azimuth_means(1.0)[0] - 1.0).abs() < 1e-12);
-    // Between: a node without weight counts as uniform, so half way along a hat that runs
-    // from the horizon node to an empty one, the mean is half the horizon's.
-    let quarter = 1.0 / (LOBE_AZIMUTH_BINS - 1) as f64;
-    assert!((lobe.azimuth_means(0.5 * quarter)[0] + 0.5).abs() < 1e-12);
+    for channel in 0..2 {
+        assert!((lobe.azimuth_means(channel, 0.0)[0] + 1.0).abs() < 1e-12);
+        assert!((lobe.azimuth_means(channel, 1.0)[0] - 1.0).abs() < 1e-12);
+        // Between: a node without weight counts as uniform, so half way along a hat that runs
+        // from the horizon node to an empty one, the mean is half the horizon's.
+        let quarter = 1.0 / (LOBE_AZIMUTH_BINS - 1) as f64;
+        assert!((lobe.azimuth_means(channel, 0.5 * quarter)[0] + 0.5).abs() < 1e-12);
+    }
+    assert!((lobe.azimuth_means(2, 0.0)[0] + 1.0).abs() < 1e-12);
+    assert!((lobe.azimuth_means(2, 1.0)[0] + 1.0).abs() < 1e-12);
 }
 
 /// The longitudinal shape is kept per node of the light's angle to the fiber (`ω0·t`, −1 to 1):
@@ -526,7 +535,8 @@ fn shading_lobe_azimuth_is_kept_per_light_elevation_and_interpolated_between_nod
 #[test]
 fn shading_lobe_longitudinal_shape_is_kept_per_light_angle_to_the_fiber() {
     use crate::bake::iirtf::{
-        FiberOffset, LOBE_LONGITUDINAL_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, longitudinal_hats,
+        FiberOffset, LOBE_CHANNEL_SHAPE_LEN, LOBE_LONGITUDINAL_BINS, LOBE_SH_ORDER, LOBE_SHAPE_LEN,
+        longitudinal_hats,
     };
     use crate::shading::multiple::FiberLobe;
     for along in [-1.3, -1.0, -0.4, 0.0, 0.1, 0.5, 0.999, 1.0, 2.0] {
@@ -554,20 +564,22 @@ fn shading_lobe_longitudinal_shape_is_kept_per_light_angle_to_the_fiber() {
     };
     let along = DVec3::new(60f64.to_radians().sin(), 0.0, 60f64.to_radians().cos());
     let mut shape = vec![0.0; LOBE_SHAPE_LEN];
-    FiberOffset::new(t, across, tilt(across, 0.1)).accumulate(2.0, &mut shape);
-    FiberOffset::new(t, along, tilt(along, -0.4)).accumulate(1.0, &mut shape);
+    FiberOffset::new(t, across, tilt(across, 0.1)).accumulate(2.0, &mut shape[..LOBE_CHANNEL_SHAPE_LEN]);
+    FiberOffset::new(t, along, tilt(along, -0.4)).accumulate(1.0, &mut shape[..LOBE_CHANNEL_SHAPE_LEN]);
     let lobe = FiberLobe { strength: vec![Rgb::splat(1.0); crate::sh::sh_count(LOBE_SH_ORDER)], shape };
-    let first = lobe.longitudinal_means(0.0);
+    let first = lobe.longitudinal_means(0, 0.0);
     assert!((first[0] - 0.1f64.cos()).abs() < 1e-12 && (first[1] - 0.1f64.sin()).abs() < 1e-12, "{first:?}");
     // Nearly along −t no light was seen: uniform, every mean 0.
-    assert!(lobe.longitudinal_means(-1.0).iter().all(|&m| m == 0.0));
-    let second = lobe.longitudinal_means(along.dot(t));
+    assert!(lobe.longitudinal_means(0, -1.0).iter().all(|&m| m == 0.0));
+    // The green channel saw no light at all.
+    assert!(lobe.longitudinal_means(1, 0.0).iter().all(|&m| m == 0.0));
+    let second = lobe.longitudinal_means(0, along.dot(t));
     assert!(
         (second[0] - 0.4f64.cos()).abs() < 1e-12 && (second[1] + 0.4f64.sin()).abs() < 1e-12,
         "{second:?}"
     );
     // Half way from the middle node to the next, half the first light's means.
-    let half = lobe.longitudinal_means(1.0 / (LOBE_LONGITUDINAL_BINS - 1) as f64);
+    let half = lobe.longitudinal_means(0, 1.0 / (LOBE_LONGITUDINAL_BINS - 1) as f64);
     assert!((half[0] - 0.5 * 0.1f64.cos()).abs() < 1e-12, "{half:?}");
 }
 
@@ -663,13 +675,16 @@ fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() 
     let t = tangent();
     let frame = FiberFrame::new(t);
     let mut shape = vec![0.0; crate::bake::iirtf::LOBE_SHAPE_LEN];
+    let channel_len = crate::bake::iirtf::LOBE_CHANNEL_SHAPE_LEN;
     let mut total = 0.0;
     for i in 0..200 {
         let theta = -0.3 + 0.6 * f64::from(i) / 199.0;
         let weight = (-0.5 * (theta / 0.08).powi(2)).exp();
         let offset = FiberOffset::new(t, frame.direction(0.2, 0.1), frame.direction(0.2 + theta, 1.1));
         assert!((offset.delta_theta - theta).abs() < 1e-12 && (offset.delta_phi - 1.0).abs() < 1e-12);
-        offset.accumulate(weight, &mut shape);
+        for part in shape.chunks_exact_mut(channel_len) {
+            offset.accumulate(weight, part);
+        }
         total += weight;
     }
     // Every offset's light is at one elevation: its nodes' means are the offset's.
@@ -680,9 +695,9 @@ fn shading_lobe_longitudinal_density_integrates_to_one_and_stays_non_negative() 
         ],
         shape: shape.clone(),
     };
-    let azimuth = lobe.azimuth_means(crate::bake::iirtf::fiber_elevation(t, frame.direction(0.2, 0.1)));
+    let azimuth = lobe.azimuth_means(1, crate::bake::iirtf::fiber_elevation(t, frame.direction(0.2, 0.1)));
     assert!((azimuth[0] - 1.0_f64.cos()).abs() < 1e-12, "{azimuth:?}");
-    let means = lobe.longitudinal_means(frame.direction(0.2, 0.1).dot(t));
+    let means = lobe.longitudinal_means(1, frame.direction(0.2, 0.1).dot(t));
     let uniform = vec![0.0; 2 * LOBE_AZIMUTH_TERMS];
     // Cut at the bake's terms the raw series of this 4.6° wide offset rings below zero; smoothed, it is
     // a density (no clamp acts, so it integrates to one).
