@@ -7,24 +7,31 @@
 //! segment table are made global the same way, and so are material ids. The C_G table is the
 //! same for every exemplar (it depends only on the SH order), so the first one is used.
 //!
-//! Cells are stored sparsely: only a cell that holds segments has a transfer matrix and fiber
-//! lobes, in its *slot* (slots number those cells in global cell order, so each exemplar's are
-//! contiguous), and `cell_slots` maps every cell of the grid to 1 + its slot, or 0 when empty.
-//! The segment cells (`bake::cells`, one segment each, matrices only) are numbered after every
-//! exemplar's lattice cells, so that the lobes buffer stops at the last lattice slot: a
-//! segment cell would hold 3,920 bytes of zeros there (about 43 MB on the default fabric).
-//! Most of a grid is empty (air above and below the yarns, the gaps between them: 6,013 of the
-//! default fabric's 9,025 interactive cells, 249,191 of `large`'s 269,664 at `paper`), and an
-//! empty cell now costs 4 bytes instead of a matrix.
+//! Cells are stored sparsely: only a cell that holds segments has a transfer matrix, in its
+//! *slot* (slots number those cells in global cell order, so each exemplar's are contiguous),
+//! and `cell_slots` maps every cell of the grid to 1 + its slot, or 0 when empty. The segment
+//! cells (`bake::cells`, one segment each, matrices only) are numbered after every exemplar's
+//! lattice cells, so that the lobe table (below) stops at the last lattice slot. Most of a grid
+//! is empty (air above and below the yarns, the gaps between them: 6,013 of the default
+//! fabric's 9,025 interactive cells, 249,191 of `large`'s 269,664 at `paper`), and an empty cell
+//! costs 4 bytes instead of a matrix.
 //!
-//! The IIRTF dominates the memory (`slots × 3 × (L+1)⁴` values) and is stored as f16 pairs:
-//! its entries carry Monte Carlo noise of a few percent, far above f16's 2⁻¹¹ relative
-//! rounding, and halving it keeps the default fabric's data well inside lavapipe's 128 MiB per
-//! binding. Fiber lobes (`BakeSettings::fiber_lobes`) are packed per cell by
-//! `CellTransfer::pack_lobes` ([`LOBE_PACKED_FLOATS`] f32s, 3,920 bytes: 105% of the f16 IIRTF's
-//! 6 n² bytes at SH order 4, 27% at order 6, n = (L+1)²), so they stay f32; a bake without them
-//! binds one zeroed vec4. The C_G table is packed at its own order (`BakeSettings::light_sh_order`,
-//! which is above the transfer's with fiber lobes), which the header carries (`cg_order`).
+//! Fiber lobes are sparser still: only a lattice cell that keeps lobes has them, in its *lobe
+//! slot* (numbered in slot order), and the lobes buffer opens with a table of one `u32` per
+//! lattice slot, 1 + its lobe slot or 0 (`FabricArrays::lobe_slots`). A cell keeps lobes only
+//! where its forward light is sharp: on the default cotton about 300 of its 13,985 lattice
+//! slots, which a lobe per slot held as 285 MB of zeros, past lavapipe's 128 MiB per binding
+//! (on the silk satin nearly every cell keeps them). A live recolouring writes the lobe slots'
+//! lobes, and a cell without one its whole matrix (`Recolouring::write_cell`).
+//!
+//! The IIRTF dominates the memory of a fabric without lobes (`slots × 3 × (L+1)⁴` values) and
+//! is stored as f16 pairs: its entries carry Monte Carlo noise of a few percent, far above
+//! f16's 2⁻¹¹ relative rounding, and halving it keeps the default fabric's data well inside
+//! lavapipe's 128 MiB per binding. Fiber lobes (`BakeSettings::fiber_lobes`) are packed per
+//! lobe slot by `CellTransfer::pack_lobes` ([`LOBE_PACKED_FLOATS`] f32s, 20,384 bytes: the
+//! strengths and a shape per lobe and colour channel); a bake without them binds one zeroed
+//! vec4. The C_G table is packed at its own order (`BakeSettings::light_sh_order`, which is
+//! above the transfer's with fiber lobes), which the header carries (`cg_order`).
 //! Every buffer is checked against the adapter's `max_storage_buffer_binding_size`
 //! before upload; one that does not fit is an error naming the buffer, its size and the limit.
 

@@ -103,17 +103,19 @@ impl Stage {
 /// Fourier terms, 9: 24 azimuthal ones, 10: segment cells, `bake::cells`, 11: a segment cell
 /// under fiber lobes holds its reflected light, `iirtf::MatrixLight`, 12: the lobe shapes'
 /// azimuth per light elevation about the fiber (`iirtf::fiber_elevation`), their longitudinal
-/// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`); volume 3: touching
-/// occupancy and the segments' capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 12, 1, 1, 1, 3];
+/// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`), 13: a lobe shape per colour
+/// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`); volume 3: touching occupancy and the segments'
+/// capsules).
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 13, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
 /// `radius`; 6: `VisibilityData::bits`; 7: the lobe shapes' azimuthal Fourier terms; 8: 24 longitudinal
 /// terms per lobe shape; 9: 24 azimuthal terms per elevation node; 10: the sum of SGs' packed
 /// axes; 11: `CellGrid`'s segment cells, `BakeSettings::segment_transfer_paths`; 12: the lobe
-/// shapes' longitudinal terms per node of ω0·t, `iirtf::LOBE_SHAPE_LEN`).
-pub const BAKE_LAYOUT_VERSION: u32 = 12;
+/// shapes' longitudinal terms per node of ω0·t, `iirtf::LOBE_SHAPE_LEN`; 13: a lobe shape per
+/// colour channel).
+pub const BAKE_LAYOUT_VERSION: u32 = 13;
 
 /// What a bake needs: the fabric, its material slots, the settings.
 #[derive(Debug, Clone, Copy)]

@@ -60,8 +60,9 @@ pub const MAX_SHARDS: usize = 4096;
 /// colour-free walk, so that parts of two walks never merge into one bake; 6: 24 longitudinal
 /// terms per shape; 7: 24 azimuthal terms per elevation node; 8: the cells include the segment
 /// cells, `bake::cells`; 9: the same layout, a segment cell under fiber lobes holding its
-/// reflected light or nothing, where it held all of its light and the merge emptied it).
-pub const PART_LAYOUT_VERSION: u32 = 9;
+/// reflected light or nothing, where it held all of its light and the merge emptied it; 10: a
+/// lobe shape per colour channel, `iirtf::LOBE_SHAPE_LEN` three channels' floats).
+pub const PART_LAYOUT_VERSION: u32 = 10;
 
 /// Shard `index` of `count` (0-based: `0/4` .. `3/4`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
