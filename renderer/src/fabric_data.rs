@@ -22,7 +22,8 @@
 //! where its forward light is sharp: on the default cotton about 300 of its 13,985 lattice
 //! slots, which a lobe per slot held as 285 MB of zeros, past lavapipe's 128 MiB per binding
 //! (on the silk satin nearly every cell keeps them). A live recolouring writes the lobe slots'
-//! lobes, and a cell without one its whole matrix (`Recolouring::write_cell`).
+//! lobes, and a cell without one its whole matrix (`Recolouring::write_cell`); where its
+//! colours change which cells keep lobes, it lays the lobe slots out anew first.
 //!
 //! The IIRTF dominates the memory of a fabric without lobes (`slots × 3 × (L+1)⁴` values) and
 //! is stored as f16 pairs: its entries carry Monte Carlo noise of a few percent, far above
@@ -561,6 +562,51 @@ impl FabricArrays {
         !self.lobes.is_empty()
     }
 
+    /// Lays the lobe slots out anew for `wanted`, whether each lattice slot from `first_slot`
+    /// on keeps lobes (one exemplar's, at a recolouring's colours): those get a lobe slot
+    /// (zeros, for the recolouring to write), the others none; every other slot keeps its lobe
+    /// slot's lobes. Lobe slots stay numbered in slot order.
+    fn relayout_lobes(&mut self, first_slot: usize, wanted: &[bool]) -> Result<(), FabricDataError> {
+        let table = 4 * self.header.lobe_table_vec4s as usize;
+        if self.lobe_slots.len() != self.lattice_slot_count || table < self.lobe_slots.len() {
+            return Err(FabricDataError::Inconsistent("the lobe table does not match the lattice slots".into()));
+        }
+        let mut lobes = vec![0.0_f32; table];
+        let mut lobe_slots = Vec::with_capacity(self.lobe_slots.len());
+        for (slot, &old) in self.lobe_slots.iter().enumerate() {
+            let keeps = match slot.checked_sub(first_slot).and_then(|i| wanted.get(i)) {
+                Some(&keeps) => keeps,
+                None => old != 0,
+            };
+            if !keeps {
+                lobe_slots.push(0);
+                continue;
+            }
+            let start = lobes.len();
+            let own = slot.checked_sub(first_slot).is_some_and(|i| i < wanted.len());
+            let kept = (old as usize).checked_sub(1).filter(|_| !own).map(|l| {
+                let at = table + l * LOBE_PACKED_FLOATS;
+                self.lobes.get(at..at + LOBE_PACKED_FLOATS)
+            });
+            match kept {
+                Some(Some(values)) => lobes.extend_from_slice(values),
+                Some(None) => {
+                    return Err(FabricDataError::Inconsistent("a lobe slot lies outside the buffer".into()));
+                }
+                None => lobes.resize(start + LOBE_PACKED_FLOATS, 0.0),
+            }
+            lobe_slots.push(u32::try_from((start - table) / LOBE_PACKED_FLOATS + 1).map_err(|_| {
+                FabricDataError::Inconsistent("more lobe slots than a u32 numbers".into())
+            })?);
+        }
+        for (value, &slot) in lobes.iter_mut().zip(&lobe_slots) {
+            *value = f32::from_bits(slot);
+        }
+        self.lobes = lobes;
+        self.lobe_slots = lobe_slots;
+        Ok(())
+    }
+
     /// Cells whose lobes are not all zeros.
     fn count_lobe_cells(&self) -> usize {
         self.lobe_values().chunks_exact(LOBE_PACKED_FLOATS).filter(|c| c.iter().any(|v| *v != 0.0)).count()
@@ -742,31 +788,26 @@ impl FabricData {
                 )
             })
             .collect();
-        let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: header.as_entire_binding() }];
-        for (i, buffer) in buffers.iter().enumerate() {
-            entries
-                .push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: buffer.as_entire_binding() });
-        }
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("twill.fabric.bind_group"),
-            layout: &layout,
-            entries: &entries,
-        });
+        let bind_group = fabric_bind_group(device, &layout, &header, &buffers);
         let gpu_bytes = header.size() + buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
         Ok(Self { arrays, layout, bind_group, gpu_bytes, header_buffer: header, buffers })
     }
 
     /// Writes a bake set of the same layout into these buffers in place (`queue.write_buffer`),
-    /// only the buffers whose bytes changed, keeping the bind group (and so every pipeline and
-    /// bind group built on it). Same layout: every buffer as long as before and the same fabric
-    /// slab (`z_range`, which the shell was built around); a material rebake, a recolouring or
-    /// a colourway that moves no yarn has it. Returns the names of the buffers written, or
-    /// `None` (nothing written) when the layout differs: then upload anew.
+    /// only the buffers whose bytes changed, keeping the bind group's layout (and so every
+    /// pipeline built on it). Same layout: every buffer as long as before, but for the fiber
+    /// lobes, and the same fabric slab (`z_range`, which the shell was built around); a
+    /// material rebake, a recolouring or a colourway that moves no yarn has it. A rebake can
+    /// change which cells keep lobes, and so the lobes buffer's length: that buffer is then
+    /// made anew at its length, and the bind group with it. Returns the names of the buffers
+    /// written, or `None` (nothing written) when the layout differs: then upload anew.
     ///
     /// # Errors
-    /// As [`FabricArrays::pack`].
+    /// As [`FabricArrays::pack`], and [`FabricDataError::TooLarge`] for lobes that outgrow the
+    /// device's binding.
     pub fn update_in_place(
         &mut self,
+        device: &wgpu::Device,
         queue: &wgpu::Queue,
         exemplars: &[&Baked],
         pattern: &PatternMap,
@@ -776,7 +817,7 @@ impl FabricData {
         let new = arrays.storage_buffers();
         let same_layout = arrays.header.z_range.map(f32::to_bits)
             == self.arrays.header.z_range.map(f32::to_bits)
-            && old.iter().zip(&new).all(|((_, a), (_, b))| a.len() == b.len());
+            && old.iter().zip(&new).all(|((name, a), (_, b))| a.len() == b.len() || *name == "lobes");
         if !same_layout {
             return Ok(None);
         }
@@ -785,17 +826,49 @@ impl FabricData {
             queue.write_buffer(&self.header_buffer, 0, bytemuck::bytes_of(&arrays.header));
             written.push("header");
         }
-        for ((buffer, (name, before)), (_, after)) in self.buffers.iter().zip(&old).zip(&new) {
-            if before != after && !after.is_empty() {
+        let mut remade = false;
+        for ((buffer, (name, before)), (_, after)) in self.buffers.iter_mut().zip(&old).zip(&new) {
+            if before.len() != after.len() {
+                let limit = device.limits().max_storage_buffer_binding_size;
+                if after.len() as u64 > limit {
+                    return Err(FabricDataError::TooLarge { buffer: name, bytes: after.len() as u64, limit });
+                }
+                let usage = wgpu::BufferUsages::STORAGE;
+                *buffer = make_buffer(device, queue, &format!("twill.fabric.{name}"), after, usage);
+                remade = true;
+                written.push(*name);
+            } else if before != after && !after.is_empty() {
                 let mut padded = after.to_vec();
                 padded.resize(after.len().next_multiple_of(4), 0);
                 queue.write_buffer(buffer, 0, &padded);
                 written.push(*name);
             }
         }
+        if remade {
+            self.bind_group = fabric_bind_group(device, &self.layout, &self.header_buffer, &self.buffers);
+            self.gpu_bytes = self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
+        }
         self.arrays = arrays;
         Ok(Some(written))
     }
+}
+
+/// Bind group 1 of the fabric's `header` and storage `buffers` ([`fabric_bind_group_layout`]).
+fn fabric_bind_group(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    header: &wgpu::Buffer,
+    buffers: &[wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let mut entries = vec![wgpu::BindGroupEntry { binding: 0, resource: header.as_entire_binding() }];
+    for (i, buffer) in buffers.iter().enumerate() {
+        entries.push(wgpu::BindGroupEntry { binding: i as u32 + 1, resource: buffer.as_entire_binding() });
+    }
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("twill.fabric.bind_group"),
+        layout,
+        entries: &entries,
+    })
 }
 
 /// Appends `cell`'s matrix channel-planar (`3 n²` values, n = `sh_count`; zeros for a cell
@@ -837,22 +910,29 @@ pub struct Recolouring<'a> {
     /// its fiber lobes ([`LOBE_PACKED_FLOATS`] floats, `CellTransfer::pack_lobes`' layout, zeros
     /// for a cell that folds them into its matrix) into the second where the cell has a lobe
     /// slot; both from one evaluation of the cell (`RecolourBasis::write_cell`: one decision
-    /// whether the cell keeps lobes at the new colours). A cell without a lobe slot (it kept
-    /// no lobes at the bake's colours, or the fabric holds none) gets `None` and writes its
-    /// whole matrix, lobes folded in, until a rebake gives it a slot. Called for every cell of
+    /// whether the cell keeps lobes at the new colours). A cell without a lobe slot (it folds
+    /// its lobes at the new colours, `keeps_lobes`, or the fabric holds none) gets `None` and
+    /// writes its whole matrix. Called for every cell of
     /// the exemplar that holds segments (the cells with a slot), in parallel.
     pub write_cell: &'a WriteRecolouredCell<'a>,
+    /// Whether cell `c` keeps fiber lobes at the new colours (`RecolourBasis::keeps_lobes_at`):
+    /// where the cells that keep them change, the lobe slots are laid out anew first, so that
+    /// every such cell has one (as a rebake at these colours would give it).
+    pub keeps_lobes: &'a (dyn Fn(usize) -> bool + Sync + 'a),
 }
 
 impl FabricData {
     /// Writes a recolouring into the buffers in place: the exemplar's materials, C_S rows,
     /// IIRTF cells (as f16, written straight into the packed array by `write_cell`) and, when
-    /// the fabric holds them, fiber lobes; nothing else. Returns the buffers written.
+    /// the fabric holds them, fiber lobes; nothing else, but where the new colours change
+    /// which cells keep lobes: then the lobe slots are laid out anew, in a new lobes buffer and
+    /// bind group. Returns the buffers written.
     ///
     /// # Errors
     /// When the recolouring does not fit the exemplar's slots in the buffers.
     pub fn write_recolouring(
         &mut self,
+        device: &wgpu::Device,
         queue: &wgpu::Queue,
         r: &Recolouring<'_>,
     ) -> Result<Vec<&'static str>, FabricDataError> {
@@ -939,6 +1019,18 @@ impl FabricData {
             return Ok(written);
         };
         let (first_slot, filled) = (exemplar_slots[first_occupied] as usize - 1, occupied.len());
+        // The cells that keep lobes at the new colours get lobe slots, the others none.
+        let mut lobes_remade = false;
+        if !a.lobes.is_empty() {
+            let wanted: Vec<bool> = occupied.par_iter().map(|&c| (r.keeps_lobes)(c)).collect();
+            let Some(own) = a.lobe_slots.get(first_slot..first_slot + filled) else {
+                return Err(FabricDataError::Inconsistent("the exemplar's lobe table lies outside the buffer".into()));
+            };
+            if own.iter().zip(&wanted).any(|(&slot, &keeps)| (slot != 0) != keeps) {
+                a.relayout_lobes(first_slot, &wanted)?;
+                lobes_remade = true;
+            }
+        }
         let start = first_slot * cell_values;
         let halves: &mut [u16] = bytemuck::cast_slice_mut(&mut a.iirtf);
         let Some(exemplar_halves) = halves.get_mut(start..start + filled * cell_values) else {
@@ -979,7 +1071,20 @@ impl FabricData {
             bytemuck::cast_slice(&a.iirtf[word_start..word_end]),
         );
         written.push("iirtf");
-        if lobe_count > 0 {
+        if lobes_remade {
+            a.lobe_cells = a.count_lobe_cells();
+            let index = a.storage_buffers().iter().position(|(n, _)| *n == "lobes").expect("a lobes buffer");
+            let bytes: &[u8] = bytemuck::cast_slice(&a.lobes);
+            let limit = device.limits().max_storage_buffer_binding_size;
+            if bytes.len() as u64 > limit {
+                return Err(FabricDataError::TooLarge { buffer: "lobes", bytes: bytes.len() as u64, limit });
+            }
+            self.buffers[index] =
+                make_buffer(device, queue, "twill.fabric.lobes", bytes, wgpu::BufferUsages::STORAGE);
+            self.bind_group = fabric_bind_group(device, &self.layout, &self.header_buffer, &self.buffers);
+            self.gpu_bytes = self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
+            written.push("lobes");
+        } else if lobe_count > 0 {
             let lobes = &a.lobes[lobe_range.clone()];
             queue.write_buffer(&lobes_buffer, (lobe_range.start * 4) as u64, bytemuck::cast_slice(lobes));
             written.push("lobes");

@@ -426,7 +426,8 @@ impl Renderer {
     }
 
     /// A new bake set written into the fabric's GPU buffers in place when its layout is the
-    /// same ([`FabricData::update_in_place`]): no new buffers, bind groups, pipelines or shell,
+    /// same ([`FabricData::update_in_place`]): no new pipelines or shell, and no new buffers or
+    /// bind group but where the cells that keep fiber lobes change (a new lobes buffer),
     /// and shell-space visibility stays cached (it depends on the shell and lights only). What a
     /// material edit needs, in a fraction of a rebuild. Returns the buffers written, or `None`
     /// when the layout differs (build a new renderer).
@@ -439,13 +440,13 @@ impl Renderer {
         pattern: &twill_precompute::bake::pattern::PatternMap,
     ) -> Result<Option<Vec<&'static str>>, RenderError> {
         self.progressive = None;
-        Ok(self.fabric.update_in_place(&self.queue, exemplars, pattern)?)
+        Ok(self.fabric.update_in_place(&self.device, &self.queue, exemplars, pattern)?)
     }
 
     /// Recolours exemplar `exemplar` (pattern order) to `materials` without a rebake: its IIRTF
     /// is evaluated from `basis` (`bake::recolour`, the cells in parallel) and written in place
     /// with the C_S tables and materials (`FabricData::write_recolouring`); every other buffer
-    /// stays. Returns the buffers written.
+    /// stays, but the fiber lobes' where the new colours change which cells keep them. Returns the buffers written.
     ///
     /// # Errors
     /// Materials that are invalid or do not match the basis's and the exemplar's slots.
@@ -494,8 +495,9 @@ impl Renderer {
             materials,
             cs_tables: &cs_tables,
             write_cell: &write_cell,
+            keeps_lobes: &|c| basis.keeps_lobes_at(c, &colours),
         };
-        Ok(self.fabric.write_recolouring(&self.queue, &recolouring)?)
+        Ok(self.fabric.write_recolouring(&self.device, &self.queue, &recolouring)?)
     }
 
     /// The baked fabric slab's depth range (cm), which a shell must span.

@@ -549,6 +549,14 @@ impl RecolourBasis {
     /// Whether a nonempty cell keeps its lobes at the colours `prepared` holds: the bake's rule
     /// on its forward (0) coefficient and cosine there ([`forward_lobe_folds`]); never without
     /// fiber lobes.
+    /// Whether `cell` keeps fiber lobes at `colours` (the decision [`Self::write_cell`] makes;
+    /// false for an empty cell and for a basis without lobes).
+    #[must_use]
+    pub fn keeps_lobes_at(&self, cell: usize, colours: &[SlotColour]) -> bool {
+        let basis = &self.cells[cell];
+        self.fiber_lobes && basis.paths > 0 && self.keeps_lobes(basis, &basis.prepare(colours))
+    }
+
     fn keeps_lobes(&self, basis: &CellBasis, prepared: &CellColours) -> bool {
         let layout = self.layout();
         self.fiber_lobes && {
@@ -2538,6 +2546,7 @@ mod tests {
                 }
                 let t = basis.cell_transfer(c, &colours).unwrap();
                 assert_eq!(t.has_lobes(), !folds, "{label}, cell {c}");
+                assert_eq!(basis.keeps_lobes_at(c, &colours), !folds, "{label}, cell {c}");
                 for e in layout.matrix() {
                     let (value, error) = if folds { entry(e) } else { ([0.0; 3], 0.0) };
                     assert_eq!((t.matrix[e], t.std_error[e]), (value, [error; 3]), "{label}, cell {c}, {e}");
@@ -2569,6 +2578,11 @@ mod tests {
                 basis.write_planar(c, &colours, &mut planar_alone);
                 basis.write_lobes(c, &colours, &mut lobes_alone);
                 assert_eq!((&planar_alone, &lobes_alone), (&planar, &lobes), "{label}, cell {c}");
+                // A cell with nowhere to keep lobes writes its whole matrix either way.
+                let mut whole = vec![f32::NAN; 3 * n2];
+                basis.write_cell_folding(c, &colours, &mut whole);
+                let expected_whole: Vec<f32> = (0..3 * n2).map(|i| entry(i % n2).0[i / n2]).collect();
+                assert_eq!(whole, expected_whole, "{label}, cell {c}");
                 counts[usize::from(!folds)] += 1;
             }
         }
