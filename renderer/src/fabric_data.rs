@@ -566,10 +566,16 @@ impl FabricArrays {
     /// on keeps lobes (one exemplar's, at a recolouring's colours): those get a lobe slot
     /// (zeros, for the recolouring to write), the others none; every other slot keeps its lobe
     /// slot's lobes. Lobe slots stay numbered in slot order.
-    fn relayout_lobes(&mut self, first_slot: usize, wanted: &[bool]) -> Result<(), FabricDataError> {
+    ///
+    /// # Errors
+    /// When the lobe table does not match the lattice slots, or a lobe slot lies outside the
+    /// buffer.
+    pub fn relayout_lobes(&mut self, first_slot: usize, wanted: &[bool]) -> Result<(), FabricDataError> {
         let table = 4 * self.header.lobe_table_vec4s as usize;
         if self.lobe_slots.len() != self.lattice_slot_count || table < self.lobe_slots.len() {
-            return Err(FabricDataError::Inconsistent("the lobe table does not match the lattice slots".into()));
+            return Err(FabricDataError::Inconsistent(
+                "the lobe table does not match the lattice slots".into(),
+            ));
         }
         let mut lobes = vec![0.0_f32; table];
         let mut lobe_slots = Vec::with_capacity(self.lobe_slots.len());
@@ -595,9 +601,11 @@ impl FabricArrays {
                 }
                 None => lobes.resize(start + LOBE_PACKED_FLOATS, 0.0),
             }
-            lobe_slots.push(u32::try_from((start - table) / LOBE_PACKED_FLOATS + 1).map_err(|_| {
-                FabricDataError::Inconsistent("more lobe slots than a u32 numbers".into())
-            })?);
+            lobe_slots.push(
+                u32::try_from((start - table) / LOBE_PACKED_FLOATS + 1).map_err(|_| {
+                    FabricDataError::Inconsistent("more lobe slots than a u32 numbers".into())
+                })?,
+            );
         }
         for (value, &slot) in lobes.iter_mut().zip(&lobe_slots) {
             *value = f32::from_bits(slot);
@@ -846,7 +854,8 @@ impl FabricData {
         }
         if remade {
             self.bind_group = fabric_bind_group(device, &self.layout, &self.header_buffer, &self.buffers);
-            self.gpu_bytes = self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
+            self.gpu_bytes =
+                self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
         }
         self.arrays = arrays;
         Ok(Some(written))
@@ -1024,7 +1033,9 @@ impl FabricData {
         if !a.lobes.is_empty() {
             let wanted: Vec<bool> = occupied.par_iter().map(|&c| (r.keeps_lobes)(c)).collect();
             let Some(own) = a.lobe_slots.get(first_slot..first_slot + filled) else {
-                return Err(FabricDataError::Inconsistent("the exemplar's lobe table lies outside the buffer".into()));
+                return Err(FabricDataError::Inconsistent(
+                    "the exemplar's lobe table lies outside the buffer".into(),
+                ));
             };
             if own.iter().zip(&wanted).any(|(&slot, &keeps)| (slot != 0) != keeps) {
                 a.relayout_lobes(first_slot, &wanted)?;
@@ -1054,7 +1065,9 @@ impl FabricData {
         let lobe_range =
             table + first_lobe * LOBE_PACKED_FLOATS..table + (first_lobe + lobe_count) * LOBE_PACKED_FLOATS;
         let Some(lobe_values) = a.lobes.get_mut(lobe_range.clone()) else {
-            return Err(FabricDataError::Inconsistent("the exemplar's fiber lobes lie outside the buffer".into()));
+            return Err(FabricDataError::Inconsistent(
+                "the exemplar's fiber lobes lie outside the buffer".into(),
+            ));
         };
         let mut lobe_chunks = lobe_values.chunks_exact_mut(LOBE_PACKED_FLOATS);
         let per_cell: Vec<Option<&mut [f32]>> =
@@ -1082,7 +1095,8 @@ impl FabricData {
             self.buffers[index] =
                 make_buffer(device, queue, "twill.fabric.lobes", bytes, wgpu::BufferUsages::STORAGE);
             self.bind_group = fabric_bind_group(device, &self.layout, &self.header_buffer, &self.buffers);
-            self.gpu_bytes = self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
+            self.gpu_bytes =
+                self.header_buffer.size() + self.buffers.iter().map(wgpu::Buffer::size).sum::<u64>();
             written.push("lobes");
         } else if lobe_count > 0 {
             let lobes = &a.lobes[lobe_range.clone()];

@@ -109,8 +109,8 @@ pub fn prelude() -> String {
     // The fiber lobes' layout and shading constants (bake::iirtf, shading::multiple).
     {
         use twill_precompute::bake::iirtf::{
-            LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS,
-            LOBE_CHANNEL_SHAPE_LEN, LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_BINS, LOBE_PACKED_FLOATS,
+            LOBE_AZIMUTH_BINS, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_CHANNEL_SHAPE_LEN,
+            LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_BINS, LOBE_PACKED_FLOATS,
             LOBE_SH_ORDER, LOBE_SHAPE_LEN, TOWARD_UP_WIDTH,
         };
         use twill_precompute::shading::gamma::{LOBE_MAX_PANELS, LOBE_NODES, LOBE_PANEL_WIDTH, LOBE_WINDOW};

@@ -1307,15 +1307,55 @@ fn the_plan_enables_fiber_lobes_only_for_a_bake_that_has_them() {
         assert_eq!(arrays.lobe_cells, lobed.len(), "{label}");
         if expected {
             assert!(!lobed.is_empty() && lobed.len() < arrays.lattice_slot_count, "{label}: {}", lobed.len());
-            let table_slots: Vec<u32> = arrays.lobes[..arrays.lattice_slot_count].iter().map(|v| v.to_bits()).collect();
+            let table_slots: Vec<u32> =
+                arrays.lobes[..arrays.lattice_slot_count].iter().map(|v| v.to_bits()).collect();
             assert_eq!(table_slots, arrays.lobe_slots, "{label}");
             let numbered: Vec<u32> = arrays.lobe_slots.iter().copied().filter(|&l| l != 0).collect();
-            assert_eq!(numbered, (1..=lobed.len() as u32).collect::<Vec<_>>(), "{label}: lobe slots in slot order");
+            assert_eq!(
+                numbered,
+                (1..=lobed.len() as u32).collect::<Vec<_>>(),
+                "{label}: lobe slots in slot order"
+            );
             let mut packed = vec![0.0; LOBE_PACKED_FLOATS];
             for (cell, values) in lobed.iter().zip(arrays.lobe_values().chunks_exact(LOBE_PACKED_FLOATS)) {
                 cell.pack_lobes(&mut packed);
                 assert_eq!(values, &packed[..], "{label}");
             }
+            // A recolouring that changes which cells keep lobes: the slots from the middle on
+            // swap, the first half keep theirs and their lobes, the new ones start as zeros.
+            let mut relaid = arrays.clone();
+            let half = arrays.lattice_slot_count / 2;
+            let wanted: Vec<bool> = arrays.lobe_slots[half..].iter().map(|&l| l == 0).collect();
+            relaid.relayout_lobes(half, &wanted).expect("relayout");
+            let keeps: Vec<bool> = relaid.lobe_slots.iter().map(|&l| l != 0).collect();
+            let expected_keeps: Vec<bool> =
+                arrays.lobe_slots[..half].iter().map(|&l| l != 0).chain(wanted.iter().copied()).collect();
+            assert_eq!(keeps, expected_keeps, "{label}");
+            let numbered: Vec<u32> = relaid.lobe_slots.iter().copied().filter(|&l| l != 0).collect();
+            assert_eq!(numbered, (1..=numbered.len() as u32).collect::<Vec<_>>(), "{label}");
+            let table_slots: Vec<u32> =
+                relaid.lobes[..relaid.lattice_slot_count].iter().map(|v| v.to_bits()).collect();
+            assert_eq!(table_slots, relaid.lobe_slots, "{label}");
+            let chunk = |a: &FabricArrays, lobe_slot: u32| {
+                let at = (lobe_slot as usize - 1) * LOBE_PACKED_FLOATS;
+                a.lobe_values()[at..at + LOBE_PACKED_FLOATS].to_vec()
+            };
+            for slot in 0..arrays.lattice_slot_count {
+                let (old, new) = (arrays.lobe_slots[slot], relaid.lobe_slots[slot]);
+                if slot < half && old != 0 {
+                    assert_eq!(
+                        chunk(&relaid, new),
+                        chunk(&arrays, old),
+                        "{label}: slot {slot} kept its lobes"
+                    );
+                } else if new != 0 {
+                    assert!(
+                        chunk(&relaid, new).iter().all(|&v| v == 0.0),
+                        "{label}: slot {slot} starts empty"
+                    );
+                }
+            }
+            assert_eq!(relaid.lobe_values().len(), numbered.len() * LOBE_PACKED_FLOATS, "{label}");
         }
         // The C_G table at the lights' order: the lobes' with them.
         let cg_order = arrays.header.cg_order as usize;

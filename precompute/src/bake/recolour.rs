@@ -84,8 +84,9 @@
 use super::cells::CellGrid;
 use super::cs_table::{CsTable, CsTableError};
 use super::iirtf::{
-    CHECK_EVERY, ColourFreeSample, ConnectionSh, FiberOffset, IirtfError, IirtfOptions, LOBE_PACKED_FLOATS,
-    LOBE_CHANNEL_SHAPE_LEN, LOBE_SH_ORDER, LOBE_SHAPE_LEN, LightDomain, TransferSampler, for_each_cell,
+    CHECK_EVERY, ColourFreeSample, ConnectionSh, FiberOffset, IirtfError, IirtfOptions,
+    LOBE_CHANNEL_SHAPE_LEN, LOBE_PACKED_FLOATS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, LightDomain, TransferSampler,
+    for_each_cell,
 };
 use super::settings::BakeSettings;
 use super::{Cancel, Progress};
@@ -667,8 +668,10 @@ impl RecolourBasis {
             vec4[..3].copy_from_slice(&entry(e));
         }
         let (forward_shape, reflected_shape) = shapes.split_at_mut(LOBE_SHAPE_LEN);
-        for (out, range) in [(forward_shape, layout.forward_shape()), (reflected_shape, layout.reflected_shape())] {
-            out[..LOBE_SHAPE_LEN].copy_from_slice(&rgb_shape(range.map(|e| entry(e))));
+        for (out, range) in
+            [(forward_shape, layout.forward_shape()), (reflected_shape, layout.reflected_shape())]
+        {
+            out[..LOBE_SHAPE_LEN].copy_from_slice(&rgb_shape(range.map(&entry)));
         }
     }
 

@@ -53,9 +53,9 @@ use super::{SegmentShading, ShadingError};
 use crate::Rgb;
 use crate::bake::cs_table::{CsTable, OmegaOSpace};
 use crate::bake::iirtf::{
-    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_FOURIER_TERMS, LOBE_LONGITUDINAL_AT,
-    LOBE_CHANNEL_SHAPE_LEN, LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats, fiber_elevation,
-    longitudinal_hats, toward_up,
+    CellTransfer, LOBE_AZIMUTH_TERMS, LOBE_AZIMUTH_TOTALS, LOBE_CHANNEL_SHAPE_LEN, LOBE_FOURIER_TERMS,
+    LOBE_LONGITUDINAL_AT, LOBE_LONGITUDINAL_TOTALS, LOBE_SH_ORDER, LOBE_SHAPE_LEN, elevation_hats,
+    fiber_elevation, longitudinal_hats, toward_up,
 };
 use crate::bake::pipeline::Baked;
 use crate::bake::tables::CgTable;
