@@ -19,8 +19,8 @@
 //! Fiber lobes are sparser still: only a lattice cell that keeps lobes has them, in its *lobe
 //! slot* (numbered in slot order), and the lobes buffer opens with a table of one `u32` per
 //! lattice slot, 1 + its lobe slot or 0 (`FabricArrays::lobe_slots`). A cell keeps lobes only
-//! where its forward light is sharp: on the default cotton about 300 of its 13,985 lattice
-//! slots, which a lobe per slot held as 285 MB of zeros, past lavapipe's 128 MiB per binding
+//! where its forward light is sharp: on the default cotton about 325 of its 3,014 lattice
+//! slots, whose lobes take 6.6 MB where a lobe per slot took 61 MB of mostly zeros
 //! (on the silk satin nearly every cell keeps them). A live recolouring writes the lobe slots'
 //! lobes, and a cell without one its whole matrix (`Recolouring::write_cell`); where its
 //! colours change which cells keep lobes, it lays the lobe slots out anew first.
@@ -222,10 +222,9 @@ pub struct FabricArrays {
     /// in `shaders/shared/fabric_data.wgsl`: first the lobe table, `lobe_slots` as `u32` bits
     /// (`header.lobe_table_vec4s` vec4s, zero-padded), then per lobe slot
     /// [`LOBE_PACKED_FLOATS`] floats in `CellTransfer::pack_lobes`' layout. Only the cells that
-    /// keep lobes have them: on the default cotton about 300 of its 13,985 lattice cells with
-    /// segments, so that the buffer holds 2 MB instead of 285 MB of mostly zeros (lavapipe
-    /// binds at most 128 MiB). Empty for a set baked without fiber lobes in which no cell has
-    /// them (the buffer is then one zeroed vec4, never read).
+    /// keep lobes have them: on the default cotton about 325 of its 3,014 lattice slots, 6.6 MB
+    /// where a lobe per slot took 61 MB of mostly zeros. Empty for a set baked without fiber
+    /// lobes in which no cell has them (the buffer is then one zeroed vec4, never read).
     pub lobes: Vec<f32>,
     /// Cells whose lobes are not all zeros: the plan compiles `ENABLE_FIBER_LOBES` only when
     /// there are any (a bake made with the option whose cells all folded their light into their
