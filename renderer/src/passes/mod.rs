@@ -461,7 +461,8 @@ mod tests {
                 &shared,
                 rust_struct!(FabricHeaderGpu; exemplar_count, sh_order, sh_count, svf_resolution,
                     pca_components, sos_count, sos_sharpness, cs_theta_count, cg_points, gn_intervals,
-                    pattern_width, pattern_height, block_size, z_range, cg_order, visibility_points, visibility_words),
+                    pattern_width, pattern_height, block_size, z_range, cg_order, visibility_points, visibility_words,
+                    lobe_table_vec4s),
             ),
             (
                 "ExemplarGpu",
