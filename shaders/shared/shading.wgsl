@@ -634,11 +634,26 @@ fn transfer_cells(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
     return lattice_cells_around(e, segment, p);
 }
 
-// The lattice cells interpolated around p (cell_interpolation), or, where all eight are empty,
-// `segment`'s lattice cell alone if it has a transfer; every weight 0 if none.
+// The point the transfer is interpolated at (Baked::transfer_point): p's projection on the
+// segment's axis, clamped to its ends, in the copy of a periodic exemplar that holds p (cells
+// hold the segments whose midpoints they contain).
+fn transfer_point(e: u32, segment: u32, p: vec3<f32>) -> vec3<f32> {
+    let s = segments[segment];
+    let ex = exemplars[e];
+    var offset = p - s.midpoint;
+    if (ex.periodic != 0u) {
+        offset = vec3<f32>(offset.xy - ex.period * round(offset.xy / ex.period), offset.z);
+    }
+    let along = clamp(dot(offset, s.direction), -s.half_length, s.half_length);
+    return p - offset + along * s.direction;
+}
+
+// The lattice cells interpolated around p's point on the segment's axis (transfer_point,
+// cell_interpolation), or, where all eight are empty, `segment`'s lattice cell alone if it
+// has a transfer; every weight 0 if none.
 fn lattice_cells_around(e: u32, segment: u32, p: vec3<f32>) -> CellWeights {
     let s = segments[segment];
-    var around = cell_interpolation(e, p);
+    var around = cell_interpolation(e, transfer_point(e, segment, p));
     var found = false;
     for (var k = 0u; k < 8u; k++) {
         found = found || around.weights[k] > 0.0;

@@ -245,6 +245,33 @@ impl Baked {
         segment * points + point
     }
 
+    /// The point the transfer is interpolated at for `segment` shaded at `position` (exemplar
+    /// coordinates): `position`'s projection on the segment's axis, clamped to its ends, in
+    /// the copy of a periodic exemplar that holds `position`. Cells are filled with the
+    /// segments whose midpoints they hold, so a fiber's transfer belongs to its axis: taken at
+    /// the surface hit itself (up to a fiber radius above the axis, a third of a cell's depth
+    /// on the gabardine), the interpolation leaned toward the cells above, whose fibers are
+    /// more exposed (backlit gabardine +13 points of multiple scattering; docs/BENCHMARKS.md).
+    /// Twin: `transfer_point` in shaders/shared/shading.wgsl.
+    #[must_use]
+    pub fn transfer_point(&self, segment: usize, position: DVec3) -> DVec3 {
+        let (Some(&[x, y, z, half_length]), Some(&[tx, ty, tz])) =
+            (self.volume.segments.axis.get(segment), self.volume.segments.direction.get(segment))
+        else {
+            return position;
+        };
+        let mut offset = position - DVec3::new(f64::from(x), f64::from(y), f64::from(z));
+        if let Some(period) = self.volume.volume.period() {
+            offset.x -= period.x * (offset.x / period.x).round();
+            offset.y -= period.y * (offset.y / period.y).round();
+        }
+        let tangent = DVec3::new(f64::from(tx), f64::from(ty), f64::from(tz));
+        let half = f64::from(half_length);
+        let along = offset.dot(tangent).clamp(-half, half);
+        let point = position - offset + along * tangent;
+        if point.is_finite() { point } else { position }
+    }
+
     /// Checks that the sections agree with each other (a file can be intact and still hold
     /// sections from different bakes): one segment count everywhere, array sizes that match
     /// their counts, voxel ids and material slots in range, one SH order. Returns what

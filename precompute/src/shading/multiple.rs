@@ -243,7 +243,9 @@ pub fn multiple_scattering(
     let grid = &baked.transfer.cells;
     let cells = &baked.transfer.iirtf.cells;
     let own_cell = &cells[grid.cell_of_segment(segment) as usize];
-    let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
+    let around = position
+        .map(|p| grid.interpolation(baked.transfer_point(segment as usize, p)))
+        .filter(|w| w.iter().any(|e| e.1 > 0.0));
     let Some(around) = around else {
         return Ok(multiple_scattering_in_cell(cs, own_cell, seg.tangent, wo, c_light));
     };
@@ -540,7 +542,9 @@ pub fn lobe_scattering(
     };
     let grid = &baked.transfer.cells;
     let own = (grid.cell_of_segment(segment), 1.0);
-    let around = position.map(|p| grid.interpolation(p)).filter(|w| w.iter().any(|e| e.1 > 0.0));
+    let around = position
+        .map(|p| grid.interpolation(baked.transfer_point(segment as usize, p)))
+        .filter(|w| w.iter().any(|e| e.1 > 0.0));
     let mut around = around.map_or_else(|| vec![own], |a| a.to_vec());
     around.retain(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes());
     let lobed: f64 = around.iter().map(|e| e.1).sum();

@@ -1453,3 +1453,31 @@ fn shading_shade_adds_its_components_and_reports_bad_input() {
     assert_eq!(err, ShadingError::LambertMaterial { segment: k, material });
     assert!(err.to_string().contains("fiber (R + TT) materials only"), "{err}");
 }
+
+/// The transfer is interpolated on the segment's axis: a point on the fiber's surface maps to
+/// the axis point beside it, a point past an end to that end, and a point one period away (a
+/// hit on the next tile) to the same axis point moved by that period.
+#[test]
+fn shading_transfer_point_is_the_hit_projected_on_its_segment_axis() {
+    let baked = tiny_baked();
+    let segments = &baked.volume.segments;
+    let period = baked.volume.volume.period().expect("a woven exemplar tiles");
+    for k in (0..segments.len()).step_by(segments.len() / 7 + 1) {
+        let [x, y, z, half] = segments.axis[k].map(f64::from);
+        let [tx, ty, tz] = segments.direction[k].map(f64::from);
+        let (mid, t) = (DVec3::new(x, y, z), DVec3::new(tx, ty, tz));
+        let normal = t.cross(DVec3::Z).try_normalize().unwrap_or(DVec3::X).cross(t).normalize();
+        let radius = f64::from(segments.radius[k]);
+        let on_axis = mid + 0.6 * half * t;
+        let surface = on_axis + radius * normal;
+        let got = baked.transfer_point(k, surface);
+        assert!((got - on_axis).length() < 1e-9 * (1.0 + half), "segment {k}: {got} for {on_axis}");
+        let past_end = mid + 3.0 * half * t + radius * normal;
+        let got = baked.transfer_point(k, past_end);
+        assert!((got - (mid + half * t)).length() < 1e-9 * (1.0 + half), "segment {k}: {got} past its end");
+        let tile = DVec3::new(period.x, -period.y, 0.0);
+        let got = baked.transfer_point(k, surface + tile);
+        assert!((got - (on_axis + tile)).length() < 1e-7, "segment {k}: {got} on the next tile");
+        assert!(got.is_finite());
+    }
+}
