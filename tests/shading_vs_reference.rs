@@ -502,7 +502,7 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         BudgetSettings { spp: 16, reference_spp: 64, light_samples: 8, seed: 3, split_transfer: false };
     let budget = error_budget(&scene, baked(), &settings, &|_| {}).expect("budget");
     eprintln!("{}", budget.markdown());
-    assert_eq!(budget.rungs.len(), 16);
+    assert_eq!(budget.rungs.len(), 17);
     // The clamp at zero on the same samples: on each sample (4″) lifts the mean at least as
     // much as on each pixel's mean (4, the method), which lifts it at least as much as no
     // clamp (4′).
@@ -536,6 +536,19 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         (projected.relative_error_of_mean - exact.relative_error_of_mean).abs() < 4.0 * noise,
         "incident light in SH through C_S {:+.4} against exact {:+.4} (noise {noise:.4})",
         projected.relative_error_of_mean,
+        exact.relative_error_of_mean
+    );
+    // Rung 2e takes rung 2's light at the points the bake starts its paths from (exposed
+    // starts, moved from the sampler's copy of the fabric to the hit's). On this view of the
+    // cotton they stand for the hits themselves (measured −0.1% ± 1.8% against rung 1's
+    // −0.5% ± 1.7%); points put in the wrong place (another tile, another segment) see other
+    // light, beyond this band.
+    let starts = budget.rung(Component::Multiple, "2e ").expect("the exposed-start rung");
+    let noise = exact.relative_error_std.hypot(starts.relative_error_std);
+    assert!(
+        (starts.relative_error_of_mean - exact.relative_error_of_mean).abs() < 4.0 * noise,
+        "indirect light at exposed starts {:+.4} against at the hit {:+.4} (noise {noise:.4})",
+        starts.relative_error_of_mean,
         exact.relative_error_of_mean
     );
     // A rung added from outside (as `twill accuracy budget` adds the GPU's frames) is measured

@@ -774,7 +774,7 @@ impl TransferSampler {
     /// segment's midpoint on the axis averages in the parts under neighbouring fibers and
     /// crossing yarns, which are darker). `None` after [`EXPOSED_START_TRIES`] tries (a cell no
     /// eye sees): the caller starts at the midpoint.
-    fn exposed_start(
+    pub(crate) fn exposed_start(
         &self,
         cell_segments: &[u32],
         first: usize,

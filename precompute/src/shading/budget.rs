@@ -34,6 +34,9 @@
 //!    the method's `C_S` table: what the SH truncation alone costs, at the exact point and
 //!    with exact light transport (no clamp);
 //! 2. path-traced indirect light at the segment midpoint (what the IIRTF integrates);
+//!    2e. (a bake with exposed starts) the same at a point of the segment an eye sees, drawn as
+//!    the bake draws its paths' starts: what the segment's transfer averages, every eye's side
+//!    of the fiber instead of this view's;
 //!    2′. the IIRTF of the hit's segment alone (the bake's sampler, SH order, paths and starts,
 //!    matrices only), shaded as rung 3: the transfer without the cells' averaging;
 //! 3. the per-cell IIRTF, constant over each cell (the paper), at the bake's cell size, SH order
@@ -368,6 +371,17 @@ pub fn error_budget(
                 t.elapsed().as_secs_f64(),
             );
         } else {
+            if baked.settings.exposed_starts {
+                let t = Instant::now();
+                let film = at_exposed_starts(scene, baked, settings)?;
+                push(
+                    Component::Multiple,
+                    "2e path-traced indirect light at an exposed start of the hit's segment (what its transfer averages)"
+                        .into(),
+                    &film,
+                    t.elapsed().as_secs_f64(),
+                );
+            }
             let t = Instant::now();
             let film = per_segment_transfer(scene, baked, settings)?;
             push(
@@ -511,12 +525,7 @@ fn per_segment_transfer(
         .map_err(|_| ShadingError::Budget("a worker panicked".into()))?
         .into_iter()
         .collect();
-    let inputs =
-        BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings: baked.settings };
-    let (_, yarn_materials) = yarn_materials(&inputs)?;
-    let sampler = TransferSampler::new(&scene.exemplar, &yarn_materials, baked.transfer.iirtf.light_domain)
-        .map_err(|e| ShadingError::Budget(format!("the per-segment transfer's sampler: {e}")))?
-        .with_exposed_starts(baked.settings.exposed_starts);
+    let sampler = transfer_sampler(scene, baked)?;
     let order = baked.transfer.iirtf.sh_order;
     let paths = baked.settings.iirtf_paths_per_cell;
     let transfers: HashMap<u32, CellTransfer> = segments
@@ -546,6 +555,39 @@ fn per_segment_transfer(
         };
         Ok(multiple_scattering_in_cell(cs, transfer, seg.tangent, wo, &c_light))
     })
+}
+
+/// Rung 2e: rung 2's path-traced indirect light, taken not at the hit's segment midpoint but at
+/// a point of that segment an eye sees, drawn as the bake draws its paths' starts
+/// (`TransferSampler::exposed_start`: an eye direction uniform over the upper hemisphere, a
+/// point of the fiber's side facing it that nothing hides), and scattered toward `wo` by the
+/// hit's fiber. Its mean is the light the segment's transfer averages; against rung 1 it shows
+/// what averaging over every eye's side of the fiber (instead of this view's) costs, against
+/// rung 2′ what the transfer's SH and paths cost at those points. A segment no eye sees (all
+/// tries fail) counts its midpoint, as the bake does.
+fn at_exposed_starts(scene: &Scene, baked: &Baked, settings: &BudgetSettings) -> Result<Film, ShadingError> {
+    let sampler = transfer_sampler(scene, baked)?;
+    let fibers = &scene.path_scene.fibers;
+    let segments = fibers.segments();
+    render_primary_hits(scene, settings.spp, settings.seed, |hit, wo, rng| {
+        // The sampler's points lie in its own central copy of the fabric: moved to the hit's.
+        let local = segments[hit.segment as usize].midpoint().as_dvec3();
+        let central = sampler.midpoint(hit.segment) - local;
+        let start = sampler
+            .exposed_start(&[hit.segment], 0, rng)
+            .map_or_else(|| sampler.midpoint(hit.segment), |(_, point)| point);
+        Ok(indirect_light(scene, hit, start - central + fibers.tile_offset(hit.tile), wo, rng))
+    })
+}
+
+/// The bake's transfer sampler for `scene`: its materials, light domain and starts.
+fn transfer_sampler(scene: &Scene, baked: &Baked) -> Result<TransferSampler, ShadingError> {
+    let inputs =
+        BakeInputs { exemplar: &scene.exemplar, materials: &scene.material_descs, settings: baked.settings };
+    let (_, yarn_materials) = yarn_materials(&inputs)?;
+    Ok(TransferSampler::new(&scene.exemplar, &yarn_materials, baked.transfer.iirtf.light_domain)
+        .map_err(|e| ShadingError::Budget(format!("the transfer's sampler: {e}")))?
+        .with_exposed_starts(baked.settings.exposed_starts))
 }
 
 /// `baked` with its IIRTF baked again holding only `part` of the transfer (same cells,

@@ -533,33 +533,12 @@ pub fn lobe_scattering(
     wo: DVec3,
     lights: &[(Light, f64)],
 ) -> Result<Rgb, ShadingError> {
-    let cells = &baked.transfer.iirtf.cells;
     let Some(seg) = SegmentShading::of(baked, segment)? else {
         return Ok(Rgb::ZERO);
     };
-    let Some(taken) = LobesTaken::of(baked, segment) else {
+    let Some((forward, reflected)) = lobes_around(baked, segment, position) else {
         return Ok(Rgb::ZERO);
     };
-    let grid = &baked.transfer.cells;
-    let own = (grid.cell_of_segment(segment), 1.0);
-    let around = position
-        .map(|p| grid.interpolation(baked.transfer_point(segment as usize, p)))
-        .filter(|w| w.iter().any(|e| e.1 > 0.0));
-    let mut around = around.map_or_else(|| vec![own], |a| a.to_vec());
-    around.retain(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes());
-    let lobed: f64 = around.iter().map(|e| e.1).sum();
-    if lobed <= 0.0 {
-        return Ok(Rgb::ZERO);
-    }
-    let scale = if taken == LobesTaken::ForwardOnly { 1.0 / lobed } else { 1.0 };
-    let (mut forward, mut reflected) = (FiberLobe::default(), FiberLobe::default());
-    for (cell, weight) in around {
-        let cell = &cells[cell as usize];
-        forward.add(&cell.forward, &cell.forward_shape, weight * scale);
-        if taken == LobesTaken::Both {
-            reflected.add(&cell.reflected, &cell.reflected_shape, weight);
-        }
-    }
     let mut out = Rgb::ZERO;
     for (light, v_blurred) in lights {
         if *v_blurred == 0.0 {
@@ -583,4 +562,36 @@ pub fn lobe_scattering(
         }
     }
     Ok(out)
+}
+
+/// The fiber lobes that shade `segment` of `baked` at `position` ([`lobe_scattering`]): the
+/// forward and the reflected [`FiberLobe`] summed over the cells around the point with their
+/// interpolation weights (`None` for `position`: the segment's own cell). The reflected lobe is
+/// empty where the segment's own transfer holds its reflected light ([`LobesTaken`]). `None`
+/// where no cell around the point holds lobes.
+#[must_use]
+pub fn lobes_around(baked: &Baked, segment: u32, position: Option<DVec3>) -> Option<(FiberLobe, FiberLobe)> {
+    let cells = &baked.transfer.iirtf.cells;
+    let taken = LobesTaken::of(baked, segment)?;
+    let grid = &baked.transfer.cells;
+    let own = (grid.cell_of_segment(segment), 1.0);
+    let around = position
+        .map(|p| grid.interpolation(baked.transfer_point(segment as usize, p)))
+        .filter(|w| w.iter().any(|e| e.1 > 0.0));
+    let mut around = around.map_or_else(|| vec![own], |a| a.to_vec());
+    around.retain(|&(cell, weight)| weight > 0.0 && cells[cell as usize].has_lobes());
+    let lobed: f64 = around.iter().map(|e| e.1).sum();
+    if lobed <= 0.0 {
+        return None;
+    }
+    let scale = if taken == LobesTaken::ForwardOnly { 1.0 / lobed } else { 1.0 };
+    let (mut forward, mut reflected) = (FiberLobe::default(), FiberLobe::default());
+    for (cell, weight) in around {
+        let cell = &cells[cell as usize];
+        forward.add(&cell.forward, &cell.forward_shape, weight * scale);
+        if taken == LobesTaken::Both {
+            reflected.add(&cell.reflected, &cell.reflected_shape, weight);
+        }
+    }
+    Some((forward, reflected))
 }
