@@ -529,28 +529,13 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
     // scattering function. On the cotton the truncation to order 2 costs less than the noise
     // (measured −0.8% ± 2.2% against −0.5% ± 1.7%), so a wrong convention anywhere in that
     // machinery shows here as a difference beyond noise.
-    let exact = budget.rung(Component::Multiple, "1 ").expect("exact multiple rung");
-    let projected = budget.rung(Component::Multiple, "1' ").expect("the SH-projected rung");
-    let noise = exact.relative_error_std.hypot(projected.relative_error_std);
-    assert!(
-        (projected.relative_error_of_mean - exact.relative_error_of_mean).abs() < 4.0 * noise,
-        "incident light in SH through C_S {:+.4} against exact {:+.4} (noise {noise:.4})",
-        projected.relative_error_of_mean,
-        exact.relative_error_of_mean
-    );
+    assert_multiple_rungs_agree(&budget, "1' ", "1 ", "incident light in SH through C_S");
     // Rung 2e takes rung 2's light at the points the bake starts its paths from (exposed
     // starts, moved from the sampler's copy of the fabric to the hit's). On this view of the
     // cotton they stand for the hits themselves (measured −0.1% ± 1.8% against rung 1's
     // −0.5% ± 1.7%); points put in the wrong place (another tile, another segment) see other
     // light, beyond this band.
-    let starts = budget.rung(Component::Multiple, "2e ").expect("the exposed-start rung");
-    let noise = exact.relative_error_std.hypot(starts.relative_error_std);
-    assert!(
-        (starts.relative_error_of_mean - exact.relative_error_of_mean).abs() < 4.0 * noise,
-        "indirect light at exposed starts {:+.4} against at the hit {:+.4} (noise {noise:.4})",
-        starts.relative_error_of_mean,
-        exact.relative_error_of_mean
-    );
+    assert_multiple_rungs_agree(&budget, "2e ", "1 ", "indirect light at exposed starts");
     // A rung added from outside (as `twill accuracy budget` adds the GPU's frames) is measured
     // like the others: the method's own image, without its variance, lands on rung 5's error.
     let mut budget = budget;
@@ -590,6 +575,20 @@ fn error_budget_exact_rungs_equal_the_path_tracer() {
         "raised {:+.4} vs midpoint {:+.4}",
         raised.relative_error_of_mean,
         midpoint.relative_error_of_mean
+    );
+}
+
+/// Multiple-scattering rungs `name` and `exact` (name prefixes) of `budget` agree within four
+/// standard errors of their difference; `what` names the first in the failure.
+fn assert_multiple_rungs_agree(budget: &Budget, name: &str, exact: &str, what: &str) {
+    let rung = |prefix: &str| budget.rung(Component::Multiple, prefix).expect("a multiple-scattering rung");
+    let (test, exact) = (rung(name), rung(exact));
+    let noise = exact.relative_error_std.hypot(test.relative_error_std);
+    assert!(
+        (test.relative_error_of_mean - exact.relative_error_of_mean).abs() < 4.0 * noise,
+        "{what} {:+.4} against exact {:+.4} (noise {noise:.4})",
+        test.relative_error_of_mean,
+        exact.relative_error_of_mean
     );
 }
 
