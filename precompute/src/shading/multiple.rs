@@ -570,7 +570,7 @@ pub fn lobe_scattering(
 /// empty where the segment's own transfer holds its reflected light ([`LobesTaken`]). `None`
 /// where no cell around the point holds lobes.
 #[must_use]
-pub fn lobes_around(baked: &Baked, segment: u32, position: Option<DVec3>) -> Option<(FiberLobe, FiberLobe)> {
+fn lobes_around(baked: &Baked, segment: u32, position: Option<DVec3>) -> Option<(FiberLobe, FiberLobe)> {
     let cells = &baked.transfer.iirtf.cells;
     let taken = LobesTaken::of(baked, segment)?;
     let grid = &baked.transfer.cells;
