@@ -55,7 +55,10 @@
 //! a noisy transfer go negative in places; the clamp of each pixel's mean (the GPU's too) keeps
 //! the image an image but lifts its mean, so rung 4 minus rung 4′ is what the clamp adds. 4″
 //! is the clamp taken on each sample instead (the renderers' choice until the fifteenth
-//! session of 2026-11-27; the same samples, so its mean lies above 4's). With
+//! session of 2026-11-27; the same samples, so its mean lies above 4's). With a bake that has
+//! fiber lobes, 4f and 4g split 4′ by the form the transfer is held in
+//! ([`MultipleHeld`]): the lobes alone and the SH matrices alone, so that a view's error can be
+//! laid at the form that carries its light. With
 //! [`BudgetSettings::split_transfer`], 4a–4c split 4′ by light transport
 //! (`bake::iirtf::TransferPart`): the first neighbour's transmission (light through one fiber,
 //! peaked around the light's direction), its reflection (a cone about its axis) and light
@@ -78,7 +81,9 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use super::multiple::{multiple_scattering_in_cell, scatter_transferred, transfer_light_sh};
-use super::render::{ClampAtZero, MethodOptions, PrimaryHits, render_flat_with, render_primary_hits};
+use super::render::{
+    ClampAtZero, MethodOptions, MultipleHeld, PrimaryHits, render_flat_with, render_primary_hits,
+};
 use super::visibility::ssdf_lookup;
 use super::{SegmentShading, ShadingError};
 use crate::Rgb;
@@ -460,9 +465,21 @@ pub fn error_budget(
     ]);
     for (name, baked, interpolate_transfer, clamp) in method_rungs {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer, clamp, primary: PrimaryHits::Exact };
+        let options = MethodOptions { interpolate_transfer, clamp, ..MethodOptions::default() };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
+    }
+    if baked.settings.fiber_lobes {
+        for (held, name) in [
+            (MultipleHeld::LobesOnly, "4f rung 4′ with the fiber lobes alone"),
+            (MultipleHeld::MatricesOnly, "4g rung 4′ with the SH matrices alone (4f + 4g = 4′)"),
+        ] {
+            let t = Instant::now();
+            let options = MethodOptions { clamp: ClampAtZero::Never, held, ..MethodOptions::default() };
+            let film =
+                render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
+            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
+        }
     }
     if settings.split_transfer {
         for (part, name) in [

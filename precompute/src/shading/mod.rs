@@ -42,7 +42,9 @@ mod tests;
 pub use bcsdf::{FiberConstants, fiber_eval_cos};
 pub use gamma::gamma;
 pub use multiple::{hemisphere_light_sh, light_sh, multiple_scattering, multiple_scattering_in_cell};
-pub use render::{ClampAtZero, MethodOptions, render_flat, render_flat_with, render_primary_hits, shade};
+pub use render::{
+    ClampAtZero, MethodOptions, MultipleHeld, render_flat, render_flat_with, render_primary_hits, shade,
+};
 pub use single::{single_scattering, single_scattering_directional, single_scattering_sg};
 pub use visibility::{
     bilinear_over_pixel_centres, bits_lookup, erf_soft_visibility, sg_path_weights, ssdf_lookup,

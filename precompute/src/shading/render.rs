@@ -42,12 +42,13 @@ pub fn shade(
     lights: &[(Light, f64, f64)],
     component: Component,
 ) -> Result<Rgb, ShadingError> {
-    shade_segment(baked, segment, position, position, wo, lights, component, true)
+    shade_segment(baked, segment, position, position, wo, lights, component, true, MultipleHeld::Both)
 }
 
-/// [`shade`], with the clamp of the shaded radiance at zero optional (`clamp_at_zero`) and
-/// the position that picks the segment's visibility image (`visibility_at`) apart from the
-/// one that interpolates the transfer (`position`).
+/// [`shade`], with the clamp of the shaded radiance at zero optional (`clamp_at_zero`), the
+/// position that picks the segment's visibility image (`visibility_at`) apart from the one
+/// that interpolates the transfer (`position`), and multiple scattering from its SH matrices,
+/// its fiber lobes or both (`held`).
 #[allow(clippy::too_many_arguments)]
 fn shade_segment(
     baked: &Baked,
@@ -58,6 +59,7 @@ fn shade_segment(
     lights: &[(Light, f64, f64)],
     component: Component,
     clamp_at_zero: bool,
+    held: MultipleHeld,
 ) -> Result<Rgb, ShadingError> {
     let mut total = Rgb::ZERO;
     if component != Component::Multiple {
@@ -74,9 +76,11 @@ fn shade_segment(
         // acts (on the silk satin's multiple scattering, which rings below zero over much of
         // the image, by 50–200 points in the error budget; docs/BENCHMARKS.md), and the sum
         // goes below zero less often than the term.
-        total += multiple_scattering(baked, segment, position, wo, &c_light)?;
+        if held != MultipleHeld::LobesOnly {
+            total += multiple_scattering(baked, segment, position, wo, &c_light)?;
+        }
         // Only a bake made with fiber lobes has cells that hold them.
-        if baked.settings.fiber_lobes {
+        if baked.settings.fiber_lobes && held != MultipleHeld::MatricesOnly {
             let blurred: Vec<(Light, f64)> = lights.iter().map(|(light, _, v)| (*light, *v)).collect();
             total += lobe_scattering(baked, segment, position, wo, &blurred)?;
         }
@@ -94,12 +98,34 @@ pub struct MethodOptions {
     pub clamp: ClampAtZero,
     /// Where camera rays meet the fabric.
     pub primary: PrimaryHits,
+    /// Which of the transfer's two forms multiple scattering is shaded from.
+    pub held: MultipleHeld,
 }
 
 impl Default for MethodOptions {
     fn default() -> Self {
-        Self { interpolate_transfer: true, clamp: ClampAtZero::PixelMean, primary: PrimaryHits::Exact }
+        Self {
+            interpolate_transfer: true,
+            clamp: ClampAtZero::PixelMean,
+            primary: PrimaryHits::Exact,
+            held: MultipleHeld::Both,
+        }
     }
+}
+
+/// Which of the two forms a bake holds its transfer in multiple scattering is shaded from:
+/// the SH matrices (lattice cells without fiber lobes, segment cells) and the fiber lobes
+/// (lattice cells that keep them, `bake::iirtf::forward_lobe_min_sharpness`). The method
+/// adds both; either alone (unclamped, `shading::budget`'s rungs 4f and 4g) shows which form
+/// the light of a view comes from, and which one its error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MultipleHeld {
+    /// Both forms: the method.
+    Both,
+    /// The SH matrices alone.
+    MatricesOnly,
+    /// The fiber lobes alone.
+    LobesOnly,
 }
 
 /// Where the method's radiance is clamped at zero, per channel. Truncated SH and a noisy
@@ -162,7 +188,17 @@ pub fn render_flat_with(
     let shade_at = |segment: u32, local: DVec3, wo: DVec3| {
         let position = options.interpolate_transfer.then_some(local);
         let each_sample = options.clamp == ClampAtZero::EachSample;
-        shade_segment(baked, segment, Some(local), position, wo, &lights, component, each_sample)
+        shade_segment(
+            baked,
+            segment,
+            Some(local),
+            position,
+            wo,
+            &lights,
+            component,
+            each_sample,
+            options.held,
+        )
     };
     let mut film = match options.primary {
         PrimaryHits::Exact => render_primary_hits(scene, spp, seed, |hit, wo, _| {
