@@ -442,44 +442,44 @@ pub fn error_budget(
     } else {
         "4 the method: IIRTF interpolated between cells".into()
     };
-    let mut method_rungs =
-        vec![(format!("3 IIRTF per cell: {cells}"), lattice, false, ClampAtZero::PixelMean)];
+    let per_cell = MethodOptions { interpolate_transfer: false, ..MethodOptions::default() };
+    let unclamped = MethodOptions { clamp: ClampAtZero::Never, ..MethodOptions::default() };
+    let mut method_rungs = vec![(format!("3 IIRTF per cell: {cells}"), lattice, per_cell)];
     if segment_cells {
         let name = "3i IIRTF interpolated between cells (rung 4 without the segments' own transfers)";
-        method_rungs.push((name.into(), lattice, true, ClampAtZero::PixelMean));
+        method_rungs.push((name.into(), lattice, MethodOptions::default()));
     }
     method_rungs.extend([
-        (method, baked, true, ClampAtZero::PixelMean),
+        (method, baked, MethodOptions::default()),
         (
             "4' the method without its clamp at zero (rung 4 minus this: the clamp's bias)".into(),
             baked,
-            true,
-            ClampAtZero::Never,
+            unclamped,
         ),
         (
             "4'' the method with its clamp on each sample, not on each pixel's mean".into(),
             baked,
-            true,
-            ClampAtZero::EachSample,
+            MethodOptions { clamp: ClampAtZero::EachSample, ..MethodOptions::default() },
         ),
     ]);
-    for (name, baked, interpolate_transfer, clamp) in method_rungs {
+    if baked.settings.fiber_lobes {
+        method_rungs.extend([
+            (
+                "4f rung 4′ with the fiber lobes alone".into(),
+                baked,
+                MethodOptions { held: MultipleHeld::LobesOnly, ..unclamped },
+            ),
+            (
+                "4g rung 4′ with the SH matrices alone (4f + 4g = 4′)".into(),
+                baked,
+                MethodOptions { held: MultipleHeld::MatricesOnly, ..unclamped },
+            ),
+        ]);
+    }
+    for (name, baked, options) in method_rungs {
         let t = Instant::now();
-        let options = MethodOptions { interpolate_transfer, clamp, ..MethodOptions::default() };
         let film = render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
         push(Component::Multiple, name, &film, t.elapsed().as_secs_f64());
-    }
-    if baked.settings.fiber_lobes {
-        for (held, name) in [
-            (MultipleHeld::LobesOnly, "4f rung 4′ with the fiber lobes alone"),
-            (MultipleHeld::MatricesOnly, "4g rung 4′ with the SH matrices alone (4f + 4g = 4′)"),
-        ] {
-            let t = Instant::now();
-            let options = MethodOptions { clamp: ClampAtZero::Never, held, ..MethodOptions::default() };
-            let film =
-                render_flat_with(scene, baked, Component::Multiple, settings.spp, settings.seed, options)?;
-            push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
-        }
     }
     if settings.split_transfer {
         for (part, name) in [
@@ -491,14 +491,13 @@ pub fn error_budget(
         ] {
             let t = Instant::now();
             let part_baked = with_transfer_part(scene, baked, part)?;
-            let options = MethodOptions { clamp: ClampAtZero::Never, ..MethodOptions::default() };
             let film = render_flat_with(
                 scene,
                 &part_baked,
                 Component::Multiple,
                 settings.spp,
                 settings.seed,
-                options,
+                unclamped,
             )?;
             push(Component::Multiple, name.into(), &film, t.elapsed().as_secs_f64());
         }
