@@ -9,7 +9,7 @@ struct BlurUniforms {
     axis: vec4<f32>,
 }
 
-@group(0) @binding(0) var<uniform> blur: BlurUniforms;
+@group(0) @binding(0) var<storage, read> blur: BlurUniforms;
 @group(0) @binding(1) var source: texture_2d_array<f32>;
 @group(0) @binding(2) var destination: texture_storage_2d_array<rg32float, write>;
 

@@ -32,7 +32,7 @@ const MAX_RAY_TETRAS: u32 = 4096u;
 // Tetrahedra in a row an eye ray may cross without moving on (through an edge or a corner).
 const MAX_RAY_STALLS: u32 = 8u;
 
-@group(0) @binding(0) var<uniform> frame: FrameUniforms;
+@group(0) @binding(0) var<storage, read> frame: FrameUniforms;
 @group(0) @binding(1) var<storage, read> tetra_corners: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tetras: array<TetraGpu>;
 // The shell's surface faces: tetrahedron * 4 + the corner the face is opposite to.

@@ -37,7 +37,7 @@ struct ShadeUniforms {
     fabric: vec4<f32>,
 }
 
-@group(0) @binding(0) var<uniform> shade: ShadeUniforms;
+@group(0) @binding(0) var<storage, read> shade: ShadeUniforms;
 @group(0) @binding(1) var<storage, read> lights: array<LightGpu>;
 @group(0) @binding(2) var<storage, read> tetras: array<TetraGpu>;
 @group(0) @binding(3) var gbuffer_position: texture_2d<f32>;

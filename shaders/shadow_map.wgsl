@@ -8,7 +8,7 @@ struct ShadowUniforms {
     light_clip_from_world: array<mat4x4<f32>, MAX_SHADOWED_LIGHTS>,
 }
 
-@group(0) @binding(0) var<uniform> shadow: ShadowUniforms;
+@group(0) @binding(0) var<storage, read> shadow: ShadowUniforms;
 @group(0) @binding(1) var<storage, read> surface_vertices: array<SurfaceVertex>;
 
 @vertex

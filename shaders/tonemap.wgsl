@@ -9,7 +9,7 @@ struct ToneMapUniforms {
     scale: vec4<f32>,
 }
 
-@group(0) @binding(0) var<uniform> tone: ToneMapUniforms;
+@group(0) @binding(0) var<storage, read> tone: ToneMapUniforms;
 @group(0) @binding(1) var<storage, read> accumulation: array<vec4<f32>>;
 @group(0) @binding(2) var display: texture_storage_2d<rgba8unorm, write>;
 

@@ -8,7 +8,7 @@ struct TopSurfaceUniforms {
     uv_rect: vec4<f32>,
 }
 
-@group(0) @binding(0) var<uniform> top: TopSurfaceUniforms;
+@group(0) @binding(0) var<storage, read> top: TopSurfaceUniforms;
 @group(0) @binding(1) var<storage, read> surface_vertices: array<SurfaceVertex>;
 
 struct TopOut {

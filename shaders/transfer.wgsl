@@ -17,7 +17,7 @@ struct TransferUniforms {
     uvw_from_world: array<vec4<f32>, 3>,
 }
 
-@group(0) @binding(0) var<uniform> transfer: TransferUniforms;
+@group(0) @binding(0) var<storage, read> transfer: TransferUniforms;
 @group(0) @binding(1) var<storage, read> lights: array<LightGpu>;
 @group(0) @binding(2) var<storage, read_write> cell_transfer: array<vec4<f32>>;
 

@@ -22,7 +22,7 @@ struct VisibilityUniforms {
     info: vec4<f32>,
 }
 
-@group(0) @binding(0) var<uniform> vis: VisibilityUniforms;
+@group(0) @binding(0) var<storage, read> vis: VisibilityUniforms;
 @group(0) @binding(1) var top_positions: texture_2d<f32>;
 @group(0) @binding(2) var shadow_maps: texture_depth_2d_array;
 @group(0) @binding(3) var visibility_out: texture_storage_2d_array<rg32float, write>;

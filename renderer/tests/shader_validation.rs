@@ -1,5 +1,6 @@
 //! Every WGSL file under `shaders/` composes (its `#import`s resolved), parses and validates
-//! with naga, without a GPU; and every file on disk is one the renderer compiles in.
+//! with naga, without a GPU; every file on disk is one the renderer compiles in; and no pass
+//! takes its per-frame parameters in a uniform buffer (see `passes::params_buffer`).
 
 use std::path::{Path, PathBuf};
 
@@ -74,4 +75,26 @@ fn every_file_on_disk_is_compiled_in() {
             "{name} is not in shaders::FILES"
         );
     }
+}
+
+/// Lavapipe specializes a shader on the values of its uniform buffers and keeps every variant
+/// (`passes::params_buffer`): a pass's parameters, which change from frame to frame or sample
+/// to sample, must be in read-only storage buffers. Only the fabric header, fixed while a bake
+/// is loaded, is a uniform.
+#[test]
+fn only_the_fabric_header_is_a_uniform() {
+    let mut uniforms = Vec::new();
+    for (name, _) in twill_renderer::shaders::FILES {
+        let source = twill_renderer::shaders::compose(name).unwrap();
+        let module = naga::front::wgsl::parse_str(&source).unwrap();
+        for (_, global) in module.global_variables.iter() {
+            if global.space == naga::AddressSpace::Uniform {
+                let ty = module.types[global.ty].name.clone().unwrap_or_default();
+                if ty != "FabricHeader" {
+                    uniforms.push(format!("{name}: {} ({ty})", global.name.clone().unwrap_or_default()));
+                }
+            }
+        }
+    }
+    assert!(uniforms.is_empty(), "per-frame parameters in uniform buffers: {uniforms:?}");
 }

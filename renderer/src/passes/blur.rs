@@ -7,7 +7,7 @@
 //! alike, so their ratio averages V over the fabric's own area.
 
 use super::visibility::visibility_texture;
-use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, uniform_buffer};
+use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, params_buffer};
 
 /// Twin of `BlurUniforms` in shaders/blur.wgsl.
 #[repr(C)]
@@ -50,7 +50,7 @@ impl BlurPass {
             let sigma = (sigma_glo_cm as f32 * size as f32 / extent).max(1e-3);
             let radius = (3.0 * sigma).ceil().min(256.0);
             let uniforms = BlurUniformsGpu { axis: [axis[0], axis[1], sigma, radius] };
-            let buffer = uniform_buffer(device, queue, "twill.blur.uniforms", &uniforms);
+            let buffer = params_buffer(device, queue, "twill.blur.uniforms", &uniforms);
             let (source_view, destination_view) = (array_view(source), array_view(destination));
             let group = bind_group(
                 device,

@@ -10,7 +10,7 @@
 
 use super::shell_gpu::ShellGpu;
 use super::{
-    FrameEncoder, bind_group, compute_pipeline, pass_module, storage_entry, uniform_buffer, uniform_entry,
+    FrameEncoder, bind_group, compute_pipeline, params_buffer, params_entry, pass_module, storage_entry,
 };
 use crate::fabric_data::{FabricData, make_buffer};
 
@@ -37,7 +37,7 @@ impl CellTransferPass {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("twill.transfer.bind_group_layout"),
             entries: &[
-                uniform_entry(0, compute),
+                params_entry(0, compute),
                 storage_entry(1, compute, true),
                 storage_entry(2, compute, false),
             ],
@@ -79,7 +79,7 @@ impl CellTransferPass {
         rows[0][3] = header.z_range[1] - header.z_range[0];
         let uniforms =
             TransferUniformsGpu { counts: [light_count as u32, slots, 0, 0], uvw_from_world: rows };
-        let uniforms = uniform_buffer(device, queue, "twill.transfer.uniforms", &uniforms);
+        let uniforms = params_buffer(device, queue, "twill.transfer.uniforms", &uniforms);
         let output = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("twill.transfer.cells"),
             size: (u64::from(slots.max(1)) * u64::from(header.sh_count) * 16).max(16),

@@ -15,8 +15,8 @@ use twill_precompute::scene::{CameraSection, ProjectionKind};
 use super::shell_gpu::ShellGpu;
 use super::targets::FrameTargets;
 use super::{
-    FrameEncoder, bind_group, cleared_colour, cleared_depth, depth_less, pass_module, storage_entry,
-    uniform_buffer, uniform_entry,
+    FrameEncoder, bind_group, cleared_colour, cleared_depth, depth_less, params_buffer, params_entry,
+    pass_module, storage_entry,
 };
 use crate::fabric_data::FabricData;
 
@@ -104,7 +104,7 @@ impl GBufferPass {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("twill.gbuffer.bind_group_layout"),
             entries: &[
-                uniform_entry(0, stages),
+                params_entry(0, stages),
                 storage_entry(1, stages, true),
                 storage_entry(2, stages, true),
                 storage_entry(3, stages, true),
@@ -171,7 +171,7 @@ impl GBufferPass {
             fabric_z: [z[0], z[1] - z[0], 0.0, 0.0],
             film: [eye.film_plane, 0.0, 0.0, 0.0],
         };
-        let uniforms = uniform_buffer(device, queue, "twill.gbuffer.uniforms", &uniforms);
+        let uniforms = params_buffer(device, queue, "twill.gbuffer.uniforms", &uniforms);
         let group = bind_group(
             device,
             "twill.gbuffer.bind_group",

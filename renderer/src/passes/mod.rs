@@ -190,6 +190,8 @@ impl TimingReadback {
     }
 }
 
+/// A uniform buffer's layout entry: only for data fixed while a bake is loaded (the fabric
+/// header). What changes from frame to frame goes in [`params_entry`] buffers.
 pub(crate) fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -201,6 +203,11 @@ pub(crate) fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgp
         },
         count: None,
     }
+}
+
+/// The layout entry of a pass's parameters (a [`params_buffer`]): a read-only storage buffer.
+pub(crate) fn params_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    storage_entry(binding, visibility, true)
 }
 
 pub(crate) fn storage_entry(
@@ -305,14 +312,22 @@ pub(crate) fn compute_pass_pipeline(device: &wgpu::Device, stem: &str) -> wgpu::
     compute_pipeline(device, &format!("twill.{stem}.pipeline"), &module, None, &[])
 }
 
-/// A uniform buffer holding `value`.
-pub(crate) fn uniform_buffer<T: bytemuck::Pod>(
+/// A pass's parameters for one frame (or one sample), `value`, in a read-only storage buffer
+/// (`var<storage, read>` in its shader).
+///
+/// Not a uniform buffer: lavapipe (Mesa 22.3, the headless renderer) specializes a shader on
+/// the values of the uniforms that steer its branches and loops, compiling a new variant for
+/// every new set of values and never freeing one. Per-sample parameters (the sub-pixel
+/// jitter) in a uniform buffer made every sample compile the eye-ray shader again: 2 MB and
+/// 25 ms per sample, without bound (an accuracy sweep grew to 24 GB). Storage buffers are
+/// never inlined; on other GPUs a small read-only storage buffer costs the same.
+pub(crate) fn params_buffer<T: bytemuck::Pod>(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     label: &str,
     value: &T,
 ) -> wgpu::Buffer {
-    make_buffer(device, queue, label, bytemuck::bytes_of(value), wgpu::BufferUsages::UNIFORM)
+    make_buffer(device, queue, label, bytemuck::bytes_of(value), wgpu::BufferUsages::STORAGE)
 }
 
 /// A bind group of `layout` binding `resources` at 0, 1, 2, ...

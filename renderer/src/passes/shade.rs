@@ -17,8 +17,8 @@ use twill_precompute::shading::sg_path_weights;
 
 use super::targets::FrameTargets;
 use super::{
-    FrameEncoder, array_view, bind_group, compute_pipeline, pass_module, storage_entry, texture_entry,
-    uniform_buffer, uniform_entry,
+    FrameEncoder, array_view, bind_group, compute_pipeline, params_buffer, params_entry, pass_module,
+    storage_entry, texture_entry,
 };
 use crate::fabric_data::{FabricData, make_buffer};
 use crate::plan::{FramePlan, LocalVisibility, Pass};
@@ -173,7 +173,7 @@ impl ShadePass {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("twill.shade.bind_group_layout"),
             entries: &[
-                uniform_entry(0, compute),
+                params_entry(0, compute),
                 storage_entry(1, compute, true),
                 storage_entry(2, compute, true),
                 texture_entry(3, float, plain),
@@ -239,7 +239,7 @@ impl ShadePass {
             uv_rect: inputs.uv_rect,
             fabric: [inputs.fabric_thickness_cm, 0.0, 0.0, 0.0],
         };
-        let uniforms = uniform_buffer(device, queue, "twill.shade.uniforms", &uniforms);
+        let uniforms = params_buffer(device, queue, "twill.shade.uniforms", &uniforms);
         let (position, ids) = (&targets.views.position, &targets.views.ids);
         let (sharp, blurred) = (array_view(inputs.visibility_sharp), array_view(inputs.visibility_blurred));
         bind_group(

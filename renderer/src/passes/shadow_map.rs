@@ -13,7 +13,7 @@ use glam::{DVec3, Mat4, Vec3};
 
 use super::shell_gpu::ShellGpu;
 use super::{
-    FrameEncoder, array_view, bind_group, cleared_depth, depth_less, pass_module, texture_2d, uniform_buffer,
+    FrameEncoder, array_view, bind_group, cleared_depth, depth_less, params_buffer, pass_module, texture_2d,
 };
 use crate::frame::MAX_SHADOWED_LIGHTS;
 use crate::plan::GlobalVisibility;
@@ -131,7 +131,7 @@ impl ShadowMapPass {
             wgpu::TextureFormat::Depth32Float,
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
         );
-        let buffer = uniform_buffer(device, queue, "twill.shadow_map.uniforms", &uniforms);
+        let buffer = params_buffer(device, queue, "twill.shadow_map.uniforms", &uniforms);
         let bind_group = bind_group(
             device,
             "twill.shadow_map.bind_group",

@@ -6,7 +6,7 @@
 //! needs no new samples.
 
 use super::targets::FrameTargets;
-use super::{FrameEncoder, bind_group, compute_pass_pipeline, uniform_buffer};
+use super::{FrameEncoder, bind_group, compute_pass_pipeline, params_buffer};
 
 /// Twin of `ToneMapUniforms` in shaders/tonemap.wgsl.
 #[repr(C)]
@@ -46,7 +46,7 @@ impl ToneMapPass {
             size: [width, height, u32::from(filmic), 0],
             scale: [(exposure.exp2() / f64::from(samples.max(1))) as f32, 0.0, 0.0, 0.0],
         };
-        let uniforms = uniform_buffer(device, queue, "twill.tonemap.uniforms", &uniforms);
+        let uniforms = params_buffer(device, queue, "twill.tonemap.uniforms", &uniforms);
         let display = &targets.views.display;
         let group = bind_group(
             device,

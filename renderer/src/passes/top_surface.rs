@@ -7,7 +7,7 @@
 //! cover stay transparent (w = 0: no fabric there).
 
 use super::shell_gpu::ShellGpu;
-use super::{FrameEncoder, bind_group, cleared_colour, pass_module, texture_2d, uniform_buffer, view};
+use super::{FrameEncoder, bind_group, cleared_colour, params_buffer, pass_module, texture_2d, view};
 
 /// Twin of `TopSurfaceUniforms` in shaders/top_surface.wgsl.
 #[repr(C)]
@@ -61,7 +61,7 @@ impl TopSurfacePass {
             wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
         );
         let uniforms = TopSurfaceUniformsGpu { uv_rect: shell.uv_rect };
-        let buffer = uniform_buffer(device, queue, "twill.top_surface.uniforms", &uniforms);
+        let buffer = params_buffer(device, queue, "twill.top_surface.uniforms", &uniforms);
         let group = bind_group(
             device,
             "twill.top_surface.bind_group",

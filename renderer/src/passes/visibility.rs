@@ -18,7 +18,7 @@
 use twill_precompute::scene::GpuSection;
 
 use super::shadow_map::ShadowMaps;
-use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, texture_2d, uniform_buffer, view};
+use super::{FrameEncoder, array_view, bind_group, compute_pass_pipeline, params_buffer, texture_2d, view};
 use crate::frame::MAX_SHADOWED_LIGHTS;
 use crate::plan::GlobalVisibility;
 
@@ -108,7 +108,7 @@ impl VisibilityPass {
     ) -> wgpu::Texture {
         let (device, queue) = (&frame.device.clone(), &frame.queue.clone());
         let output = visibility_texture(device, "twill.visibility.sharp", size, maps.layers.len() as u32);
-        let uniforms = uniform_buffer(
+        let uniforms = params_buffer(
             device,
             queue,
             "twill.visibility.uniforms",
