@@ -318,9 +318,10 @@ pub(crate) fn compute_pass_pipeline(device: &wgpu::Device, stem: &str) -> wgpu::
 /// Not a uniform buffer: lavapipe (Mesa 22.3, the headless renderer) specializes a shader on
 /// the values of the uniforms that steer its branches and loops, compiling a new variant for
 /// every new set of values and never freeing one. Per-sample parameters (the sub-pixel
-/// jitter) in a uniform buffer made every sample compile the eye-ray shader again: 2 MB and
-/// 25 ms per sample, without bound (an accuracy sweep grew to 24 GB). Storage buffers are
-/// never inlined; on other GPUs a small read-only storage buffer costs the same.
+/// jitter) in a uniform buffer made every sample compile the eye-ray shader again: about 2 MB
+/// and 6 ms per sample, without bound (an accuracy sweep grew to 24 GB). Mesa inlines only
+/// uniform buffers; on other GPUs a small read-only storage buffer should cost about the same
+/// (not measured: no GPU was at hand).
 pub(crate) fn params_buffer<T: bytemuck::Pod>(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
