@@ -33,7 +33,7 @@ use serde::de::DeserializeOwned;
 use super::cells::{CellError, CellGrid};
 use super::cs_table::{CsTable, CsTableError};
 use super::file::{Array, ArrayData, BakeFile, BakeFileError, BakeWriter, Cache, ContentHash, Hasher};
-use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf};
+use super::iirtf::{CellTransfer, Iirtf, IirtfError, IirtfOptions, bake_iirtf, pool_segment_cells};
 use super::pattern::PatternMap;
 use super::pca::{PcaBasis, PcaError, compress_images};
 use super::recolour::{RecolourBasis, RecolourError, SlotColour, bake_recolour_basis};
@@ -104,9 +104,10 @@ impl Stage {
 /// under fiber lobes holds its reflected light, `iirtf::MatrixLight`, 12: the lobe shapes'
 /// azimuth per light elevation about the fiber (`iirtf::fiber_elevation`), their longitudinal
 /// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`), 13: a lobe shape per colour
-/// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`); volume 3: touching occupancy and the segments'
+/// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`), 14: segment cells pulled toward their lattice
+/// cell within their noise (`iirtf::shrink_segment_cells`); volume 3: touching occupancy and the segments'
 /// capsules).
-pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 13, 1, 1, 1, 3];
+pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 14, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
 /// lobes' fields of `CellTransfer`; 5: `VisibilityData::points`, `SegmentTable::axis` and
@@ -702,6 +703,9 @@ fn bake_stages(
                     &|f| progress(Stage::Transfer, f),
                 )?,
             };
+            let mut iirtf = iirtf;
+            // After the whole set of cells is in hand (a sharded bake's merged parts too).
+            pool_segment_cells(inputs.exemplar, &cells, &mut iirtf.cells, s.segment_pool_mfp * mfp.mean_cm);
             Ok(TransferData { cells, iirtf })
         })?
     };
@@ -1185,7 +1189,8 @@ impl StageKeys {
             .u64(s.seed)
             .u32(u32::from(s.fiber_lobes))
             .u32(u32::from(s.exposed_starts))
-            .usize(s.segment_transfer_paths);
+            .usize(s.segment_transfer_paths)
+            .f64(s.segment_pool_mfp);
         h.finish()
     }
 }
@@ -1243,6 +1248,7 @@ pub(crate) mod tests {
             fiber_lobes: false,
             exposed_starts: true,
             segment_transfer_paths: 0,
+            segment_pool_mfp: 0.0,
         }
     }
 

@@ -119,6 +119,13 @@ pub struct BakeSettings {
     /// segments keep the cells' lobes alone. 0: the cells alone (the paper).
     #[serde(default)]
     pub segment_transfer_paths: usize,
+    /// Radius, in mean free paths ℓ, over which each segment's own transfer is pooled with
+    /// those of the seen segments of its yarn around it (`bake::iirtf::pool_segment_cells`,
+    /// weights falling to zero at the radius). A segment's few dozen paths leave grain that
+    /// a view does not average away; its neighbours lie on the same side of the yarn. 0: each
+    /// segment keeps its own paths' transfer.
+    #[serde(default)]
+    pub segment_pool_mfp: f64,
 }
 
 impl Quality {
@@ -146,14 +153,15 @@ impl Quality {
                 cell_size_mfp: 3.0,
                 cell_depth_mfp: 0.5,
                 iirtf_paths_per_cell: 96,
-                sh_order: 2,
+                sh_order: 3,
                 cs_theta_count: 64,
                 voxels_per_fiber_diameter: 1.75,
                 mfp_samples: 4_000,
                 seed: 1,
                 fiber_lobes: true,
                 exposed_starts: true,
-                segment_transfer_paths: 0,
+                segment_transfer_paths: 48,
+                segment_pool_mfp: 0.5,
             },
             Self::Interactive => BakeSettings {
                 svf_resolution: 24,
@@ -173,6 +181,7 @@ impl Quality {
                 fiber_lobes: true,
                 exposed_starts: true,
                 segment_transfer_paths: 480,
+                segment_pool_mfp: 0.0,
             },
             Self::Paper => BakeSettings {
                 svf_resolution: 128,
@@ -192,6 +201,7 @@ impl Quality {
                 fiber_lobes: false,
                 exposed_starts: false,
                 segment_transfer_paths: 0,
+                segment_pool_mfp: 0.0,
             },
         }
     }
@@ -222,6 +232,7 @@ impl BakeSettings {
         check_range("cell_depth_mfp", self.cell_depth_mfp, 0.25, 64.0)?;
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
         check_count("segment_transfer_paths", self.segment_transfer_paths, 0, 100_000_000)?;
+        check_range("segment_pool_mfp", self.segment_pool_mfp, 0.0, 8.0)?;
         check_count("sh_order", self.sh_order, 0, crate::sh::EULER_MAX_ORDER)?;
         check_count("cs_theta_count", self.cs_theta_count, 2, 8192)?;
         check_range(

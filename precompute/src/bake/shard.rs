@@ -537,6 +537,8 @@ mod tests {
             fiber_lobes: false,
             exposed_starts: true,
             segment_transfer_paths: 0,
+            // Where segment cells are baked, pooled after the parts are merged.
+            segment_pool_mfp: 0.5,
         }
     }
 

@@ -1288,6 +1288,7 @@ fn tiny_baked() -> &'static Baked {
             fiber_lobes: false,
             exposed_starts: false,
             segment_transfer_paths: 0,
+            segment_pool_mfp: 0.0,
         };
         let inputs = BakeInputs { exemplar: &exemplar, materials: &materials, settings };
         bake(&inputs, None, &Cancel::new(), &|_, _| {}).unwrap().baked

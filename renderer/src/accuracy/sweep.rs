@@ -168,10 +168,11 @@ pub enum Knob {
     FiberLobes,
     ExposedStarts,
     SegmentPaths,
+    SegmentPool,
 }
 
 impl Knob {
-    pub const ALL: [Knob; 15] = [
+    pub const ALL: [Knob; 16] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::VisibilityBits,
@@ -187,6 +188,7 @@ impl Knob {
         Knob::FiberLobes,
         Knob::ExposedStarts,
         Knob::SegmentPaths,
+        Knob::SegmentPool,
     ];
 
     /// Its name: the bake knob's (`--set`), or the frame setting's.
@@ -208,6 +210,7 @@ impl Knob {
             Self::FiberLobes => "fiber_lobes",
             Self::ExposedStarts => "exposed_starts",
             Self::SegmentPaths => "segment_transfer_paths",
+            Self::SegmentPool => "segment_pool_mfp",
         }
     }
 
@@ -242,6 +245,7 @@ impl Knob {
             Self::SigmaGlo => vec![0.0, 0.02, 0.05, 0.1],
             Self::VisibilityBits | Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
             Self::SegmentPaths => vec![0.0, 24.0, 48.0, 96.0, 192.0],
+            Self::SegmentPool => vec![0.0, 0.25, 0.5, 1.0],
         }
     }
 
@@ -263,6 +267,7 @@ impl Knob {
             Self::FiberLobes => bake.fiber_lobes = value >= 0.5,
             Self::ExposedStarts => bake.exposed_starts = value >= 0.5,
             Self::SegmentPaths => bake.segment_transfer_paths = count,
+            Self::SegmentPool => bake.segment_pool_mfp = value,
         }
     }
 
@@ -285,6 +290,7 @@ impl Knob {
             Self::FiberLobes => f64::from(u8::from(bake.fiber_lobes)),
             Self::ExposedStarts => f64::from(u8::from(bake.exposed_starts)),
             Self::SegmentPaths => bake.segment_transfer_paths as f64,
+            Self::SegmentPool => bake.segment_pool_mfp,
         }
     }
 }
