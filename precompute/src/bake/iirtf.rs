@@ -1200,7 +1200,7 @@ pub fn bake_iirtf(
 /// transfer, so pooling them trades that noise for a blur far finer than a lattice cell.
 pub fn pool_segment_cells(exemplar: &Exemplar, grid: &CellGrid, cells: &mut [CellTransfer], radius_cm: f64) {
     let first = grid.lattice_cell_count();
-    if cells.len() <= first || !(radius_cm > 0.0) {
+    if cells.len() <= first || radius_cm.is_nan() || radius_cm <= 0.0 {
         return;
     }
     let segments = exemplar.segments();

@@ -5,7 +5,7 @@
 //! |---|---|
 //! | mean free path | geometry, `mfp_samples`, `seed` |
 //! | visibility (SVF → SSDF → PCA, sum of SGs, the kept bits) | geometry, `svf_resolution`, `visibility_points`, `pca_components`, `visibility_bits`, `sos_count`, `sos_sharpness`, `seed` |
-//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts`, `segment_transfer_paths` |
+//! | transfer (cells, IIRTF) | geometry, materials, the mean free path, `cell_size_mfp`, `cell_depth_mfp`, `iirtf_paths_per_cell`, `sh_order`, `seed`, `fiber_lobes`, `exposed_starts`, `segment_transfer_paths`, `segment_pool_mfp` |
 //! | C_S tables | materials, `sh_order`, `cs_theta_count` |
 //! | Gn tables | materials |
 //! | C_G table | `sh_order` |
@@ -104,8 +104,8 @@ impl Stage {
 /// under fiber lobes holds its reflected light, `iirtf::MatrixLight`, 12: the lobe shapes'
 /// azimuth per light elevation about the fiber (`iirtf::fiber_elevation`), their longitudinal
 /// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`), 13: a lobe shape per colour
-/// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`), 14: segment cells pulled toward their lattice
-/// cell within their noise (`iirtf::shrink_segment_cells`); volume 3: touching occupancy and the segments'
+/// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`), 14: segment cells pooled with their yarn's
+/// neighbours (`iirtf::pool_segment_cells`, `BakeSettings::segment_pool_mfp`); volume 3: touching occupancy and the segments'
 /// capsules).
 pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 14, 1, 1, 1, 3];
 

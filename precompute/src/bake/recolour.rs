@@ -1482,10 +1482,8 @@ mod tests {
             iirtf_paths_per_cell: paths,
             sh_order: order,
             cs_theta_count: 16,
-            // The SH transfer alone; the lobe tests set them on. The basis holds the lattice's
-            // cells: the bakes it is compared with have no segment cells.
+            // The SH transfer alone; the lobe tests set them on.
             fiber_lobes: false,
-            segment_transfer_paths: 0,
             ..Quality::Draft.settings()
         }
     }
