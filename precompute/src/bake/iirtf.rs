@@ -44,6 +44,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use glam::DVec3;
 use rand::Rng;
+use rayon::prelude::*;
 
 use super::cells::CellGrid;
 use super::settings::{BakeSettings, CellPaths};
@@ -1238,21 +1239,27 @@ pub fn pool_segment_cells(exemplar: &Exemplar, grid: &CellGrid, cells: &mut [Cel
         buckets.entry((bx, by, segments[k].yarn, holds_reflected(k))).or_default().push(k);
     }
     let n = cells[first + seen.first().copied().unwrap_or(0)].matrix.len();
-    let pooled: Vec<(usize, Vec<[f32; 3]>)> = seen
-        .iter()
-        .map(|&k| {
-            let p = position(k);
-            let (bx, by) = bucket_of(p);
-            let key = (segments[k].yarn, holds_reflected(k));
-            let mut sum = vec![[0.0_f64; 3]; n];
-            let mut total = 0.0;
-            for dx in -1..=1_i64 {
-                for dy in -1..=1_i64 {
-                    let (mut x, mut y) = (bx + dx, by + dy);
-                    if periodic {
-                        x = x.rem_euclid(counts[0]);
-                        y = y.rem_euclid(counts[1]);
-                    }
+    let cells_read: &[CellTransfer] = cells;
+    let pooled: Vec<(usize, Vec<[f32; 3]>)> =
+        seen.par_iter()
+            .map(|&k| {
+                let p = position(k);
+                let (bx, by) = bucket_of(p);
+                let key = (segments[k].yarn, holds_reflected(k));
+                // The 3x3 hash cells around p, each once (across a period of fewer than three
+                // cells, neighbours' offsets wrap onto the same cell).
+                let mut around: Vec<(i64, i64)> =
+                    (-1..=1_i64)
+                        .flat_map(|dx| (-1..=1_i64).map(move |dy| (bx + dx, by + dy)))
+                        .map(|(x, y)| {
+                            if periodic { (x.rem_euclid(counts[0]), y.rem_euclid(counts[1])) } else { (x, y) }
+                        })
+                        .collect();
+                around.sort_unstable();
+                around.dedup();
+                let mut sum = vec![[0.0_f64; 3]; n];
+                let mut total = 0.0;
+                for (x, y) in around {
                     let Some(list) = buckets.get(&(x, y, key.0, key.1)) else { continue };
                     for &j in list {
                         let mut d = position(j) - p;
@@ -1261,7 +1268,7 @@ pub fn pool_segment_cells(exemplar: &Exemplar, grid: &CellGrid, cells: &mut [Cel
                             d.y -= period.y * (d.y / period.y).round();
                         }
                         let q = d.length_squared() / (radius_cm * radius_cm);
-                        let other = &cells[first + j];
+                        let other = &cells_read[first + j];
                         if q >= 1.0 || other.matrix.len() != n {
                             continue;
                         }
@@ -1274,12 +1281,11 @@ pub fn pool_segment_cells(exemplar: &Exemplar, grid: &CellGrid, cells: &mut [Cel
                         }
                     }
                 }
-            }
-            #[allow(clippy::cast_possible_truncation)]
-            let matrix = sum.iter().map(|a| a.map(|v| (v / total) as f32)).collect();
-            (k, matrix)
-        })
-        .collect();
+                #[allow(clippy::cast_possible_truncation)]
+                let matrix = sum.iter().map(|a| a.map(|v| (v / total) as f32)).collect();
+                (k, matrix)
+            })
+            .collect();
     for (k, matrix) in pooled {
         cells[first + k].matrix = matrix;
     }
@@ -1745,6 +1751,27 @@ mod tests {
         (exemplar, yarn)
     }
 
+    /// Cells `range` of `grid` baked with the default options.
+    fn bake_range(
+        exemplar: &Exemplar,
+        materials: &[Material],
+        grid: &CellGrid,
+        settings: &BakeSettings,
+        range: std::ops::Range<usize>,
+    ) -> Vec<CellTransfer> {
+        bake_iirtf_cells(
+            exemplar,
+            materials,
+            grid,
+            settings,
+            &IirtfOptions::default(),
+            range,
+            &Cancel::new(),
+            &|_| {},
+        )
+        .unwrap()
+    }
+
     #[test]
     fn exposed_starts_lie_on_the_fibers_outer_side_and_are_fewer_under_other_fibers() {
         let (exemplar, materials) = default_fabric();
@@ -1824,19 +1851,7 @@ mod tests {
         // The bake gives paths to exactly the segment cells an eye sees whose lattice cell keeps
         // no lobes, or keeps them and the fabric's reflected light fits matrices; and no lobes.
         let first = grid.lattice_cell_count();
-        let bake = |range: std::ops::Range<usize>| {
-            bake_iirtf_cells(
-                &exemplar,
-                &materials,
-                &grid,
-                &settings,
-                &IirtfOptions::default(),
-                range,
-                &Cancel::new(),
-                &|_| {},
-            )
-            .unwrap()
-        };
+        let bake = |range| bake_range(&exemplar, &materials, &grid, &settings, range);
         let lattice = bake(0..first);
         let fits = reflected_light_fits_matrices(&lattice, settings.sh_order);
         let cells = bake(first..first + 200);
@@ -1876,19 +1891,14 @@ mod tests {
         };
         let grid = CellGrid::for_bake(&exemplar, mfp, &settings).unwrap();
         let first = grid.lattice_cell_count();
-        let bake = |paths: usize, range: std::ops::Range<usize>| {
-            let settings = BakeSettings { segment_transfer_paths: paths, ..settings };
-            bake_iirtf_cells(
+        let bake = |paths: usize, range| {
+            bake_range(
                 &exemplar,
                 &materials,
                 &grid,
-                &settings,
-                &IirtfOptions::default(),
+                &BakeSettings { segment_transfer_paths: paths, ..settings },
                 range,
-                &Cancel::new(),
-                &|_| {},
             )
-            .unwrap()
         };
         let mut cells = bake(16, 0..grid.cell_count());
         let raw = cells.clone();
