@@ -222,6 +222,13 @@ impl Knob {
         })
     }
 
+    /// Whether it acts on a bake of `bake`: pooling segment transfers needs some
+    /// (`segment_transfer_paths > 0`); around a base without them its points are left out.
+    #[must_use]
+    pub fn acts_on(self, bake: &BakeSettings) -> bool {
+        self != Self::SegmentPool || bake.segment_transfer_paths > 0
+    }
+
     /// Whether it changes the bake (else only the frame).
     #[must_use]
     pub fn is_bake_knob(self) -> bool {
@@ -846,6 +853,9 @@ pub fn run(
         for &value in values {
             let mut bake_settings = settings.base.settings();
             knob.apply(value, &mut bake_settings, &mut placeholder_frame());
+            if !knob.acts_on(&bake_settings) {
+                continue;
+            }
             plans.push((
                 format!("{} = {value}", knob.name()),
                 PointKind::Knob { knob, value },
@@ -1455,5 +1465,9 @@ mod tests {
         }
         let e = Knob::parse("sh").unwrap_err().to_string();
         assert!(e.contains("sh_order") && e.contains("sigma_glo_cm"), "{e}");
+        // Pooling is swept only around a base with segment transfers.
+        assert!(!Knob::SegmentPool.acts_on(&Quality::Draft.settings()));
+        assert!(Knob::SegmentPool.acts_on(&Quality::Interactive.settings()));
+        assert!(Knob::ShOrder.acts_on(&Quality::Draft.settings()));
     }
 }
