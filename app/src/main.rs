@@ -146,9 +146,9 @@ struct ReportArgs {
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
     /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, visibility_points, sos_count,
     /// sos_sharpness, iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp,
-    /// segment_transfer_paths, segment_pool_mfp, spp, sigma_glo_cm; visibility_bits, fiber_lobes and
-    /// exposed_starts: 0 or 1). segment_pool_mfp is swept only around a base with segment
-    /// transfers (`--base interactive`).
+    /// segment_transfer_paths, segment_pool_mfp, spp, sigma_glo_cm; visibility_bits,
+    /// fiber_lobes and exposed_starts: 0 or 1). segment_pool_mfp is swept only around a base
+    /// with segment transfers (`--base interactive`).
     #[arg(long, default_value = "all")]
     knobs: String,
     /// Skip the CPU version of the method at the presets.

@@ -288,6 +288,13 @@ impl CellGrid {
         self.origin
     }
 
+    /// Size of the divided region (cm): the blocks side by side across, the slab in z; for a
+    /// periodic exemplar, its period across.
+    #[must_use]
+    pub fn region_size_cm(&self) -> DVec3 {
+        self.block_size * DVec3::new(f64::from(self.blocks[0]), f64::from(self.blocks[1]), 1.0)
+    }
+
     /// Whether the grid repeats with the exemplar's period across the fabric.
     #[must_use]
     pub fn is_periodic(&self) -> bool {
@@ -357,11 +364,7 @@ impl CellGrid {
     #[must_use]
     pub fn cell_of_point(&self, p: DVec3) -> u32 {
         let mut local = p - self.origin;
-        let extent = DVec3::new(
-            self.block_size.x * f64::from(self.blocks[0]),
-            self.block_size.y * f64::from(self.blocks[1]),
-            self.block_size.z,
-        );
+        let extent = self.region_size_cm();
         if self.periodic {
             local.x = local.x.rem_euclid(extent.x);
             local.y = local.y.rem_euclid(extent.y);

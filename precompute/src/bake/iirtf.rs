@@ -1205,9 +1205,7 @@ pub fn pool_segment_cells(exemplar: &Exemplar, grid: &CellGrid, cells: &mut [Cel
         return;
     }
     let segments = exemplar.segments();
-    let period = (grid.block_size_cm()
-        * DVec3::new(f64::from(grid.blocks()[0]), f64::from(grid.blocks()[1]), 0.0))
-    .truncate();
+    let period = grid.region_size_cm().truncate();
     let periodic = grid.is_periodic();
     let origin = grid.origin_cm().truncate();
     // Hash cells at least `radius_cm` wide, a whole number of them across the period.

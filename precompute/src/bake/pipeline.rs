@@ -105,8 +105,8 @@ impl Stage {
 /// azimuth per light elevation about the fiber (`iirtf::fiber_elevation`), their longitudinal
 /// terms per node of ω0·t (`iirtf::LOBE_LONGITUDINAL_BINS`), 13: a lobe shape per colour
 /// channel (`iirtf::LOBE_CHANNEL_SHAPE_LEN`), 14: segment cells pooled with their yarn's
-/// neighbours (`iirtf::pool_segment_cells`, `BakeSettings::segment_pool_mfp`); volume 3: touching occupancy and the segments'
-/// capsules).
+/// neighbours (`iirtf::pool_segment_cells`, `BakeSettings::segment_pool_mfp`); volume 3:
+/// touching occupancy and the segments' capsules).
 pub const STAGE_VERSIONS: [u32; 7] = [1, 5, 14, 1, 1, 1, 3];
 
 /// Version of the serialized layout of [`Baked`] (part of the whole-file key; 4: the fiber
@@ -680,7 +680,7 @@ fn bake_stages(
     } else {
         stage_runner.run(Stage::Transfer, transfer_key, || {
             let cells = CellGrid::for_bake(inputs.exemplar, mfp.mean_cm, s)?;
-            let iirtf = match precomputed_cells {
+            let mut iirtf = match precomputed_cells {
                 Some(precomputed) if precomputed.len() == cells.cell_count() => Iirtf {
                     sh_order: s.sh_order,
                     light_domain: IirtfOptions::default().light_domain,
@@ -703,7 +703,6 @@ fn bake_stages(
                     &|f| progress(Stage::Transfer, f),
                 )?,
             };
-            let mut iirtf = iirtf;
             // After the whole set of cells is in hand (a sharded bake's merged parts too).
             pool_segment_cells(inputs.exemplar, &cells, &mut iirtf.cells, s.segment_pool_mfp * mfp.mean_cm);
             Ok(TransferData { cells, iirtf })
