@@ -662,6 +662,7 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
         reference_spp: 64,
         method_spp: 4,
         base: Quality::Draft,
+        base_bake: Quality::Draft.settings(),
         presets: vec![Quality::Draft],
         knobs: Vec::new(),
         cpu_method: true,

@@ -18,7 +18,7 @@ use anyhow::{Context as _, Result};
 use base64::Engine as _;
 use plotters::prelude::*;
 use twill_precompute::bake::file::Cache;
-use twill_precompute::bake::settings::Quality;
+use twill_precompute::bake::settings::{BakeSettings, Quality};
 use twill_precompute::image::Image;
 use twill_precompute::scene::{FabricSection, MeshSection, SceneFile};
 use twill_renderer::accuracy::sweep::{
@@ -148,6 +148,17 @@ pub fn run(options: &ReportOptions) -> Result<()> {
     Ok(())
 }
 
+/// The knobs of `base` that differ in `changed`, as `knob = value` (their TOML form).
+fn base_changes(base: BakeSettings, changed: BakeSettings) -> Vec<String> {
+    let table = |s: BakeSettings| toml::Table::try_from(s).unwrap_or_default();
+    let (before, after) = (table(base), table(changed));
+    after
+        .iter()
+        .filter(|(knob, value)| before.get(*knob) != Some(*value))
+        .map(|(knob, value)| format!("{knob} = {value}"))
+        .collect()
+}
+
 /// One paragraph: what was run, on what, with the references' noise.
 fn describe_run(sweep: &Sweep) -> String {
     let s = &sweep.settings;
@@ -160,6 +171,10 @@ fn describe_run(sweep: &Sweep) -> String {
         sweep.adapter,
         s.base.name()
     );
+    let changes = base_changes(s.base.settings(), s.base_bake);
+    if !changes.is_empty() {
+        let _ = write!(out, " The base's knobs changed: {}.", changes.join(", "));
+    }
     for f in &sweep.fabrics {
         let _ = write!(
             out,
@@ -387,10 +402,13 @@ fn html(sweep: &Sweep) -> Result<String> {
             knobs.push(knob);
         }
     }
-    let base = sweep
-        .points
-        .iter()
-        .find(|p| p.method == Method::Gpu && p.kind == PointKind::Preset(sweep.settings.base));
+    // The base preset's point is each knob's point at the base only when no knob of the base
+    // was changed (`--set`).
+    let base = sweep.points.iter().find(|p| {
+        p.method == Method::Gpu
+            && p.kind == PointKind::Preset(sweep.settings.base)
+            && p.bake == sweep.settings.base_bake
+    });
     for knob in knobs {
         let time = |p: &sweep::Point| if knob.is_bake_knob() { p.bake_seconds() } else { p.frame_ms() };
         let mut points: Vec<&sweep::Point> = sweep
@@ -643,6 +661,16 @@ mod tests {
         assert_eq!(k[1], (Knob::Spp, Knob::Spp.default_values()));
         assert!(parse_knobs("sh_order=one").unwrap_err().to_string().contains("not a number"));
         assert!(format!("{:#}", parse_knobs("colour").unwrap_err()).contains("sh_order"));
+    }
+
+    #[test]
+    fn the_report_names_each_knob_set_on_the_base() {
+        let base = Quality::Draft.settings();
+        assert!(base_changes(base, base).is_empty());
+        let changed = BakeSettings { sh_order: 3, segment_pool_mfp: 0.5, ..base };
+        let mut named = base_changes(base, changed);
+        named.sort();
+        assert_eq!(named, ["segment_pool_mfp = 0.5", "sh_order = 3"]);
     }
 
     #[test]

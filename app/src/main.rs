@@ -140,15 +140,21 @@ struct ReportArgs {
     /// The preset the knobs are varied around.
     #[arg(long, value_enum, default_value = "draft")]
     base: QualityArg,
-    /// Presets measured as points, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "draft,interactive")]
+    /// Change one knob of the base preset before the knobs are varied around it, e.g. `--set
+    /// sh_order=3` (repeatable; the knobs are the fields of `BakeSettings`, as `twill bake
+    /// --set` takes). The presets measured as points are not changed.
+    #[arg(long = "set", value_name = "KNOB=VALUE")]
+    base_set: Vec<String>,
+    /// Presets measured as points, comma-separated (`--presets` alone: none, only the knobs).
+    #[arg(long, value_enum, value_delimiter = ',', num_args = 0.., default_value = "draft,interactive")]
     presets: Vec<QualityArg>,
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
     /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, visibility_points, sos_count,
     /// sos_sharpness, iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp,
     /// segment_transfer_paths, segment_pool_mfp, spp, sigma_glo_cm; visibility_bits,
-    /// fiber_lobes and exposed_starts: 0 or 1). segment_pool_mfp is swept only around a base
-    /// with segment transfers (`--base interactive`).
+    /// fiber_lobes and exposed_starts: 0 or 1; seed, the bake's random seed, whose points
+    /// differ by the bake's noise alone). segment_pool_mfp is swept only around a base with
+    /// segment transfers (`--base interactive`).
     #[arg(long, default_value = "all")]
     knobs: String,
     /// Skip the CPU version of the method at the presets.
@@ -593,6 +599,10 @@ fn run(cli: Cli) -> Result<()> {
                     reference_spp: report.reference_spp,
                     method_spp: report.spp,
                     base: quality_of(report.base),
+                    base_bake: commands::apply_overrides(
+                        quality_of(report.base).settings(),
+                        &report.base_set,
+                    )?,
                     presets: report.presets.into_iter().map(quality_of).collect(),
                     knobs: accuracy_report::parse_knobs(&report.knobs)?,
                     cpu_method: !report.no_cpu,

@@ -169,10 +169,13 @@ pub enum Knob {
     ExposedStarts,
     SegmentPaths,
     SegmentPool,
+    /// The bake's random seed: its points differ by the bake's own noise alone, the spread
+    /// against which every other knob's effect is read.
+    Seed,
 }
 
 impl Knob {
-    pub const ALL: [Knob; 16] = [
+    pub const ALL: [Knob; 17] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::VisibilityBits,
@@ -189,6 +192,7 @@ impl Knob {
         Knob::ExposedStarts,
         Knob::SegmentPaths,
         Knob::SegmentPool,
+        Knob::Seed,
     ];
 
     /// Its name: the bake knob's (`--set`), or the frame setting's.
@@ -211,6 +215,7 @@ impl Knob {
             Self::ExposedStarts => "exposed_starts",
             Self::SegmentPaths => "segment_transfer_paths",
             Self::SegmentPool => "segment_pool_mfp",
+            Self::Seed => "seed",
         }
     }
 
@@ -253,6 +258,7 @@ impl Knob {
             Self::VisibilityBits | Self::FiberLobes | Self::ExposedStarts => vec![0.0, 1.0],
             Self::SegmentPaths => vec![0.0, 24.0, 48.0, 96.0, 192.0],
             Self::SegmentPool => vec![0.0, 0.25, 0.5, 1.0],
+            Self::Seed => vec![1.0, 2.0, 3.0, 4.0],
         }
     }
 
@@ -275,6 +281,7 @@ impl Knob {
             Self::ExposedStarts => bake.exposed_starts = value >= 0.5,
             Self::SegmentPaths => bake.segment_transfer_paths = count,
             Self::SegmentPool => bake.segment_pool_mfp = value,
+            Self::Seed => bake.seed = count as u64,
         }
     }
 
@@ -298,6 +305,7 @@ impl Knob {
             Self::ExposedStarts => f64::from(u8::from(bake.exposed_starts)),
             Self::SegmentPaths => bake.segment_transfer_paths as f64,
             Self::SegmentPool => bake.segment_pool_mfp,
+            Self::Seed => bake.seed as f64,
         }
     }
 }
@@ -329,6 +337,9 @@ pub struct SweepSettings {
     pub method_spp: u32,
     /// The preset the knobs vary around.
     pub base: Quality,
+    /// The bake settings the knobs vary around: `base`'s, or those with some knobs changed
+    /// (`twill accuracy --set`).
+    pub base_bake: BakeSettings,
     /// Presets measured as points of their own.
     pub presets: Vec<Quality>,
     /// Knobs and the values each is swept over.
@@ -356,7 +367,7 @@ impl SweepSettings {
             return bad("nothing to measure: give at least one preset or knob".into());
         }
         for (knob, values) in &self.knobs {
-            let (mut bake, mut frame) = (self.base.settings(), placeholder_frame());
+            let (mut bake, mut frame) = (self.base_bake, placeholder_frame());
             for &v in values {
                 if !v.is_finite() {
                     return bad(format!("{}: value {v} is not finite", knob.name()));
@@ -851,7 +862,7 @@ pub fn run(
     }
     for &(knob, ref values) in &settings.knobs {
         for &value in values {
-            let mut bake_settings = settings.base.settings();
+            let mut bake_settings = settings.base_bake;
             knob.apply(value, &mut bake_settings, &mut placeholder_frame());
             if !knob.acts_on(&bake_settings) {
                 continue;
