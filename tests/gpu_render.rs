@@ -765,7 +765,11 @@ fn default_scene_image_mean_against_the_path_tracer() {
 /// GPU's block middles are +6.7% / −6.3% of the path tracer's in mean (the draft method's error
 /// on this view; held to one-sided bands of 4 points). Re-measured 2026-11-28 (twenty-second
 /// session) with the draft's cells 3ℓ across instead of 4ℓ: +11.0% / −2.6% (the twill's block
-/// middles brighter; the bands follow).
+/// middles brighter; the bands follow). These are one bake seed's figures: the draft's transfer
+/// is noisy enough that on the plain weave alone (from above, this sun) its multiple scattering
+/// measured −0.4% at seed 1 and −12%, −19%, −9%, +0.3% with other seeds of its paths, and −11%
+/// at ten times the paths (docs/BENCHMARKS.md, "The bake's own noise"): a bake change that moves
+/// these bands may be moving the noise, so measure it over seeds before reading it as a bias.
 #[test]
 fn patterned_cloth_blocks_render_as_their_own_weave() {
     let Some(gpu) = Gpu::for_test("patterned_cloth_blocks_render_as_their_own_weave") else { return };
