@@ -962,8 +962,8 @@ fn lobe_light_sh(dir: vec3<f32>, sharpness: f32, c: ptr<function, array<f32, 49>
 }
 
 // Both lobes' strength for the light of SH `c` (FiberLobe::strength_for of the interpolated
-// lobes: sum_j strength_j c_j, the cells' weighted sum taken per cell), per channel, before the
-// clamp at zero: [0] forward, [1] reflected.
+// lobes: sum_j strength_j c_j, the cells' weighted sum taken per cell), per channel, signed:
+// [0] forward, [1] reflected.
 fn fiber_lobe_strengths(at: ptr<function, FiberLobesAt>, c: ptr<function, array<f32, 49>>) -> array<vec3<f32>, 2> {
     var out = array<vec3<f32>, 2>(vec3<f32>(0.0), vec3<f32>(0.0));
     for (var k = 0u; k < 8u; k++) {
@@ -1083,7 +1083,8 @@ fn toward_up(t: vec3<f32>, dir: vec3<f32>) -> f32 {
 // frame; sharpness < 0: directional, else an SG of that sharpness), without V_glo and the
 // light's colour, which the caller multiplies in (multiple.rs lobe_scattering, its per-light
 // sum): per lobe and colour channel, s lobe_quadrature(...) with s the lobe's strength for the
-// light clamped at zero and the channel's own shape. `at` from fiber_lobes_at.
+// light, signed (FiberLobe::strength_for: only the pixel's mean is clamped), and the channel's
+// own shape. `at` from fiber_lobes_at.
 fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32, at: ptr<function, FiberLobesAt>) -> vec3<f32> {
     var c: array<f32, 49>;
     lobe_light_sh(dir, sharpness, &c);
@@ -1105,12 +1106,12 @@ fn fiber_lobes_light(segment: u32, wo: vec3<f32>, dir: vec3<f32>, sharpness: f32
     var out = vec3<f32>(0.0);
     let lobe_count = select(2u, 1u, (*at).forward_only);
     for (var lobe = 0u; lobe < lobe_count; lobe++) {
-        let strength = max(strengths[lobe], vec3<f32>(0.0));
+        let strength = strengths[lobe];
         if (all(strength == vec3<f32>(0.0))) {
             continue;
         }
         for (var channel = 0u; channel < 3u; channel++) {
-            if (!(strength[channel] > 0.0)) {
+            if (strength[channel] == 0.0) {
                 continue;
             }
             var axis: vec3<f32>;

@@ -350,11 +350,18 @@ impl FiberLobe {
         }
     }
 
-    /// `s = Σ_j strength_j c_j` per channel, clamped at zero, for a light's SH `c` at
-    /// [`LOBE_SH_ORDER`] ([`light_sh`]: a directional light of irradiance E gives E F(ω_d)).
+    /// `s = Σ_j strength_j c_j` per channel for a light's SH `c` at [`LOBE_SH_ORDER`]
+    /// ([`light_sh`]: a directional light of irradiance E gives E F(ω_d)), signed as the SH
+    /// transfer's samples are: only a pixel's mean is clamped at zero (`shading::render`).
+    /// The strength is an order-6 expansion estimated from each cell's paths, and where a
+    /// light's true strength is small its noise is as often below zero as above: clamped here,
+    /// every cell's noise added light. On the silk satin at draft (96 paths per cell) that
+    /// held multiple scattering's median over the 100 configurations of `twill accuracy` at
+    /// +5.7% (+0.4% at 960 paths), its worst configuration +75% (CPU method); signed, −1.7%
+    /// and +30% (docs/BENCHMARKS.md, "The lobes' strength, signed").
     #[must_use]
     pub fn strength_for(&self, c_light: &[Rgb]) -> Rgb {
-        self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>().max(Rgb::ZERO)
+        self.strength.iter().zip(c_light).map(|(f, c)| *f * *c).sum::<Rgb>()
     }
 
     /// The azimuthal means `[E cos Δφ, E sin Δφ (toward up), …]` of colour channel `channel`

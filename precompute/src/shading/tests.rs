@@ -1482,3 +1482,36 @@ fn shading_transfer_point_is_the_hit_projected_on_its_segment_axis() {
         assert!(got.is_finite());
     }
 }
+
+/// The fiber lobes' strength for a light stays signed (`FiberLobe::strength_for`): a cell's
+/// strength is an order-6 expansion estimated from its paths, and the mean of the strengths
+/// of cells whose estimates scatter about a small true strength is that strength only if
+/// none is clamped at zero (the clamp lifted the silk satin's draft multiple scattering by
+/// about 6%, docs/BENCHMARKS.md). Noise in the band-1 coefficient about a true strength of
+/// 0.01 for a light overhead: every estimate's strength, and their mean, are linear in the
+/// coefficients.
+#[test]
+fn fiber_lobe_strength_is_signed_so_noise_about_a_small_strength_averages_out() {
+    use super::multiple::FiberLobe;
+    use crate::bake::iirtf::LOBE_SH_ORDER;
+    use crate::sh::{sh_count, sh_eval};
+    let n = sh_count(LOBE_SH_ORDER);
+    let mut light = vec![0.0; n];
+    sh_eval(LOBE_SH_ORDER, DVec3::Z, &mut light);
+    assert!(light[2].abs() > 0.1, "Y_1^0 overhead");
+    let c_light: Vec<Rgb> = light.iter().map(|&y| Rgb::splat(y)).collect();
+    // Strength 0.01 from the constant term alone; Y_1^0 = sqrt(3/4π) overhead.
+    let truth = 0.01;
+    let dc = truth / light[0];
+    let strength_of = |noise: f64| {
+        let mut lobe = FiberLobe::default();
+        lobe.strength[0] = Rgb::splat(dc);
+        lobe.strength[2] = Rgb::splat(noise / light[2]);
+        lobe.strength_for(&c_light)
+    };
+    let noises = [-0.05, -0.02, 0.0, 0.02, 0.05];
+    let below = strength_of(-0.05);
+    assert!((below.x - (truth - 0.05)).abs() < 1e-12, "{below:?}");
+    let mean = noises.iter().map(|&e| strength_of(e).x).sum::<f64>() / noises.len() as f64;
+    assert!((mean - truth).abs() < 1e-12, "mean strength {mean} against {truth}");
+}
