@@ -150,7 +150,7 @@ struct ReportArgs {
     presets: Vec<QualityArg>,
     /// Knobs to sweep: `all`, `none`, or a comma list of names, each optionally with values as
     /// `name=v1/v2/...` (sh_order, pca_components, svf_resolution, visibility_points, sos_count,
-    /// sos_sharpness, iirtf_paths_per_cell, cell_size_mfp, cell_depth_mfp,
+    /// sos_sharpness, iirtf_paths_per_cell, iirtf_light_samples, cell_size_mfp, cell_depth_mfp,
     /// segment_transfer_paths, segment_pool_mfp, spp, sigma_glo_cm; visibility_bits,
     /// fiber_lobes and exposed_starts: 0 or 1; seed, the bake's random seed, whose points
     /// differ by the bake's noise alone). segment_pool_mfp is swept only around a base with

@@ -502,6 +502,7 @@ pub fn recolour_basis(
         .f64(s.cell_size_mfp)
         .f64(s.cell_depth_mfp)
         .usize(s.iirtf_paths_per_cell)
+        .usize(s.iirtf_light_samples)
         .usize(s.sh_order)
         .usize(s.cs_theta_count)
         .u64(s.seed)
@@ -1184,6 +1185,7 @@ impl StageKeys {
             .f64(s.cell_size_mfp)
             .f64(s.cell_depth_mfp)
             .usize(s.iirtf_paths_per_cell)
+            .usize(s.iirtf_light_samples)
             .usize(s.sh_order)
             .u64(s.seed)
             .u32(u32::from(s.fiber_lobes))
@@ -1239,6 +1241,7 @@ pub(crate) mod tests {
             cell_size_mfp: 16.0,
             cell_depth_mfp: 16.0,
             iirtf_paths_per_cell: 8,
+            iirtf_light_samples: 1,
             sh_order: 2,
             cs_theta_count: 8,
             voxels_per_fiber_diameter: 0.5,

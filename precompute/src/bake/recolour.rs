@@ -1007,7 +1007,8 @@ fn colour_free_sampler(
     })?;
     let light_domain = IirtfOptions::default().light_domain;
     let sampler = TransferSampler::new(exemplar, &yarn_materials, light_domain)?
-        .with_exposed_starts(settings.exposed_starts);
+        .with_exposed_starts(settings.exposed_starts)
+        .with_light_samples(settings.iirtf_light_samples);
     Ok((sampler, light_domain))
 }
 

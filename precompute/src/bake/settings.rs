@@ -83,6 +83,14 @@ pub struct BakeSettings {
     pub cell_depth_mfp: f64,
     /// Paths traced per IIRTF cell.
     pub iirtf_paths_per_cell: usize,
+    /// Light samples drawn at each fiber event of an IIRTF path (`bake::iirtf`), each carrying
+    /// its share: the walk's rays are shared by all of them, and a transfer's noise comes
+    /// mostly from where its few light connections land (a cell's transfer toward one light is
+    /// a handful of connections near it). At 4, the interactive bake's seed-to-seed spread in
+    /// multiple scattering fell by more than doubling its paths does, for less time
+    /// (docs/BENCHMARKS.md, "Several light samples per event"). 1: one sample per event.
+    #[serde(default = "one")]
+    pub iirtf_light_samples: usize,
     /// SH order L of the IIRTF (and of C_S, C_G): (L+1)² coefficients.
     pub sh_order: usize,
     /// Number of θo values in the C_S table, equally spaced over [-π/2, π/2].
@@ -153,6 +161,7 @@ impl Quality {
                 cell_size_mfp: 3.0,
                 cell_depth_mfp: 0.5,
                 iirtf_paths_per_cell: 96,
+                iirtf_light_samples: 1,
                 sh_order: 2,
                 cs_theta_count: 64,
                 voxels_per_fiber_diameter: 1.75,
@@ -173,6 +182,7 @@ impl Quality {
                 cell_size_mfp: 2.5,
                 cell_depth_mfp: 0.5,
                 iirtf_paths_per_cell: 480,
+                iirtf_light_samples: 4,
                 sh_order: 4,
                 cs_theta_count: 256,
                 voxels_per_fiber_diameter: 2.0,
@@ -193,6 +203,7 @@ impl Quality {
                 cell_size_mfp: 1.0,
                 cell_depth_mfp: 1.0,
                 iirtf_paths_per_cell: 50_000,
+                iirtf_light_samples: 1,
                 sh_order: 5,
                 cs_theta_count: 512,
                 voxels_per_fiber_diameter: 2.5,
@@ -231,6 +242,7 @@ impl BakeSettings {
         check_range("cell_size_mfp", self.cell_size_mfp, 0.25, 64.0)?;
         check_range("cell_depth_mfp", self.cell_depth_mfp, 0.25, 64.0)?;
         check_count("iirtf_paths_per_cell", self.iirtf_paths_per_cell, 1, 100_000_000)?;
+        check_count("iirtf_light_samples", self.iirtf_light_samples, 1, 64)?;
         check_count("segment_transfer_paths", self.segment_transfer_paths, 0, 100_000_000)?;
         check_range("segment_pool_mfp", self.segment_pool_mfp, 0.0, 8.0)?;
         check_count("sh_order", self.sh_order, 0, crate::sh::EULER_MAX_ORDER)?;

@@ -529,6 +529,8 @@ mod tests {
             cell_size_mfp: 1.0,
             cell_depth_mfp: 1.0,
             iirtf_paths_per_cell: 16,
+            // Several light samples an event: the shards' streams must still split them alike.
+            iirtf_light_samples: 2,
             sh_order: 2,
             cs_theta_count: 8,
             voxels_per_fiber_diameter: 0.5,

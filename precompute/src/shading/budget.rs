@@ -603,7 +603,8 @@ fn transfer_sampler(scene: &Scene, baked: &Baked) -> Result<TransferSampler, Sha
     let (_, yarn_materials) = yarn_materials(&inputs)?;
     Ok(TransferSampler::new(&scene.exemplar, &yarn_materials, baked.transfer.iirtf.light_domain)
         .map_err(|e| ShadingError::Budget(format!("the transfer's sampler: {e}")))?
-        .with_exposed_starts(baked.settings.exposed_starts))
+        .with_exposed_starts(baked.settings.exposed_starts)
+        .with_light_samples(baked.settings.iirtf_light_samples))
 }
 
 /// `baked` with its IIRTF baked again holding only `part` of the transfer (same cells,

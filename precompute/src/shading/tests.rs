@@ -1280,6 +1280,7 @@ fn tiny_baked() -> &'static Baked {
             cell_size_mfp: 16.0,
             cell_depth_mfp: 16.0,
             iirtf_paths_per_cell: 16,
+            iirtf_light_samples: 1,
             sh_order: 2,
             cs_theta_count: 16,
             voxels_per_fiber_diameter: 0.5,

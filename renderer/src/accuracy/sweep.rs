@@ -161,6 +161,7 @@ pub enum Knob {
     SosCount,
     SosSharpness,
     IirtfPaths,
+    LightSamples,
     CellSize,
     CellDepth,
     Spp,
@@ -175,7 +176,7 @@ pub enum Knob {
 }
 
 impl Knob {
-    pub const ALL: [Knob; 17] = [
+    pub const ALL: [Knob; 18] = [
         Knob::ShOrder,
         Knob::PcaComponents,
         Knob::VisibilityBits,
@@ -184,6 +185,7 @@ impl Knob {
         Knob::SosCount,
         Knob::SosSharpness,
         Knob::IirtfPaths,
+        Knob::LightSamples,
         Knob::CellSize,
         Knob::CellDepth,
         Knob::Spp,
@@ -207,6 +209,7 @@ impl Knob {
             Self::SosCount => "sos_count",
             Self::SosSharpness => "sos_sharpness",
             Self::IirtfPaths => "iirtf_paths_per_cell",
+            Self::LightSamples => "iirtf_light_samples",
             Self::CellSize => "cell_size_mfp",
             Self::CellDepth => "cell_depth_mfp",
             Self::Spp => "spp",
@@ -251,6 +254,7 @@ impl Knob {
             Self::SosCount => vec![4.0, 8.0, 16.0, 32.0],
             Self::SosSharpness => vec![16.0, 32.0, 64.0, 256.0],
             Self::IirtfPaths => vec![24.0, 48.0, 96.0, 192.0, 384.0],
+            Self::LightSamples => vec![1.0, 2.0, 4.0, 8.0],
             Self::CellSize => vec![2.0, 3.0, 4.0, 6.0],
             Self::CellDepth => vec![0.25, 0.5, 1.0, 2.0],
             Self::Spp => vec![4.0, 8.0, 16.0, 32.0, 64.0],
@@ -273,6 +277,7 @@ impl Knob {
             Self::SosCount => bake.sos_count = count,
             Self::SosSharpness => bake.sos_sharpness = value,
             Self::IirtfPaths => bake.iirtf_paths_per_cell = count,
+            Self::LightSamples => bake.iirtf_light_samples = count,
             Self::CellSize => bake.cell_size_mfp = value,
             Self::CellDepth => bake.cell_depth_mfp = value,
             Self::Spp => frame.spp = count as u32,
@@ -297,6 +302,7 @@ impl Knob {
             Self::SosCount => bake.sos_count as f64,
             Self::SosSharpness => bake.sos_sharpness,
             Self::IirtfPaths => bake.iirtf_paths_per_cell as f64,
+            Self::LightSamples => bake.iirtf_light_samples as f64,
             Self::CellSize => bake.cell_size_mfp,
             Self::CellDepth => bake.cell_depth_mfp,
             Self::Spp => f64::from(frame.spp),
