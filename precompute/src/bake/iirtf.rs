@@ -2209,6 +2209,25 @@ mod tests {
         }
     }
 
+    /// The IIRTF of every cell of `grid`, with the default options and nothing cancelling it.
+    fn bake_whole(
+        exemplar: &Exemplar,
+        materials: &[Material],
+        grid: &CellGrid,
+        settings: &BakeSettings,
+    ) -> Iirtf {
+        bake_iirtf(
+            exemplar,
+            materials,
+            grid,
+            settings,
+            &IirtfOptions::default(),
+            &Cancel::new(),
+            &no_progress,
+        )
+        .unwrap()
+    }
+
     #[test]
     fn several_light_samples_an_event_estimate_the_same_transfer_with_less_noise() {
         // Each of an event's light samples carries its share, so the transfer's expectation is
@@ -2220,16 +2239,7 @@ mod tests {
         let grid = CellGrid::new(&exemplar, 0.01, 8.0, 8.0).unwrap();
         let bake_with = |light_samples| {
             let settings = BakeSettings { iirtf_light_samples: light_samples, ..small_settings(4000, 2) };
-            let iirtf = bake_iirtf(
-                &exemplar,
-                &materials,
-                &grid,
-                &settings,
-                &IirtfOptions::default(),
-                &Cancel::new(),
-                &no_progress,
-            )
-            .unwrap();
+            let iirtf = bake_whole(&exemplar, &materials, &grid, &settings);
             let (mut total, mut total_var, mut noise) = (Rgb::ZERO, Rgb::ZERO, 0.0);
             for c in iirtf.cells.iter().filter(|c| !c.is_empty()) {
                 total += glam::Vec3::from(c.matrix[0]).as_dvec3();
@@ -2310,16 +2320,7 @@ mod tests {
         let settings = small_settings(600, order);
         let bake = |fiber_lobes| {
             let settings = BakeSettings { fiber_lobes, ..settings };
-            bake_iirtf(
-                &exemplar,
-                &materials,
-                &grid,
-                &settings,
-                &IirtfOptions::default(),
-                &Cancel::new(),
-                &no_progress,
-            )
-            .unwrap()
+            bake_whole(&exemplar, &materials, &grid, &settings)
         };
         let (all, split) = (bake(false), bake(true));
         let cut = forward_lobe_min_sharpness(order);
@@ -2389,18 +2390,7 @@ mod tests {
         let settings = small_settings(300, 2);
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| {
-                bake_iirtf(
-                    &exemplar,
-                    &materials,
-                    &grid,
-                    &settings,
-                    &IirtfOptions::default(),
-                    &Cancel::new(),
-                    &no_progress,
-                )
-            })
-            .unwrap()
+            pool.install(|| bake_whole(&exemplar, &materials, &grid, &settings))
         };
         let (one, two) = (run(1), run(2));
         assert_eq!(one, two);
