@@ -88,7 +88,7 @@ pub struct BakeSettings {
     /// mostly from where its few light connections land (a cell's transfer toward one light is
     /// a handful of connections near it). At 4, the interactive bake's seed-to-seed spread in
     /// multiple scattering fell by more than doubling its paths does, for less time
-    /// (docs/BENCHMARKS.md, "Several light samples per event"). 1: one sample per event.
+    /// (docs/BENCHMARKS.md, "Several light samples an event"). 1: one sample per event.
     #[serde(default = "one")]
     pub iirtf_light_samples: usize,
     /// SH order L of the IIRTF (and of C_S, C_G): (L+1)² coefficients.
