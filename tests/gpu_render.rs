@@ -660,6 +660,8 @@ fn hard_configurations_grazing_and_backlit_stay_within_their_measured_bands() {
         configurations: 8,
         size: 12,
         reference_spp: 64,
+        reference_noise: None,
+        reference_max_spp: 64,
         method_spp: 4,
         base: Quality::Draft,
         base_bake: Quality::Draft.settings(),

@@ -171,17 +171,32 @@ fn describe_run(sweep: &Sweep) -> String {
         sweep.adapter,
         s.base.name()
     );
+    if let Some(noise) = s.reference_noise {
+        let mut spp: Vec<u32> =
+            sweep.fabrics.iter().flat_map(|f| f.configuration_spp.iter().copied()).collect();
+        spp.sort_unstable();
+        let _ = write!(
+            out,
+            " References are rendered again, doubling their samples, until each component's image mean is within {:.1}% (one standard error; a component under a quarter of all light against a quarter of all light) or {} spp: median {} spp, most {} spp.",
+            100.0 * noise,
+            s.reference_max_spp,
+            spp.get(spp.len() / 2).copied().unwrap_or(0),
+            spp.last().copied().unwrap_or(0)
+        );
+    }
     let changes = base_changes(s.base.settings(), s.base_bake);
     if !changes.is_empty() {
         let _ = write!(out, " The base's knobs changed: {}.", changes.join(", "));
     }
     for f in &sweep.fabrics {
+        let worst_noise = f.configuration_noise.iter().map(|n| n[2]).fold(0.0, f64::max);
         let _ = write!(
             out,
-            " {}: reference noise {:.2}% of the image average, {:.1}% per pixel ({} of {} loaded from the cache).",
+            " {}: reference noise {:.2}% of the image average, {:.1}% per pixel, at most {:.1}% of one configuration's image mean ({} of {} loaded from the cache).",
             f.name,
             100.0 * f.average_noise[2],
             100.0 * f.pixel_noise[2],
+            100.0 * worst_noise,
             f.loaded,
             sweep.configurations.len()
         );
@@ -483,12 +498,13 @@ fn html(sweep: &Sweep) -> Result<String> {
             let passes: Vec<String> = r.pass_ms.iter().map(|(s, t)| format!("{s} {t:.1}")).collect();
             let _ = writeln!(
                 out,
-                "<tr><td>{}</td><td>{} / {} / {}</td><td>{:+.1}%: {}</td><td>{}</td><td>{:.3}</td><td>{}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{} / {} / {}</td><td>{:+.1}% (reference ±{:.1}%): {}</td><td>{}</td><td>{:.3}</td><td>{}</td><td>{}</td></tr>",
                 escape(&f.name),
                 percent(r.errors[2].mean_relative_rmse),
                 percent(r.errors[0].mean_relative_rmse),
                 percent(r.errors[1].mean_relative_rmse),
                 100.0 * worst.worst_relative,
+                100.0 * f.configuration_noise.get(worst.worst_configuration).map_or(f64::NAN, |n| n[2]),
                 escape(&sweep.configurations[worst.worst_configuration].describe()),
                 percent(worst.pixel_relative_rmse),
                 worst.ssim,

@@ -132,8 +132,18 @@ struct ReportArgs {
     /// Square image side in pixels.
     #[arg(long, default_value_t = 32)]
     size: usize,
+    /// Samples per pixel of a reference (with `--reference-noise`, of its first pass).
     #[arg(long, default_value_t = 256)]
     reference_spp: u32,
+    /// Render each reference again with fresh seeds, doubling its samples, until the standard
+    /// error of each component's image mean (single and multiple scattering) is at most this
+    /// fraction of it; a component under a quarter of all light is held to a quarter of all
+    /// light (0: `--reference-spp` samples for every configuration).
+    #[arg(long, default_value_t = 0.02)]
+    reference_noise: f64,
+    /// The most samples per pixel a reference takes toward `--reference-noise`.
+    #[arg(long, default_value_t = 16384)]
+    reference_max_spp: u32,
     /// Samples per pixel of the method's frames.
     #[arg(long, default_value_t = 16)]
     spp: u32,
@@ -597,6 +607,8 @@ fn run(cli: Cli) -> Result<()> {
                     configurations: report.configurations,
                     size: report.size,
                     reference_spp: report.reference_spp,
+                    reference_noise: (report.reference_noise != 0.0).then_some(report.reference_noise),
+                    reference_max_spp: report.reference_max_spp,
                     method_spp: report.spp,
                     base: quality_of(report.base),
                     base_bake: commands::apply_overrides(

@@ -127,6 +127,24 @@ impl Film {
         Image { width: self.width, height: self.height, pixels }
     }
 
+    /// Adds the samples of `other`, a film of the same size whose samples are independent of
+    /// this one's (another seed): the result is the film of both sets of samples.
+    ///
+    /// # Panics
+    /// When the sizes differ.
+    pub fn merge(&mut self, other: &Film) {
+        assert_eq!((self.width, self.height), (other.width, other.height), "Film::merge: sizes differ");
+        for (a, b) in self.sum.iter_mut().zip(&other.sum) {
+            *a += *b;
+        }
+        for (a, b) in self.sum_sq.iter_mut().zip(&other.sum_sq) {
+            *a += *b;
+        }
+        for (a, b) in self.count.iter_mut().zip(&other.count) {
+            *a += *b;
+        }
+    }
+
     /// Clamps each pixel's mean at zero per channel (a negative sum becomes zero). The sums of
     /// squares stay, so [`Film::variance_of_mean`] of a clamped pixel is its samples' second
     /// moment about zero: no smaller than their variance.
@@ -270,6 +288,21 @@ mod tests {
         // Sample variance of 1..4 is 5/3; variance of the mean is that over 4.
         let v = film.variance_of_mean().get(0, 0).x;
         assert!((v - 5.0 / 12.0).abs() < 1e-12, "{v}");
+    }
+
+    #[test]
+    fn a_merged_film_is_the_film_of_both_sample_sets() {
+        let samples = [1.0, 2.0, 3.0, 4.0, 10.0, -2.0];
+        let (mut first, mut second, mut whole) = (Film::new(1, 1), Film::new(1, 1), Film::new(1, 1));
+        for (i, &v) in samples.iter().enumerate() {
+            (if i < 2 { &mut first } else { &mut second }).add(0, 0, Rgb::splat(v));
+            whole.add(0, 0, Rgb::splat(v));
+        }
+        first.merge(&second);
+        assert_eq!(first.samples_at(0, 0), 6);
+        assert_eq!(first.mean().get(0, 0), whole.mean().get(0, 0));
+        let (merged, direct) = (first.variance_of_mean().get(0, 0).x, whole.variance_of_mean().get(0, 0).x);
+        assert!((merged - direct).abs() < 1e-12 * direct, "{merged} against {direct}");
     }
 
     #[test]

@@ -54,7 +54,14 @@ use crate::plan::Components;
 
 /// Bump when the path tracer's output for the same inputs changes: cached references made by
 /// older code are then rendered again.
-pub const REFERENCE_VERSION: u32 = 1;
+pub const REFERENCE_VERSION: u32 = 2;
+
+/// The most samples per pixel a reference may take (`SweepSettings::reference_max_spp`).
+pub const MAX_REFERENCE_SPP: u32 = 1 << 20;
+
+/// In a reference's stopping rule, the share of all light below which a component is held to
+/// that share instead of to its own mean (`SweepSettings::reference_noise`).
+const DIM_COMPONENT_SHARE: f64 = 0.25;
 
 /// One light/view pair, with the kind of case it is.
 #[derive(Debug, Clone, Copy)]
@@ -338,7 +345,16 @@ pub struct SweepSettings {
     pub configurations: usize,
     /// Square image side in pixels.
     pub size: usize,
+    /// Samples per pixel of a reference (with `reference_noise`, of its first pass).
     pub reference_spp: u32,
+    /// The noise a reference is rendered down to: passes with fresh seeds, each doubling its
+    /// samples, until the standard error of each component's image mean is at most this
+    /// fraction of that mean ([`reference_noise`]; a component under a quarter of all light is
+    /// held to a quarter of all light), or until `reference_max_spp`. `None`: `reference_spp`
+    /// samples for every configuration.
+    pub reference_noise: Option<f64>,
+    /// The most samples per pixel a reference takes toward `reference_noise`.
+    pub reference_max_spp: u32,
     /// Samples per pixel of the method's frames (the `spp` knob overrides it).
     pub method_spp: u32,
     /// The preset the knobs vary around.
@@ -368,6 +384,19 @@ impl SweepSettings {
         }
         if self.reference_spp == 0 || self.method_spp == 0 {
             return bad("reference and method spp must be at least 1".into());
+        }
+        if let Some(noise) = self.reference_noise {
+            if !(noise.is_finite() && noise > 0.0 && noise < 1.0) {
+                return bad(format!(
+                    "reference noise {noise}: must be in (0, 1), a fraction of the image mean"
+                ));
+            }
+            if !(self.reference_spp..=MAX_REFERENCE_SPP).contains(&self.reference_max_spp) {
+                return bad(format!(
+                    "reference max spp {}: must be in {}..={MAX_REFERENCE_SPP} (at least the reference spp)",
+                    self.reference_max_spp, self.reference_spp
+                ));
+            }
         }
         if self.presets.is_empty() && self.knobs.is_empty() {
             return bad("nothing to measure: give at least one preset or knob".into());
@@ -424,11 +453,34 @@ pub struct Reference {
     pub single_variance: Image,
     pub multiple: Image,
     pub multiple_variance: Image,
+    /// Samples per pixel it was rendered with.
+    pub spp: u32,
     /// Seconds it took to render (when it was rendered, not loaded).
     pub seconds: f64,
 }
 
 impl Reference {
+    /// The standard error of `c`'s image mean relative to that mean ([`reference_noise`]).
+    #[must_use]
+    pub fn relative_noise(&self, c: ReportComponent) -> f64 {
+        let (mean, variance) = self.component(c);
+        let (noise, magnitude) = reference_noise(&mean, &variance);
+        if magnitude > 0.0 { noise / magnitude } else { 0.0 }
+    }
+
+    /// Whether every component is as precise as `target` asks (`SweepSettings::reference_noise`).
+    fn meets(&self, target: f64) -> bool {
+        let (_, all) = {
+            let (mean, variance) = self.component(ReportComponent::All);
+            reference_noise(&mean, &variance)
+        };
+        [ReportComponent::Single, ReportComponent::Multiple].into_iter().all(|c| {
+            let (mean, variance) = self.component(c);
+            let (noise, magnitude) = reference_noise(&mean, &variance);
+            noise <= target * magnitude.max(DIM_COMPONENT_SHARE * all)
+        })
+    }
+
     fn component(&self, c: ReportComponent) -> (Image, Image) {
         match c {
             ReportComponent::Single => (self.single.clone(), self.single_variance.clone()),
@@ -456,6 +508,16 @@ fn sub(a: &Image, b: &Image) -> Image {
     }
 }
 
+/// The standard error of an image's mean over pixels, from each pixel's variance of its mean,
+/// and the magnitude of that mean: both per channel, the channels averaged (the standard error
+/// as an RMS over channels).
+#[must_use]
+pub fn reference_noise(mean: &Image, variance: &Image) -> (f64, f64) {
+    let pixels = variance.pixels.len().max(1) as f64;
+    let variance_sum = variance.pixels.iter().map(|v| v.element_sum()).sum::<f64>() / 3.0;
+    ((variance_sum).sqrt() / pixels, mean.mean().element_sum().abs() / 3.0)
+}
+
 /// Path-traced references on disk: one file per fabric and configuration.
 #[derive(Debug)]
 pub struct ReferenceCache {
@@ -471,14 +533,7 @@ impl ReferenceCache {
         Ok(Self { dir: dir.to_owned() })
     }
 
-    fn key(
-        scene: &Scene,
-        config: &HardConfiguration,
-        size: usize,
-        spp: u32,
-        max_depth: u32,
-        seed: u64,
-    ) -> ContentHash {
+    fn key(scene: &Scene, config: &HardConfiguration, settings: &SweepSettings, seed: u64) -> ContentHash {
         let mut h = Hasher::new("twill.accuracy.reference");
         h.u32(REFERENCE_VERSION).exemplar(&scene.exemplar);
         for m in &scene.material_descs {
@@ -494,7 +549,11 @@ impl ReferenceCache {
                 h.u32(1).f64s(&axis.to_array()).f64(sharpness).f64s(&intensity.to_array());
             }
         }
-        h.usize(size).u32(spp).u32(max_depth).u64(seed);
+        h.usize(settings.size).u32(settings.reference_spp).u32(settings.max_depth).u64(seed);
+        match settings.reference_noise {
+            Some(noise) => h.u32(1).f64(noise).u32(settings.reference_max_spp),
+            None => h.u32(0),
+        };
         h.finish()
     }
 
@@ -507,7 +566,9 @@ impl ReferenceCache {
         let mut bytes = Vec::new();
         std::fs::File::open(self.path(key)).ok()?.read_to_end(&mut bytes).ok()?;
         let images = 4 * size * size * 3 * 4;
-        if bytes.len() != 8 + 32 + 8 + images + 32 || &bytes[..8] != REFERENCE_MAGIC || bytes[8..40] != key.0
+        if bytes.len() != 8 + 32 + 8 + 4 + images + 32
+            || &bytes[..8] != REFERENCE_MAGIC
+            || bytes[8..40] != key.0
         {
             return None;
         }
@@ -516,8 +577,9 @@ impl ReferenceCache {
             return None;
         }
         let seconds = f64::from_le_bytes(payload[40..48].try_into().ok()?);
+        let spp = u32::from_le_bytes(payload[48..52].try_into().ok()?);
         let mut floats =
-            payload[48..].chunks_exact(4).map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])));
+            payload[52..].chunks_exact(4).map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])));
         let mut image = || {
             let mut out = Image::new(size, size);
             for p in &mut out.pixels {
@@ -530,6 +592,7 @@ impl ReferenceCache {
             single_variance: image()?,
             multiple: image()?,
             multiple_variance: image()?,
+            spp,
             seconds,
         })
     }
@@ -539,6 +602,7 @@ impl ReferenceCache {
         payload.extend_from_slice(REFERENCE_MAGIC);
         payload.extend_from_slice(&key.0);
         payload.extend_from_slice(&reference.seconds.to_le_bytes());
+        payload.extend_from_slice(&reference.spp.to_le_bytes());
         for image in
             [&reference.single, &reference.single_variance, &reference.multiple, &reference.multiple_variance]
         {
@@ -656,11 +720,19 @@ impl Point {
     /// The worst configuration's relative error of all light over every fabric (signed).
     #[must_use]
     pub fn worst_error(&self) -> f64 {
+        self.worst().0
+    }
+
+    /// The worst configuration of all light over every fabric: its relative error (signed),
+    /// its fabric's index and its index.
+    #[must_use]
+    pub fn worst(&self) -> (f64, usize, usize) {
         self.fabrics
             .iter()
-            .map(|f| f.errors[2].worst_relative)
-            .max_by(|a, b| a.abs().total_cmp(&b.abs()))
-            .unwrap_or(0.0)
+            .enumerate()
+            .map(|(i, f)| (f.errors[2].worst_relative, i, f.errors[2].worst_configuration))
+            .max_by(|a, b| a.0.abs().total_cmp(&b.0.abs()))
+            .unwrap_or((0.0, 0, 0))
     }
 
     /// Fig. 13 error of all light, averaged over fabrics.
@@ -701,6 +773,11 @@ pub struct FabricReferences {
     /// Reference noise relative to `rms`: image average and per pixel, per component.
     pub average_noise: [f64; 3],
     pub pixel_noise: [f64; 3],
+    /// Each configuration's reference noise: the standard error of its image mean relative to
+    /// that mean ([`Reference::relative_noise`]), per component.
+    pub configuration_noise: Vec<[f64; 3]>,
+    /// Each configuration's reference samples per pixel.
+    pub configuration_spp: Vec<u32>,
     /// The example configurations' reference images (all light).
     pub images: Vec<Image>,
 }
@@ -781,18 +858,22 @@ pub fn ssim(image: &Image, reference: &Image) -> f64 {
     total / count.max(1) as f64
 }
 
-/// Errors of one component over all configurations: `images[i]` against reference `i`.
+/// Errors of one component over all configurations: `images[i]` against reference `i`,
+/// rendered with `reference_spp[i]` samples per pixel.
 fn component_errors(
     images: &[Image],
     references: &[(Image, Image)],
-    spp_of_reference: u32,
+    reference_spp: &[u32],
 ) -> (ComponentErrors, Vec<(f64, f64, DVec3)>) {
     let n = images.len().max(1) as f64;
     let (mut avg_sq, mut ref_sq, mut avg_noise, mut pixel_sq, mut pixel_noise, mut ssim_sum) =
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    // The per-pixel variance of one path-traced sample, summed over configurations.
+    let mut sample_variance = 0.0;
     let mut relative = Vec::with_capacity(images.len());
-    for (image, (reference, variance)) in images.iter().zip(references) {
+    for ((image, (reference, variance)), &spp) in images.iter().zip(references).zip(reference_spp) {
         let (mean, ref_mean, mse, noise, s) = compare(image, reference, variance);
+        sample_variance += noise * f64::from(spp);
         avg_sq += (mean - ref_mean).length_squared() / 3.0;
         ref_sq += ref_mean.length_squared() / 3.0;
         let pixels = variance.pixels.len().max(1) as f64;
@@ -821,12 +902,8 @@ fn component_errors(
         worst_relative: worst.1,
         worst_configuration: worst.0,
         pixel_relative_rmse: pixel_excess.sqrt() / rms,
-        // The reference's per-pixel variance at its spp times that spp: one sample's variance.
-        equal_error_spp: if pixel_excess > 0.0 {
-            pixel_noise / n * f64::from(spp_of_reference) / pixel_excess
-        } else {
-            f64::INFINITY
-        },
+        // Each reference's per-pixel variance at its spp times that spp: one sample's variance.
+        equal_error_spp: if pixel_excess > 0.0 { sample_variance / n / pixel_excess } else { f64::INFINITY },
         ssim: ssim_sum / n,
     };
     (errors, relative)
@@ -1001,11 +1078,11 @@ fn reference_set(
         scene.camera = camera_for(config.view);
         scene.path_scene.lights = vec![config.light];
         let seed = 1 + index as u64;
-        let key = ReferenceCache::key(scene, config, size, settings.reference_spp, settings.max_depth, seed);
+        let key = ReferenceCache::key(scene, config, settings, seed);
         if let Some(reference) = cache.load(key, size) {
             loaded += 1;
             seconds += reference.seconds;
-            rendered_spp += u64::from(settings.reference_spp);
+            rendered_spp += u64::from(reference.spp);
             out.push(reference);
             continue;
         }
@@ -1018,25 +1095,40 @@ fn reference_set(
         ));
         let camera = camera_from(&scene.camera, size, size)?;
         let started = Instant::now();
-        let render = |component| {
-            let s = RenderSettings {
-                spp: settings.reference_spp,
-                max_depth: settings.max_depth,
-                component,
-                seed,
-            };
+        let render = |component, spp, pass: u64| {
+            // Pass 0 keeps the configuration's seed (a reference without a noise target is
+            // that pass alone); later passes draw from streams of their own.
+            let seed = seed ^ pass.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            let s = RenderSettings { spp, max_depth: settings.max_depth, component, seed };
             pathtrace::render(&scene.path_scene, &camera, &s, &|_| {})
         };
-        let (single, multiple) = (render(Component::Single), render(Component::Multiple));
-        let reference = Reference {
-            single: single.mean(),
-            single_variance: single.variance_of_mean(),
-            multiple: multiple.mean(),
-            multiple_variance: multiple.variance_of_mean(),
-            seconds: started.elapsed().as_secs_f64(),
+        let (mut single, mut multiple) = (
+            render(Component::Single, settings.reference_spp, 0),
+            render(Component::Multiple, settings.reference_spp, 0),
+        );
+        let mut spp = settings.reference_spp;
+        let reference = loop {
+            let reference = Reference {
+                single: single.mean(),
+                single_variance: single.variance_of_mean(),
+                multiple: multiple.mean(),
+                multiple_variance: multiple.variance_of_mean(),
+                spp,
+                seconds: started.elapsed().as_secs_f64(),
+            };
+            let Some(target) = settings.reference_noise else { break reference };
+            // Doubling: the next pass takes as many samples as all before it, within the cap.
+            let more = spp.min(settings.reference_max_spp - spp);
+            if more == 0 || reference.meets(target) {
+                break reference;
+            }
+            let pass = u64::from(spp / settings.reference_spp);
+            single.merge(&render(Component::Single, more, pass));
+            multiple.merge(&render(Component::Multiple, more, pass));
+            spp += more;
         };
         seconds += reference.seconds;
-        rendered_spp += u64::from(settings.reference_spp);
+        rendered_spp += u64::from(reference.spp);
         cache.store(key, &reference).map_err(|e| {
             AccuracyError::Settings(format!("{}: could not store a reference: {e}", cache.dir.display()))
         })?;
@@ -1061,6 +1153,8 @@ fn reference_set(
         pixel_noise[c] = (px_var / n).sqrt() / rms[c].max(1e-300);
     }
     let images = out.iter().take(settings.example_images).map(|r| add(&r.single, &r.multiple)).collect();
+    let configuration_noise = out.iter().map(|r| ReportComponent::ALL.map(|c| r.relative_noise(c))).collect();
+    let configuration_spp = out.iter().map(|r| r.spp).collect();
     let summary = FabricReferences {
         name: fabric.name.clone(),
         path_seconds_per_spp: seconds / (rendered_spp.max(1) as f64),
@@ -1068,6 +1162,8 @@ fn reference_set(
         rms,
         average_noise,
         pixel_noise,
+        configuration_noise,
+        configuration_spp,
         images,
     };
     Ok((out, summary))
@@ -1082,7 +1178,7 @@ struct Summary {
     configuration_channel_errors: Vec<[DVec3; 3]>,
 }
 
-fn summarize(all: &[Image], single: &[Image], references: &[Reference], settings: &SweepSettings) -> Summary {
+fn summarize(all: &[Image], single: &[Image], references: &[Reference]) -> Summary {
     let multiple: Vec<Image> = all.iter().zip(single).map(|(a, s)| sub(a, s)).collect();
     let mut errors = [ComponentErrors::default(); 3];
     let mut per_config = vec![[0.0; 3]; all.len()];
@@ -1091,7 +1187,8 @@ fn summarize(all: &[Image], single: &[Image], references: &[Reference], settings
     for (c, (component, images)) in ReportComponent::ALL.into_iter().zip([single, &multiple, all]).enumerate()
     {
         let refs: Vec<(Image, Image)> = references.iter().map(|r| r.component(component)).collect();
-        let (e, relative) = component_errors(images, &refs, settings.reference_spp);
+        let spp: Vec<u32> = references.iter().map(|r| r.spp).collect();
+        let (e, relative) = component_errors(images, &refs, &spp);
         errors[c] = e;
         for (((row, means), channels), (r, mean, channel)) in
             per_config.iter_mut().zip(&mut reference_means).zip(&mut per_channel).zip(relative)
@@ -1144,7 +1241,7 @@ fn gpu_fabric(
         single.push(session.render(scene, &single_frame)?.radiance_image());
     }
     let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
-        summarize(&all, &single, references, settings);
+        summarize(&all, &single, references);
     Ok(FabricResult {
         stage_seconds,
         frame_seconds: median(&mut wall),
@@ -1181,7 +1278,7 @@ fn cpu_fabric(
         single.push(s);
     }
     let Summary { errors, configuration_errors, configuration_reference_means, configuration_channel_errors } =
-        summarize(&all, &single, references, settings);
+        summarize(&all, &single, references);
     Ok(FabricResult {
         stage_seconds,
         frame_seconds: median(&mut wall),
@@ -1323,7 +1420,7 @@ impl Sweep {
     #[must_use]
     pub fn configurations_csv(&self) -> String {
         let mut out = String::from(
-            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel,single_reference,multiple_reference,all_reference,single_rel_rgb,multiple_rel_rgb,all_rel_rgb\n",
+            "fabric,point,method,configuration,class,view_deg,light,sharpness,light_deg,azimuth_apart_deg,single_rel,multiple_rel,all_rel,single_reference,multiple_reference,all_reference,single_rel_rgb,multiple_rel_rgb,all_rel_rgb,single_reference_noise,multiple_reference_noise,all_reference_noise,reference_spp\n",
         );
         let channels = |e: DVec3| format!("{:.5}/{:.5}/{:.5}", e.x, e.y, e.z);
         for point in &self.points {
@@ -1340,9 +1437,10 @@ impl Sweep {
                         Light::Sg { sharpness, .. } => ("sg", format!("{sharpness:.2}")),
                     };
                     let l = c.light_direction();
+                    let noise = fabric.configuration_noise.get(i).copied().unwrap_or([f64::NAN; 3]);
                     let _ = writeln!(
                         out,
-                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5},{:.6e},{:.6e},{:.6e},{},{},{}",
+                        "{},{},{method},{i},{},{:.1},{kind},{sharpness},{:.1},{:.1},{:.5},{:.5},{:.5},{:.6e},{:.6e},{:.6e},{},{},{},{:.5},{:.5},{:.5},{}",
                         fabric.name,
                         point.label.replace(',', ";"),
                         c.class.replace(',', ";"),
@@ -1357,7 +1455,11 @@ impl Sweep {
                         m[2],
                         channels(rgb[0]),
                         channels(rgb[1]),
-                        channels(rgb[2])
+                        channels(rgb[2]),
+                        noise[0],
+                        noise[1],
+                        noise[2],
+                        fabric.configuration_spp.get(i).copied().unwrap_or(0)
                     );
                 }
             }
@@ -1373,10 +1475,15 @@ impl Sweep {
         );
         for p in self.points.iter().filter(|p| matches!(p.kind, PointKind::Preset(_))) {
             let mean = |c: usize, f: fn(&ComponentErrors) -> f64| p.mean_over_fabrics(|r| f(&r.errors[c]));
-            let worst = p.worst_error();
+            let (worst, fabric, configuration) = p.worst();
+            let worst_noise = self
+                .fabrics
+                .get(fabric)
+                .and_then(|f| f.configuration_noise.get(configuration))
+                .map_or(f64::NAN, |n| n[2]);
             let _ = writeln!(
                 out,
-                "| {} | {} | {:.1}% / {:.1}% / {:.1}% | {:+.1}% | {:.1}% | {:.0} spp | {:.3} | {:.0} ms | {:.1} s |",
+                "| {} | {} | {:.1}% / {:.1}% / {:.1}% | {:+.1}% (reference ±{:.1}%) | {:.1}% | {:.0} spp | {:.3} | {:.0} ms | {:.1} s |",
                 p.label.trim_start_matches("preset "),
                 match p.method {
                     Method::Gpu => "GPU",
@@ -1386,6 +1493,7 @@ impl Sweep {
                 100.0 * mean(0, |e| e.mean_relative_rmse),
                 100.0 * mean(1, |e| e.mean_relative_rmse),
                 100.0 * worst,
+                100.0 * worst_noise,
                 100.0 * mean(2, |e| e.pixel_relative_rmse),
                 mean(2, |e| e.equal_error_spp),
                 mean(2, |e| e.ssim),
@@ -1452,10 +1560,10 @@ mod tests {
     fn component_errors_subtract_reference_noise_and_find_the_worst_configuration() {
         let image = |v: f64| Image { width: 2, height: 2, pixels: vec![Rgb::splat(v); 4] };
         let references = vec![(image(1.0), image(0.0)), (image(2.0), image(0.0))];
-        let (exact, _) = component_errors(&[image(1.0), image(2.0)], &references, 16);
+        let (exact, _) = component_errors(&[image(1.0), image(2.0)], &references, &[16, 16]);
         assert!(exact.mean_relative_rmse.abs() < 1e-15 && exact.pixel_relative_rmse.abs() < 1e-15);
         assert!(exact.equal_error_spp.is_infinite());
-        let (biased, relative) = component_errors(&[image(1.1), image(1.0)], &references, 16);
+        let (biased, relative) = component_errors(&[image(1.1), image(1.0)], &references, &[16, 16]);
         assert_eq!(biased.worst_configuration, 1);
         assert!((biased.worst_relative + 0.5).abs() < 1e-12);
         assert!((relative[0].0 - 0.1).abs() < 1e-12);
@@ -1465,9 +1573,97 @@ mod tests {
         assert!((biased.mean_relative_rmse - (1.01f64 / 5.0).sqrt()).abs() < 1e-12);
         // Noise in the reference is not counted as error.
         let noisy = vec![(image(1.0), image(0.01)), (image(2.0), image(0.01))];
-        let (with_noise, _) = component_errors(&[image(1.1), image(2.1)], &noisy, 16);
+        let (with_noise, _) = component_errors(&[image(1.1), image(2.1)], &noisy, &[16, 16]);
         assert!(with_noise.pixel_relative_rmse < biased.pixel_relative_rmse);
         assert!(with_noise.pixel_relative_rmse < 1e-6, "{}", with_noise.pixel_relative_rmse);
+        // The equal-error spp weighs each reference's variance by its own spp: a pixel error
+        // of 0.1 against one sample's variance (0.01 · 16 + 0.0025 · 64) / 2 = 0.16.
+        let unequal = vec![(image(1.0), image(0.01)), (image(2.0), image(0.0025))];
+        let (e, _) = component_errors(&[image(1.0 + 0.1), image(2.0 + 0.1)], &unequal, &[16, 64]);
+        let excess = 0.01 - f64::midpoint(0.01, 0.0025);
+        assert!(
+            (e.equal_error_spp - 0.16 / excess).abs() < 1e-9 * e.equal_error_spp,
+            "{}",
+            e.equal_error_spp
+        );
+    }
+
+    #[test]
+    fn a_reference_meets_its_noise_target_on_each_component_a_dim_one_against_a_quarter_of_all() {
+        let image = |v: f64| Image { width: 2, height: 2, pixels: vec![Rgb::splat(v); 4] };
+        // Standard error of a 2x2 image's mean with each pixel's variance of its mean v: √(4v)/4.
+        let reference = |single: f64, single_var: f64, multiple: f64, multiple_var: f64| Reference {
+            single: image(single),
+            single_variance: image(single_var),
+            multiple: image(multiple),
+            multiple_variance: image(multiple_var),
+            spp: 16,
+            seconds: 0.0,
+        };
+        // Single 1 ± 0.01, multiple 1 ± 0.05.
+        let r = reference(1.0, 4e-4, 1.0, 1e-2);
+        assert!((r.relative_noise(ReportComponent::Single) - 0.01).abs() < 1e-12);
+        assert!((r.relative_noise(ReportComponent::Multiple) - 0.05).abs() < 1e-12);
+        assert!(r.meets(0.0501) && !r.meets(0.0499), "the noisier component decides");
+        // Multiple 0.01 ± 0.005 beside single 1: 50% of itself, but 2% of a quarter of all light.
+        let dim = reference(1.0, 0.0, 0.01, 1e-4);
+        assert!((dim.relative_noise(ReportComponent::Multiple) - 0.5).abs() < 1e-12);
+        let quarter = 0.005 / (0.25 * 1.01);
+        assert!(dim.meets(quarter * 1.001) && !dim.meets(quarter * 0.999));
+    }
+
+    #[test]
+    fn a_stored_reference_loads_with_its_spp_and_a_damaged_file_is_rendered_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ReferenceCache::new(dir.path()).unwrap();
+        let image = |v: f64| Image { width: 4, height: 4, pixels: vec![Rgb::new(v, 2.0 * v, 0.5); 16] };
+        let reference = Reference {
+            single: image(1.0),
+            single_variance: image(0.01),
+            multiple: image(2.0),
+            multiple_variance: image(0.02),
+            spp: 1536,
+            seconds: 3.5,
+        };
+        let key = Hasher::new("test").u32(7).finish();
+        cache.store(key, &reference).unwrap();
+        let loaded = cache.load(key, 4).expect("the stored reference loads");
+        assert_eq!((loaded.spp, loaded.seconds), (1536, 3.5));
+        assert_eq!(loaded.multiple.pixels, reference.multiple.pixels);
+        assert!(cache.load(key, 5).is_none(), "another size is another file layout");
+        assert!(cache.load(Hasher::new("test").u32(8).finish(), 4).is_none());
+        let path = cache.path(key);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[60] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(cache.load(key, 4).is_none(), "a checksum that does not match is not trusted");
+    }
+
+    #[test]
+    fn a_reference_noise_target_outside_its_range_is_refused_with_the_range() {
+        let settings = |noise: Option<f64>, max_spp: u32| SweepSettings {
+            configurations: 4,
+            size: 8,
+            reference_spp: 64,
+            reference_noise: noise,
+            reference_max_spp: max_spp,
+            method_spp: 4,
+            base: Quality::Draft,
+            base_bake: Quality::Draft.settings(),
+            presets: vec![Quality::Draft],
+            knobs: Vec::new(),
+            cpu_method: false,
+            max_depth: 8,
+            example_images: 0,
+        };
+        assert!(settings(None, 0).validate().is_ok(), "without a target the cap is not read");
+        assert!(settings(Some(0.02), 4096).validate().is_ok());
+        for (noise, max_spp) in
+            [(0.0, 4096), (1.0, 4096), (f64::NAN, 4096), (0.02, 32), (0.02, MAX_REFERENCE_SPP + 1)]
+        {
+            let message = settings(Some(noise), max_spp).validate().unwrap_err().to_string();
+            assert!(message.contains("(0, 1)") || message.contains("64..="), "{noise} {max_spp}: {message}");
+        }
     }
 
     #[test]
