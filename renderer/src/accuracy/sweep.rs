@@ -8,9 +8,14 @@
 //!   SG with λ log-uniform in [2, 2000]; every light delivers 1 in every channel.
 //! - References ([`ReferenceCache`]): per fabric and configuration the path tracer renders
 //!   single and multiple scattering separately (all light is their sum), keeping each pixel's
-//!   mean and the variance of that mean. They are stored in `DIR/references/` under a key
-//!   hashed from everything they depend on (fabric geometry, materials, camera, light, size,
-//!   spp, depth, seed, [`REFERENCE_VERSION`]), with a checksum; a file that does not match is
+//!   mean and the variance of that mean. With a noise target
+//!   ([`SweepSettings::reference_noise`]) a reference is rendered again with fresh seeds,
+//!   doubling its samples, until the standard error of each component's image mean is within
+//!   the target (`Reference::meets`) or the samples reach a cap, so that each configuration's
+//!   own error is measured, not only the Fig. 13 figure (whose noise is subtracted). They are
+//!   stored in `DIR/references/` under a key hashed from everything they depend on (fabric
+//!   geometry, materials, camera, light, size, spp, noise target, depth, seed,
+//!   [`REFERENCE_VERSION`]), with their spp and a checksum; a file that does not match is
 //!   rendered again, never trusted.
 //! - Points ([`Point`]): the quality presets, and one bake knob or frame setting at a time
 //!   varied around the base preset ([`Knob`]). Each point bakes every fabric through one stage
