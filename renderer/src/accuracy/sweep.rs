@@ -354,7 +354,7 @@ pub struct SweepSettings {
     pub reference_spp: u32,
     /// The noise a reference is rendered down to: passes with fresh seeds, each doubling its
     /// samples, until the standard error of each component's image mean is at most this
-    /// fraction of that mean ([`reference_noise`]; a component under a quarter of all light is
+    /// fraction of that mean ([`image_mean_noise`]; a component under a quarter of all light is
     /// held to a quarter of all light), or until `reference_max_spp`. `None`: `reference_spp`
     /// samples for every configuration.
     pub reference_noise: Option<f64>,
@@ -465,23 +465,24 @@ pub struct Reference {
 }
 
 impl Reference {
-    /// The standard error of `c`'s image mean relative to that mean ([`reference_noise`]).
+    /// The standard error of `c`'s image mean and that mean's magnitude ([`image_mean_noise`]).
+    fn noise(&self, c: ReportComponent) -> (f64, f64) {
+        let (mean, variance) = self.component(c);
+        image_mean_noise(&mean, &variance)
+    }
+
+    /// The standard error of `c`'s image mean relative to that mean.
     #[must_use]
     pub fn relative_noise(&self, c: ReportComponent) -> f64 {
-        let (mean, variance) = self.component(c);
-        let (noise, magnitude) = reference_noise(&mean, &variance);
+        let (noise, magnitude) = self.noise(c);
         if magnitude > 0.0 { noise / magnitude } else { 0.0 }
     }
 
     /// Whether every component is as precise as `target` asks (`SweepSettings::reference_noise`).
     fn meets(&self, target: f64) -> bool {
-        let (_, all) = {
-            let (mean, variance) = self.component(ReportComponent::All);
-            reference_noise(&mean, &variance)
-        };
+        let (_, all) = self.noise(ReportComponent::All);
         [ReportComponent::Single, ReportComponent::Multiple].into_iter().all(|c| {
-            let (mean, variance) = self.component(c);
-            let (noise, magnitude) = reference_noise(&mean, &variance);
+            let (noise, magnitude) = self.noise(c);
             noise <= target * magnitude.max(DIM_COMPONENT_SHARE * all)
         })
     }
@@ -516,11 +517,10 @@ fn sub(a: &Image, b: &Image) -> Image {
 /// The standard error of an image's mean over pixels, from each pixel's variance of its mean,
 /// and the magnitude of that mean: both per channel, the channels averaged (the standard error
 /// as an RMS over channels).
-#[must_use]
-pub fn reference_noise(mean: &Image, variance: &Image) -> (f64, f64) {
+fn image_mean_noise(mean: &Image, variance: &Image) -> (f64, f64) {
     let pixels = variance.pixels.len().max(1) as f64;
     let variance_sum = variance.pixels.iter().map(|v| v.element_sum()).sum::<f64>() / 3.0;
-    ((variance_sum).sqrt() / pixels, mean.mean().element_sum().abs() / 3.0)
+    (variance_sum.sqrt() / pixels, mean.mean().element_sum().abs() / 3.0)
 }
 
 /// Path-traced references on disk: one file per fabric and configuration.
@@ -1189,10 +1189,10 @@ fn summarize(all: &[Image], single: &[Image], references: &[Reference]) -> Summa
     let mut per_config = vec![[0.0; 3]; all.len()];
     let mut reference_means = vec![[0.0; 3]; all.len()];
     let mut per_channel = vec![[DVec3::ZERO; 3]; all.len()];
+    let spp: Vec<u32> = references.iter().map(|r| r.spp).collect();
     for (c, (component, images)) in ReportComponent::ALL.into_iter().zip([single, &multiple, all]).enumerate()
     {
         let refs: Vec<(Image, Image)> = references.iter().map(|r| r.component(component)).collect();
-        let spp: Vec<u32> = references.iter().map(|r| r.spp).collect();
         let (e, relative) = component_errors(images, &refs, &spp);
         errors[c] = e;
         for (((row, means), channels), (r, mean, channel)) in
